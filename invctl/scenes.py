@@ -1,0 +1,80 @@
+"""Finding scenes (``problems/<name>.py``) by name or by path.
+
+A scene module declares what it needs and nothing else:
+
+``PARAMS``
+    dict of default parameter values;
+``DERIVED`` (optional)
+    dict name -> rule for derived parameters;
+``build(**overrides)``
+    returns the scene's model object;
+``COMMANDS``
+    dict command name (``analyze``, ``invert``, ``simulate``, ``design``,
+    ``study``) -> handler ``handler(params: dict, **options) -> CommandResult``.
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import pkgutil
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from .errors import SceneError
+
+
+@dataclass
+class CommandResult:
+    """What a scene command returns: a readable report and JSON-able data."""
+
+    text: str
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+def available_scenes() -> list[str]:
+    """Names of the scenes shipped in ``problems/``."""
+    import problems
+
+    return sorted(m.name for m in pkgutil.iter_modules(problems.__path__) if not m.name.startswith("_"))
+
+
+def load_scene(name_or_path: str) -> ModuleType:
+    """Import a scene by name (``manipulator``) or by path (``./my_scene.py``)."""
+    path = Path(name_or_path)
+    if path.suffix == ".py" or path.exists():
+        if not path.is_file():
+            raise SceneError(f"scene file {str(path)!r} does not exist")
+        modname = f"invctl_scene_{path.stem}"
+        spec = importlib.util.spec_from_file_location(modname, path)
+        if spec is None or spec.loader is None:
+            raise SceneError(f"cannot import scene file {str(path)!r}")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[modname] = module
+        spec.loader.exec_module(module)
+    else:
+        try:
+            module = importlib.import_module(f"problems.{name_or_path}")
+        except ModuleNotFoundError as exc:
+            if exc.name not in (f"problems.{name_or_path}", "problems"):
+                raise
+            raise SceneError(
+                f"no scene named {name_or_path!r}; shipped scenes: {', '.join(available_scenes())} "
+                "(or give a path to a scene file)"
+            ) from None
+    if not hasattr(module, "build"):
+        raise SceneError(f"scene {name_or_path!r} has no build(**params) function")
+    return module
+
+
+def scene_command(module: ModuleType, command: str):
+    """The handler of ``command`` in a scene, or a clear error."""
+    commands = getattr(module, "COMMANDS", {})
+    if command not in commands:
+        offered = ", ".join(sorted(commands)) or "none"
+        raise SceneError(
+            f"scene {module.__name__.split('.')[-1]!r} does not offer {command!r}; it offers: {offered}"
+        )
+    return commands[command]

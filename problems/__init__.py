@@ -1,0 +1,1 @@
+"""Shipped scenes: one module per scene, each with ``PARAMS``, ``build`` and ``COMMANDS``."""

@@ -1,0 +1,149 @@
+"""The manipulator with a kinematic loop of 003 Sect. 6, eq. (49).
+
+Three bodies in a horizontal plane (no gravity): body 1 (m1, L1, I1) rides on
+an actuator s1 and is pinned to body 2 (m2, L2, I2), whose centre of gravity
+rides on a second actuator s2; body 3 (m3, L3, I3, centre of gravity at X3)
+hangs at the end of body 2 on a torsional spring-damper (c, D).  The loop
+closure g(q) = 0 of (49) has two rows; the inputs are the actuator forces.
+
+q = (s1, s2, alpha, beta, gamma),  y = (s2, beta + 2 L3/(L2 + 2 L3) gamma).
+
+Parameters (003 Table 1 is missing from the paper; see docs/reproduction.md)
+-----------------------------------------------------------------------------
+The lengths are fixed by the geometry the paper does print: the initial
+configuration q(T0) = (0, 0, alpha0, beta0, 0) of the boundary conditions
+must produce the printed start r_app,0 = (1.6, -0.6) m, and the final point
+r_app,f = (0.9, -0.9) m must be reachable with beta in (0, pi/2).  With
+R = L2/2 + L3 = 1 m this gives sin(beta0) = 0.6, d = 1.6 - R cos(beta0) =
+0.8 m; with L2 = 1 m (L3 = 0.5 m) the loop closes at alpha0 = beta0 with
+L1 = 0.5 m, matching the paper's formulas for alpha0 and beta0.  Masses are
+round, plausible values for a light laboratory arm (1 kg, 1 kg, 0.5 kg); the
+spring c = 5 N m/rad and damper D = 0.05 N m s/rad give the passive body a
+period of a fraction of a second, as Fig. 5 suggests.  Bodies are
+homogeneous (50): X3 = L3/2, I_i = m_i L_i^2/12; these derived values follow
+m_i and L_i under ``--set`` unless set themselves.
+"""
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+import numpy as np
+
+from invctl.model import Model, OperatingRegion, ParamSet
+from invctl.reference import Reference, poly9_timing_law
+
+PARAMS = {
+    "m1": 1.0, "m2": 1.0, "m3": 0.5,
+    "L1": 0.5, "L2": 1.0, "L3": 0.5,
+    "I1": 1.0 / 48, "I2": 1.0 / 12, "I3": 0.5 * 0.25 / 12,
+    "X3": 0.25,
+    "d": 0.8,
+    "c": 5.0, "D": 0.05,
+}
+
+DERIVED = {
+    "X3": lambda p: 0.5 * p["L3"],
+    "I1": lambda p: p["m1"] * p["L1"] ** 2 / 12,
+    "I2": lambda p: p["m2"] * p["L2"] ** 2 / 12,
+    "I3": lambda p: p["m3"] * p["L3"] ** 2 / 12,
+}
+
+#: the plant of the closed-loop study: m3 20 % larger than the reference model (003 Sect. 6)
+PLANT_FACTORS = {"m3": 1.2}
+
+#: end-effector path of 003 Sect. 6
+R_APP_0 = (1.6, -0.6)
+R_APP_F = (0.9, -0.9)
+T0_TRANSITION, TF_TRANSITION = 0.0, 1.0
+
+REGION = OperatingRegion(
+    q_lower=[-math.inf, -math.inf, 0.0, 0.0, -math.pi],
+    q_upper=[math.inf, math.inf, math.pi / 2, math.pi / 2, math.pi],
+    constraints=(lambda q: math.cos(q[4]) - 2.0 / 3.0,),
+    sample_bounds=([-1.0, -1.0, 0.0, 0.0, -math.pi], [1.0, 1.0, math.pi / 2, math.pi / 2, math.pi]),
+    v_scale=2.0,
+    description="U_q = R^2 x (0, pi/2)^2 x {cos(gamma) > 2/3} (003 Sect. 6)",
+)
+
+
+def build(**overrides: float) -> Model:
+    """The manipulator, built from its Lagrangian (kinetic energy, spring, damper)."""
+    P = ParamSet(list(PARAMS))
+    m1, m2, m3 = P["m1"], P["m2"], P["m3"]
+    L1, L2, L3 = P["L1"], P["L2"], P["L3"]
+    I1, I2, I3, X3 = P["I1"], P["I2"], P["I3"], P["X3"]
+    d, c, D = P["d"], P["c"], P["D"]
+    q = ca.SX.sym("q", 5)
+    v = ca.SX.sym("v", 5)
+    s1, s2, al, be, ga = (q[i] for i in range(5))
+
+    def vel(r):
+        return ca.mtimes(ca.jacobian(r, q), v)
+
+    r1 = ca.vertcat(0.5 * L1 * ca.cos(al), s1 + 0.5 * L1 * ca.sin(al))
+    r2 = ca.vertcat(s2, 0)
+    r3 = ca.vertcat(
+        s2 + 0.5 * L2 * ca.cos(be) + X3 * ca.cos(be + ga),
+        -0.5 * L2 * ca.sin(be) - X3 * ca.sin(be + ga),
+    )
+    T = 0.5 * (
+        m1 * ca.sumsqr(vel(r1)) + I1 * v[2] ** 2
+        + m2 * ca.sumsqr(vel(r2)) + I2 * v[3] ** 2
+        + m3 * ca.sumsqr(vel(r3)) + I3 * (v[3] + v[4]) ** 2
+    )
+    V = 0.5 * c * ga**2
+    Qnc = ca.vertcat(0, 0, 0, 0, -D * v[4])
+    g = ca.vertcat(
+        L1 * ca.cos(al) - s2 - d + 0.5 * L2 * ca.cos(be),
+        s1 + L1 * ca.sin(al) - 0.5 * L2 * ca.sin(be),
+    )
+    B = ca.DM([[1, 0], [0, 1], [0, 0], [0, 0], [0, 0]])
+    h = ca.vertcat(s2, be + 2 * L3 / (L2 + 2 * L3) * ga)
+    return Model.from_lagrangian(
+        "manipulator", q, v, P, PARAMS, T=T, V=V, Q=Qnc, B=B, g=g, h=h,
+        derived=DERIVED, region=REGION, overrides=overrides,
+        q_names=["s1", "s2", "alpha", "beta", "gamma"], u_names=["u1", "u2"], y_names=["s2", "beta+delta*gamma"],
+    )
+
+
+def end_effector_approx(model: Model, y: np.ndarray) -> np.ndarray:
+    """r_app of 003 Sect. 6 from outputs ``y`` (shape (2, N)) -> (2, N)."""
+    p = model.values
+    R = 0.5 * p["L2"] + p["L3"]
+    y = np.asarray(y, float).reshape(2, -1)
+    return np.vstack([p["d"] + y[0] + R * np.cos(y[1]), -R * np.sin(y[1])])
+
+
+def reference(model: Model, *, t0: float = T0_TRANSITION, tf: float = TF_TRANSITION,
+              r0=R_APP_0, rf=R_APP_F) -> Reference:
+    """y_ref of 003 Sect. 6: the straight end-effector path r0 -> rf with the
+    C^4 polynomial timing law, mapped to outputs by inverting r_app."""
+    p = model.values
+    R = 0.5 * p["L2"] + p["L3"]
+    t = ca.SX.sym("t")
+    lam = poly9_timing_law(t, t0, tf)
+    rx = r0[0] + lam * (rf[0] - r0[0])
+    ry = r0[1] + lam * (rf[1] - r0[1])
+    for point in (r0, rf):
+        if abs(point[1]) >= R:
+            from invctl.errors import ReferenceSignalError
+
+            raise ReferenceSignalError(
+                f"end-effector point {point} is outside the reachable workspace |r_y| < L2/2 + L3 = {R:.4g} m"
+            )
+    y2 = ca.asin(-ry / R)
+    y1 = rx - p["d"] - R * ca.cos(y2)
+    return Reference(t, ca.vertcat(y1, y2), t0, tf, smoothness=4, name="y_ref")
+
+
+def initial_configuration(model: Model) -> np.ndarray:
+    """q(T0) = (0, 0, alpha0, beta0, 0) with alpha0, beta0 from the printed formulas of 003 Sect. 6."""
+    p = model.values
+    L1, L2, d = p["L1"], p["L2"], p["d"]
+    a0 = math.acos((L1**2 + d**2 - 0.25 * L2**2) / (2 * L1 * d))
+    b0 = math.asin(2 * L1 * math.sin(a0) / L2)
+    return np.array([0.0, 0.0, a0, b0, 0.0])
+
+
+COMMANDS: dict = {}
