@@ -26,6 +26,7 @@ m_i and L_i under ``--set`` unless set themselves.
 from __future__ import annotations
 
 import math
+import sys
 
 import casadi as ca
 import numpy as np
@@ -146,4 +147,38 @@ def initial_configuration(model: Model) -> np.ndarray:
     return np.array([0.0, 0.0, a0, b0, 0.0])
 
 
-COMMANDS: dict = {}
+# --- analysis (003 Sect. 2-3, 6) -------------------------------------------
+
+
+def _analyze(params, **options):
+    from invctl.analysis.commands import analyze_command
+
+    return analyze_command(sys.modules[__name__], params, **options)
+
+
+# --- inversion (003 Sect. 4, 6) --------------------------------------------
+
+
+def _invert(params, **options):
+    from invctl.inversion.commands import invert_command
+
+    return invert_command(sys.modules[__name__], params, **options)
+
+
+# --- feedback and closed loop (003 Sect. 5, 6) -----------------------------
+
+
+def _simulate(params, **options):
+    from invctl.simulate.tracking_commands import simulate_command
+
+    return simulate_command(sys.modules[__name__], params, **options)
+
+
+def _pipeline(params, **options):
+    from invctl.simulate.tracking_commands import pipeline_command
+
+    return pipeline_command(sys.modules[__name__], params, **options)
+
+
+# ----------------------------------------------------------------------------
+COMMANDS = {"analyze": _analyze, "invert": _invert, "simulate": _simulate, "pipeline": _pipeline}
