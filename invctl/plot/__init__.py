@@ -1,0 +1,1 @@
+"""Figures for results and studies. Import from the submodules."""

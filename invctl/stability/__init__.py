@@ -1,0 +1,1 @@
+"""Stability analysis: conewise-linear systems (002), Lyapunov monitoring (000). Import from the submodules."""
