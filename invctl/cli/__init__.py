@@ -64,8 +64,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         params = parse_assignments(args.set)
         scene = load_scene(args.scene)
-        handler = scene_command(scene, args.command)
-        result = handler(params, **options)
+        if args.command == "study" and "study" not in getattr(scene, "COMMANDS", {}):
+            from ..studies.commands import study_command
+
+            result = study_command(scene, options.pop("kind"), params, **options)
+        else:
+            handler = scene_command(scene, args.command)
+            result = handler(params, **options)
     except InvctlError as exc:
         print(f"invctl {args.command} {args.scene}: {type(exc).__name__}: {exc}", file=sys.stderr)
         if args.json:

@@ -1,0 +1,204 @@
+"""Parameter and robustness sweeps on any ``concurrent.futures.Executor``.
+
+A sweep evaluates a picklable function at many points.  It runs on a local
+process pool by default, on any ``concurrent.futures.Executor`` a user passes,
+and on a ``dask.distributed.Client`` unchanged (its ``get_executor()`` is used).
+Every point ends in the result: values for those that worked, the exception
+type and message for those that failed -- failed points are reported, never
+dropped.
+"""
+from __future__ import annotations
+
+import csv
+import itertools
+import os
+import sys
+import time
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+
+def grid(**axes: Sequence[float]) -> tuple[list[dict[str, float]], tuple[int, ...]]:
+    """All combinations of the given axes (first axis slowest) and the grid shape."""
+    names = list(axes)
+    values = [list(np.atleast_1d(axes[k])) for k in names]
+    points = [dict(zip(names, combo)) for combo in itertools.product(*values)]
+    return points, tuple(len(v) for v in values)
+
+
+@dataclass
+class SweepResult:
+    """Outcome of a sweep.
+
+    Attributes
+    ----------
+    points : list of dict
+        The parameter points, in the order given.
+    values : list of dict or None
+        The function's result per point (``None`` where it failed).
+    errors : list of str or None
+        ``"ExceptionType: message"`` per failed point, ``None`` where it worked.
+    shape : tuple
+        Grid shape when the sweep came from ``grid`` (else ``(len(points),)``).
+    wall_s : float
+        Wall time of the whole sweep.
+    """
+
+    points: list[dict[str, Any]]
+    values: list[dict[str, Any] | None]
+    errors: list[str | None]
+    shape: tuple[int, ...]
+    wall_s: float = 0.0
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def failed(self) -> list[tuple[dict[str, Any], str]]:
+        """The failed points with their error."""
+        return [(p, e) for p, e in zip(self.points, self.errors) if e is not None]
+
+    @property
+    def n_failed(self) -> int:
+        return sum(e is not None for e in self.errors)
+
+    def array(self, key: str) -> np.ndarray:
+        """One output as an array of the sweep's shape (NaN where the point failed)."""
+        out = np.array([np.nan if v is None else float(v.get(key, np.nan)) for v in self.values])
+        return out.reshape(self.shape)
+
+    def rows(self) -> list[dict[str, Any]]:
+        """One flat dict per point: parameters, outputs, and ``error``."""
+        rows = []
+        for p, v, e in zip(self.points, self.values, self.errors):
+            row = dict(p)
+            if v is not None:
+                row.update({k: val for k, val in v.items() if np.isscalar(val)})
+            row["error"] = e or ""
+            rows.append(row)
+        return rows
+
+    def to_csv(self, path: str | os.PathLike) -> None:
+        rows = self.rows()
+        keys: list[str] = []
+        for r in rows:
+            keys.extend(k for k in r if k not in keys)
+        with open(path, "w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=keys)
+            writer.writeheader()
+            writer.writerows(rows)
+
+    def plot(self, key: str, ax=None, **kwargs):
+        """A line (1-D sweep) or a heat map (2-D grid) of one output; failed points marked."""
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(6, 4))
+        names = list(self.points[0]) if self.points else []
+        data = self.array(key)
+        if len(self.shape) == 2 and len(names) == 2:
+            xs = sorted({p[names[1]] for p in self.points}, key=self._order(names[1]))
+            ys = sorted({p[names[0]] for p in self.points}, key=self._order(names[0]))
+            mesh = ax.pcolormesh(np.arange(len(xs) + 1), np.arange(len(ys) + 1), data, shading="flat", **kwargs)
+            ax.set_xticks(np.arange(len(xs)) + 0.5, [f"{x:.3g}" for x in xs], rotation=45)
+            ax.set_yticks(np.arange(len(ys)) + 0.5, [f"{y:.3g}" for y in ys])
+            ax.set_xlabel(names[1])
+            ax.set_ylabel(names[0])
+            ax.figure.colorbar(mesh, ax=ax, label=key)
+            bad = np.argwhere(np.isnan(data))
+            if bad.size:
+                ax.plot(bad[:, 1] + 0.5, bad[:, 0] + 0.5, "rx", label="failed")
+                ax.legend(loc="best")
+        else:
+            x = np.array([list(p.values())[0] for p in self.points], float)
+            ax.plot(x, data.ravel(), "o-", **kwargs)
+            fail = np.isnan(data.ravel())
+            if fail.any():
+                ax.plot(x[fail], np.zeros(fail.sum()), "rx", label="failed")
+                ax.legend(loc="best")
+            ax.set_xlabel(names[0] if names else "point")
+            ax.set_ylabel(key)
+        ax.set_title(f"{key} ({self.n_failed} failed of {len(self.points)})")
+        return ax
+
+    def _order(self, name):
+        order = {}
+        for p in self.points:
+            order.setdefault(p[name], len(order))
+        return lambda v: order[v]
+
+
+def _call(fn: Callable[..., Mapping[str, Any]], point: Mapping[str, Any]):
+    try:
+        out = fn(**point)
+        return dict(out), None
+    except Exception as exc:  # a failed point is data, not a crash of the sweep
+        return None, f"{type(exc).__name__}: {exc}"
+
+
+def _as_executor(executor):
+    if executor is not None and hasattr(executor, "get_executor") and not isinstance(executor, Executor):
+        return executor.get_executor(), False  # dask.distributed.Client
+    return executor, False
+
+
+def sweep(
+    fn: Callable[..., Mapping[str, Any]],
+    points: Sequence[Mapping[str, Any]] | tuple[list, tuple],
+    *,
+    executor: Executor | Any | None = None,
+    max_workers: int | None = None,
+    progress: bool = True,
+    label: str = "sweep",
+) -> SweepResult:
+    """Evaluate ``fn(**point)`` at every point, in parallel.
+
+    Parameters
+    ----------
+    fn : callable
+        Picklable (module-level) function returning a dict of scalar outputs.
+    points : list of dict, or the ``(points, shape)`` pair from :func:`grid`
+    executor : concurrent.futures.Executor or dask.distributed.Client, optional
+        Where to run.  Default: a local process pool (``max_workers``
+        processes, default the CPU count); ``"serial"`` runs in this process.
+    progress : bool
+        Print ``label: done/total`` lines to stderr.
+    """
+    if isinstance(points, tuple) and len(points) == 2 and isinstance(points[1], tuple):
+        pts, shape = points
+    else:
+        pts = list(points)
+        shape = (len(pts),)
+    pts = [dict(p) for p in pts]
+    values: list[dict | None] = [None] * len(pts)
+    errors: list[str | None] = [None] * len(pts)
+    t0 = time.perf_counter()
+    step = max(1, len(pts) // 10)
+
+    def report(done: int) -> None:
+        if progress and (done % step == 0 or done == len(pts)):
+            print(f"{label}: {done}/{len(pts)} points ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
+
+    if executor == "serial":
+        for i, p in enumerate(pts):
+            values[i], errors[i] = _call(fn, p)
+            report(i + 1)
+    else:
+        owned = executor is None
+        ex, _ = _as_executor(executor)
+        if owned:
+            ex = ProcessPoolExecutor(max_workers=max_workers or os.cpu_count())
+        try:
+            futures = {ex.submit(_call, fn, p): i for i, p in enumerate(pts)}
+            for done, fut in enumerate(as_completed(futures), 1):
+                i = futures[fut]
+                try:
+                    values[i], errors[i] = fut.result()
+                except Exception as exc:  # worker died, pickling failed, ...
+                    values[i], errors[i] = None, f"{type(exc).__name__}: {exc}"
+                report(done)
+        finally:
+            if owned:
+                ex.shutdown()
+    return SweepResult(pts, values, errors, shape, time.perf_counter() - t0)

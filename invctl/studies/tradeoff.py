@@ -1,0 +1,187 @@
+"""Speed-versus-accuracy studies: sweep an accuracy knob, measure time and error.
+
+A scene offers its trade-off with ``tradeoff_spec(params, smoke=False)``
+returning a :class:`TradeoffSpec`: the knob (mesh size and scheme for
+inversion, tolerances for closed-loop simulation, time step for
+time-stepping), the values to try, a function that runs one setting and
+returns its error against a finely resolved reference and its time, and a
+sentence saying how that reference was obtained.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import sys
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+
+@dataclass
+class TradeoffSpec:
+    """What to sweep and how to measure one setting.
+
+    Parameters
+    ----------
+    knob : str
+        Name of the accuracy knob (e.g. ``"N"``, ``"h"``, ``"rtol"``).
+    values : sequence
+        Settings to try; a setting may be a number, a string or a dict of
+        several knobs (e.g. ``{"scheme": "radau3", "N": 40}``).
+    run : callable
+        ``run(value) -> {"error": float, "time_s": float, ...}``; the time
+        covers the work a user would pay for that setting, not the reference.
+    reference : str
+        How the reference the errors are measured against was obtained.
+    error_name : str
+        What ``error`` measures (shown on plots).
+    """
+
+    knob: str
+    values: Sequence[Any]
+    run: Callable[[Any], Mapping[str, Any]]
+    reference: str
+    error_name: str = "error"
+    scene: str = ""
+
+
+@dataclass
+class TradeoffResult:
+    """Rows of (knob, value, error, time_s, ...) with the reference description."""
+
+    knob: str
+    rows: list[dict[str, Any]]
+    reference: str
+    error_name: str = "error"
+    scene: str = ""
+    failures: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def errors(self) -> np.ndarray:
+        return np.array([r["error"] for r in self.rows], float)
+
+    @property
+    def times(self) -> np.ndarray:
+        return np.array([r["time_s"] for r in self.rows], float)
+
+    def pareto(self) -> np.ndarray:
+        """Boolean mask of rows no other row beats in both time and error."""
+        e, t = self.errors, self.times
+        mask = np.ones(len(e), bool)
+        for i in range(len(e)):
+            dominated = (e <= e[i]) & (t <= t[i]) & ((e < e[i]) | (t < t[i]))
+            mask[i] = not dominated.any()
+        return mask
+
+    def recommend(self, max_error: float) -> dict[str, Any] | None:
+        """The fastest row whose error is at most ``max_error`` (None if none is)."""
+        ok = [r for r in self.rows if r["error"] <= max_error]
+        return min(ok, key=lambda r: r["time_s"]) if ok else None
+
+    def table(self) -> str:
+        """A fixed-width text table, Pareto-optimal rows starred."""
+        mask = self.pareto()
+        lines = [f"{self.knob:>24}  {self.error_name:>12}  {'time_s':>10}  pareto"]
+        for row, p in zip(self.rows, mask):
+            lines.append(f"{_fmt(row['value']):>24}  {row['error']:12.3e}  {row['time_s']:10.4f}  {'*' if p else ''}")
+        for f in self.failures:
+            lines.append(f"{_fmt(f['value']):>24}  failed: {f['message']}")
+        lines.append(f"reference: {self.reference}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "scene": self.scene, "knob": self.knob, "error_name": self.error_name,
+            "rows": [{"knob": self.knob, **r, "value": _jsonable_value(r["value"])} for r in self.rows],
+            "failures": [{**f, "value": _jsonable_value(f["value"])} for f in self.failures],
+            "reference": self.reference,
+            "pareto": self.pareto().tolist(),
+        }
+
+    def to_csv(self, path: str | os.PathLike) -> None:
+        keys: list[str] = ["knob"]
+        for r in self.rows:
+            keys.extend(k for k in r if k not in keys)
+        with open(path, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=keys)
+            w.writeheader()
+            for r in self.rows:
+                w.writerow({"knob": self.knob, **r, "value": _fmt(r["value"])})
+
+    def to_json(self, path: str | os.PathLike) -> None:
+        with open(path, "w") as fh:
+            json.dump(self.to_dict(), fh, indent=1)
+
+    @classmethod
+    def from_json(cls, path: str | os.PathLike) -> "TradeoffResult":
+        with open(path) as fh:
+            d = json.load(fh)
+        rows = [{k: v for k, v in r.items() if k != "knob"} for r in d["rows"]]
+        return cls(d["knob"], rows, d["reference"], d.get("error_name", "error"), d.get("scene", ""),
+                   d.get("failures", []))
+
+    def plot(self, ax=None):
+        """Error against time on log axes, each point labelled, the Pareto front drawn."""
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(6.5, 4.5))
+        e, t, mask = self.errors, self.times, self.pareto()
+        groups: dict[str, list[int]] = {}
+        for i, r in enumerate(self.rows):
+            groups.setdefault(str(r.get("group", "")), []).append(i)
+        for name, idx in groups.items():
+            ax.loglog(t[idx], e[idx], "o", label=name or None)
+        for i, r in enumerate(self.rows):
+            ax.annotate(_fmt(r["value"]), (t[i], e[i]), textcoords="offset points", xytext=(4, 4), fontsize=7)
+        order = np.argsort(t[mask])
+        ax.loglog(t[mask][order], e[mask][order], "k--", lw=1, label="Pareto front")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel(self.error_name)
+        ax.set_title(f"{self.scene}: speed vs accuracy ({self.knob})")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+        return ax
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, dict):
+        return ",".join(f"{k}={_fmt(x)}" for k, x in v.items())
+    if isinstance(v, float):
+        return f"{v:.3g}"
+    return str(v)
+
+
+def _jsonable_value(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {k: _jsonable_value(x) for k, x in v.items()}
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    return v
+
+
+def run_tradeoff(spec: TradeoffSpec, *, progress: bool = True) -> TradeoffResult:
+    """Run every setting of ``spec`` in this process, one after another.
+
+    Settings run serially on purpose: timings measured under contention for
+    cores would not be comparable.  A setting that raises is reported in
+    ``failures`` with its message, not dropped.
+    """
+    rows, failures = [], []
+    for k, value in enumerate(spec.values, 1):
+        try:
+            out = dict(spec.run(value))
+        except Exception as exc:
+            failures.append({"value": value, "message": f"{type(exc).__name__}: {exc}"})
+            out = None
+        if out is not None:
+            for key in ("error", "time_s"):
+                if key not in out:
+                    raise KeyError(f"trade-off run for {spec.knob}={value!r} returned no {key!r}")
+            rows.append({"value": value, **out})
+        if progress:
+            msg = "failed" if out is None else f"error {out['error']:.3e} in {out['time_s']:.3f} s"
+            print(f"tradeoff {spec.scene} {spec.knob}={_fmt(value)}: {msg} ({k}/{len(spec.values)})", file=sys.stderr)
+    return TradeoffResult(spec.knob, rows, spec.reference, spec.error_name, spec.scene, failures)
