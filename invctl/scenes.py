@@ -64,9 +64,16 @@ def load_scene(name_or_path: str) -> ModuleType:
                 f"no scene named {name_or_path!r}; shipped scenes: {', '.join(available_scenes())} "
                 "(or give a path to a scene file)"
             ) from None
+    if not hasattr(module, "SCENE_NAME"):
+        module.SCENE_NAME = path.stem if path.suffix == ".py" else name_or_path
     if not hasattr(module, "build"):
         raise SceneError(f"scene {name_or_path!r} has no build(**params) function")
     return module
+
+
+def scene_name(module: ModuleType) -> str:
+    """The short name of a scene module (file stem or name in problems/)."""
+    return getattr(module, "SCENE_NAME", module.__name__.split(".")[-1])
 
 
 def scene_command(module: ModuleType, command: str):
@@ -75,6 +82,6 @@ def scene_command(module: ModuleType, command: str):
     if command not in commands:
         offered = ", ".join(sorted(commands)) or "none"
         raise SceneError(
-            f"scene {module.__name__.split('.')[-1]!r} does not offer {command!r}; it offers: {offered}"
+            f"scene {scene_name(module)!r} does not offer {command!r}; it offers: {offered}"
         )
     return commands[command]

@@ -5,7 +5,7 @@ import os
 from pathlib import Path
 
 from ..errors import SceneError
-from ..scenes import CommandResult
+from ..scenes import CommandResult, scene_name
 from .tradeoff import run_tradeoff
 
 KINDS = ("tradeoff",)
@@ -13,7 +13,7 @@ KINDS = ("tradeoff",)
 
 def study_command(scene_module, kind: str, params: dict, *, out_dir: str = "invctl-out", **options) -> CommandResult:
     """Run a study of a scene and write its table (CSV, JSON) and figure (PNG)."""
-    name = scene_module.__name__.split(".")[-1]
+    name = scene_name(scene_module)
     if kind not in KINDS:
         raise SceneError(f"unknown study {kind!r}; available: {', '.join(KINDS)}")
     spec_fn = getattr(scene_module, "tradeoff_spec", None)
