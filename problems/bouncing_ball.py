@@ -1,0 +1,87 @@
+"""A ball dropped from rest at height H onto the ground (000 (1) with n = 1).
+
+``q = (y,)``, ``M = m``, ``f = -m g``, one gap ``y >= 0`` with restitution
+``e``.  Impact times and the rest time are known in closed form:
+``t_1 = sqrt(2 H / g)``, ``t_{k+1} = t_k + 2 e^k v_1 / g`` (``v_1 = g t_1``),
+rest (accumulation) time ``t_inf = t_1 (1 + e) / (1 - e)``; the post-impact
+velocity of impact ``k`` is ``e^k v_1``.
+
+``--set e=... h=...`` sets the restitution and the time step.
+"""
+from __future__ import annotations
+
+import sys
+
+import casadi as ca
+import numpy as np
+
+from invctl.model import Gap, Model, ParamSet
+
+PARAMS = {"m": 1.0, "g": 9.81, "H": 1.0, "e": 0.8, "h": 1e-3, "theta": 0.5, "t_end": 3.0, "projection": 0.0}
+MODEL_PARAMS = ("m", "g", "e")
+
+
+def build(**overrides: float) -> Model:
+    """The ball model (parameters m, g, e)."""
+    P = ParamSet(list(MODEL_PARAMS))
+    q = ca.SX.sym("q", 1)
+    v = ca.SX.sym("v", 1)
+    vals = {k: PARAMS[k] for k in MODEL_PARAMS}
+    ov = {k: v_ for k, v_ in overrides.items() if k in MODEL_PARAMS}
+    return Model("bouncing_ball", q, v, P, vals, M=ca.reshape(P["m"], 1, 1), f=-P["m"] * P["g"],
+                 B=ca.SX.zeros(1, 0), gaps=[Gap("ground", q[0], "e")], overrides=ov,
+                 q_names=["y"], u_names=[])
+
+
+def potential(model: Model) -> ca.SX:
+    """``m g y``."""
+    return model.params["m"] * model.params["g"] * model.q[0]
+
+
+def exact_impacts(H: float, g: float, e: float, t_max: float):
+    """Closed-form impact times, pre- and post-impact velocities up to ``t_max``
+    and the rest time (inf for e = 1)."""
+    t1 = np.sqrt(2 * H / g)
+    v1 = g * t1
+    times, pre, post = [], [], []
+    t, vk = t1, v1
+    while t <= t_max and vk > 0 and len(times) < 100000:
+        times.append(t)
+        pre.append(-vk)
+        post.append(e * vk)
+        t = t + 2 * e * vk / g
+        vk = e * vk
+        if e == 0:
+            break
+    rest = t1 * (1 + e) / (1 - e) if e < 1 else np.inf
+    return np.array(times), np.array(pre), np.array(post), rest
+
+
+def check_params(p: dict) -> dict:
+    from invctl.errors import ParameterError
+
+    full = {**PARAMS, **p}
+    unknown = sorted(set(p) - set(PARAMS))
+    if unknown:
+        raise ParameterError(f"bouncing_ball: unknown parameter(s) {unknown}; known: {sorted(PARAMS)}")
+    if not 0 <= full["e"] <= 1:
+        raise ParameterError(f"bouncing_ball: restitution e must lie in [0, 1], got {full['e']}")
+    for k in ("m", "g", "H", "h", "t_end"):
+        if full[k] <= 0:
+            raise ParameterError(f"bouncing_ball: {k} must be positive, got {full[k]}")
+    return full
+
+
+def _simulate(params, **options):
+    from invctl.simulate.contact_commands import bouncing_ball_command
+
+    return bouncing_ball_command(sys.modules[__name__], params, **options)
+
+
+def tradeoff_spec(params, smoke: bool = False):
+    from invctl.simulate.contact_commands import bouncing_ball_tradeoff
+
+    return bouncing_ball_tradeoff(sys.modules[__name__], params, smoke=smoke)
+
+
+COMMANDS = {"simulate": _simulate}
