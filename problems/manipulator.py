@@ -149,6 +149,36 @@ def initial_configuration(model: Model) -> np.ndarray:
 
 # --- analysis (003 Sect. 2-3, 6) -------------------------------------------
 
+#: (A1) data printed in 003 Sect. 6: q = 1, k_1 = 1, K_1 = -0.1, K_2 = [1, 0.01]
+A1_PAPER = {"K": [[-0.1], [1.0, 0.01]], "k_i": [1]}
+
+
+def paper_internal_coordinates(model: Model):
+    """eta1 = gamma, eta2 = [0 0 0 0 1] M(q) v (003 Sect. 6)."""
+    return ca.vertcat(model.q[4], ca.mtimes(model.M[4, :], model.v))
+
+
+def manipulator_internal(model: Model, method: str = "sect3", samples: int = 200):
+    """Internal dynamics (55) of the manipulator in the paper's coordinates."""
+    from invctl.analysis import internal_dynamics
+
+    return internal_dynamics(model, method, paper_internal_coordinates, point=initial_configuration(model),
+                             samples=samples)
+
+
+def manipulator_linearization(model: Model, reference: Reference | None = None, *, internal=None,
+                              split: str = "eig", samples: int = 200):
+    """Linearization as in 003 Sect. 6: mean of the Jacobians of (55) at
+    (y_ref(t0), 0, eta = 0) and (y_ref(tf), 0, eta = 0), paper coordinates; T of (39)
+    from eigenvectors scaled to last entry 1 (the paper's T = [mu2/c mu1/c; 1 1]^-1 form)."""
+    from invctl.analysis import linearize_internal
+
+    reference = reference if reference is not None else globals()["reference"](model)
+    internal = internal if internal is not None else manipulator_internal(model, samples=samples)
+    zeros = np.zeros(2)
+    points = [([reference(t).ravel(), zeros], zeros) for t in (reference.t0, reference.tf)]
+    return linearize_internal(model, internal, points, combine="mean", split=split)
+
 
 def _analyze(params, **options):
     from invctl.analysis.commands import analyze_command
