@@ -151,6 +151,9 @@ def initial_configuration(model: Model) -> np.ndarray:
 
 #: (A1) data printed in 003 Sect. 6: q = 1, k_1 = 1, K_1 = -0.1, K_2 = [1, 0.01]
 A1_PAPER = {"K": [[-0.1], [1.0, 0.01]], "k_i": [1]}
+#: the same with the sign of K_1 adapted to our P~, whose sign is opposite to the printed
+#: P~ = [-305.97, 339.97] (so K_1 P~ has the printed sign pattern); see docs/analysis.md
+A1_SCENE = {"K": [[0.1], [1.0, 0.01]], "k_i": [1], "rho": 1}
 
 
 def paper_internal_coordinates(model: Model):
@@ -178,6 +181,14 @@ def manipulator_linearization(model: Model, reference: Reference | None = None, 
     zeros = np.zeros(2)
     points = [([reference(t).ravel(), zeros], zeros) for t in (reference.t0, reference.tf)]
     return linearize_internal(model, internal, points, combine="mean", split=split)
+
+
+def analysis_setup(model: Model) -> dict:
+    """What ``invctl analyze manipulator`` analyzes: the paper's coordinates and linearization."""
+    ref = reference(model)
+    internal = manipulator_internal(model)
+    return {"internal": internal, "linearization": manipulator_linearization(model, ref, internal=internal),
+            "reference": ref, "A1": A1_SCENE, "point": initial_configuration(model)}
 
 
 def _analyze(params, **options):

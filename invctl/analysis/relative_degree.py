@@ -200,6 +200,18 @@ def relative_degree(model, samples: int = 200, rng=0, *, points=None) -> Relativ
         samples=qs.shape[0], region=region,
     )
     bad = ~np.isfinite(smin) | (smin <= _SINGULAR_TOL * np.maximum(smax, 1.0))
+    if not np.any(bad) and dets.min() < 0 < dets.max():
+        # det Gamma changes sign on the (connected) region: Gamma is singular in between
+        i, j = int(np.argmin(dets)), int(np.argmax(dets))
+        raise RelativeDegreeError(
+            f"{model.name}: det Gamma changes sign on the operating region (det = {dets[i]:.3g} at "
+            f"q = {np.round(qs[i], 5).tolist()}, det = {dets[j]:.3g} at q = {np.round(qs[j], 5).tolist()}), so "
+            f"Gamma is singular somewhere between them (the region is connected); the smallest singular value "
+            f"found is {smin[kmin]:.3g} at q = {np.round(qs[kmin], 5).tolist()}. Restrict the operating region.",
+            partial=result,
+            diagnostics={"q": qs[kmin], "v": vs[kmin], "sigma_min": float(smin[kmin]),
+                         "det_negative_at": qs[i], "det_positive_at": qs[j]},
+        )
     if np.any(bad):
         k = int(np.flatnonzero(bad)[0])
         raise RelativeDegreeError(
