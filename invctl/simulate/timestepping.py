@@ -12,7 +12,7 @@ they are absorbed in the step where the gap closes):
    default 1e-12: a strict test ``<= 0`` lets round-off open a pre-loaded
    contact, after which the gap drifts to O(h^2 |a|), see docs/clearances.md).
 3. Impulse LCP (Newton's law at velocity level, 000 (4)):
-   ``0 <= W^T v_{k+1} + e W^T v_k  _|_  P >= 0`` on active contacts,
+   ``0 <= W^T v_{k+1} + e min(W^T v_k, 0)  _|_  P >= 0`` on active contacts,
    ``v_{k+1} = v_free + W_hat^{-1} W P``, solved branch-free
    (:func:`invctl.contact.lcp.lcp_sx`, exact enumeration for <= 4 contacts).
 4. ``q_{k+1} = q_k + h (theta v_{k+1} + (1-theta) v_k)``; optional
@@ -168,6 +168,33 @@ class ContactTrajectory:
         return plot_contact_trajectory(self, path=path, **kw)
 
 
+def _small_solve(A, B):
+    """``A^{-1} B`` for symbolic ``A``: adjugate formula for n <= 3 (few
+    operations, exploits structural zeros), symbolic QR beyond."""
+    n = A.shape[0]
+    if n == 1:
+        return B / A[0, 0]
+    if n == 2:
+        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+        adj = ca.blockcat([[A[1, 1], -A[0, 1]], [-A[1, 0], A[0, 0]]])
+        return ca.mtimes(adj, B) / det
+    if n == 3:
+        c = [[A[(i + 1) % 3, (j + 1) % 3] * A[(i + 2) % 3, (j + 2) % 3]
+              - A[(i + 1) % 3, (j + 2) % 3] * A[(i + 2) % 3, (j + 1) % 3] for j in range(3)] for i in range(3)]
+        det = A[0, 0] * c[0][0] + A[0, 1] * c[0][1] + A[0, 2] * c[0][2]
+        adj = ca.blockcat([[c[j][i] for j in range(3)] for i in range(3)])
+        return ca.mtimes(adj, B) / det
+    return ca.solve(A, B)
+
+
+def _cse(*exprs):
+    """Common-subexpression elimination (CasADi >= 3.6), if available."""
+    if hasattr(ca, "cse"):
+        out = ca.cse(list(exprs))
+        return tuple(out)
+    return exprs
+
+
 class MoreauJean:
     """Compiled Moreau-Jean stepper for a model with gaps under a feedback law.
 
@@ -190,12 +217,15 @@ class MoreauJean:
         ``auto`` uses generated C when a compiler is present, else the VM.
     chunk : int
         Steps per compiled call.
+    substeps : int
+        Steps inlined in one loop iteration (fewer VM dispatches).
     max_enum : int
         Contacts up to which the impulse LCP is solved by exact enumeration.
     """
 
     def __init__(self, model, law: FeedbackLaw | None = None, *, potential=None, projection: bool = False,
-                 projection_iters: int = 2, backend: str = "auto", chunk: int = 8192, max_enum: int = 4,
+                 projection_iters: int = 2, backend: str = "auto", chunk: int = 8192, substeps: int = 4,
+                 max_enum: int = 4,
                  verbose: bool = False):
         if backend not in ("auto", "vm", "c"):
             raise ParameterError(f"backend must be 'auto', 'vm' or 'c', got {backend!r}")
@@ -206,6 +236,9 @@ class MoreauJean:
         self.projection = bool(projection)
         self.projection_iters = int(projection_iters)
         self.chunk = int(chunk)
+        self.substeps = int(substeps)
+        if self.substeps < 1 or self.chunk % self.substeps or self.chunk < 64:
+            raise ParameterError(f"chunk ({chunk}) must be >= 64 and a multiple of substeps ({substeps})")
         self.max_enum = int(max_enum)
         self.verbose = verbose
         self._build()
@@ -221,11 +254,13 @@ class MoreauJean:
         q, v, th = mdl.q, mdl.v, mdl.theta
         t = ca.SX.sym("t")
         u, V, kappa = self.law.symbolic(mdl, t)
+        th_c = ca.SX.sym("theta_ctrl", th.shape[0])  # the controller's model parameters (nominal)
+        u, V = ca.substitute([u, V], [th], [th_c])
         h = ca.SX.sym("h")
         thm = ca.SX.sym("theta_m")
         tol = ca.SX.sym("tol_act")
         self.n_theta, self.n_kappa = th.shape[0], kappa.shape[0]
-        X = ca.vertcat(q, v, t, th, kappa, h, thm, tol)
+        X = ca.vertcat(q, v, t, th, th_c, kappa, h, thm, tol)
         self.nx = X.shape[0]
         F = mdl.f + ca.mtimes(mdl.B, u)
         Kq = -ca.jacobian(F, q)
@@ -238,12 +273,13 @@ class MoreauJean:
         r = h * (Fth - h * thm * ca.mtimes(Kq, v))
         Wn = cs.W
         rhs = ca.horzcat(r, Wn)
-        sol = ca.solve(What, rhs)
+        sol = _small_solve(What, rhs)
         if mdl.ell:
             G = mdl.G
-            S = ca.mtimes([G, ca.solve(What, G.T)])
+            WiG = _small_solve(What, G.T)
+            S = ca.mtimes(G, WiG)
             # velocity-level G v_{k+1} = 0 through the projected operator of 000 (8)
-            corr = ca.mtimes(ca.solve(What, G.T), ca.solve(S, ca.mtimes(G, ca.horzcat(v, ca.SX.zeros(n, mu)) + sol)))
+            corr = ca.mtimes(WiG, _small_solve(S, ca.mtimes(G, ca.horzcat(v, ca.SX.zeros(n, mu)) + sol)))
             sol = sol - corr
         dv_free, WiW = sol[:, 0], sol[:, 1:]
         v_free = v + dv_free
@@ -251,7 +287,8 @@ class MoreauJean:
         gap = cs.gap
         act = ca.if_else(gap + 0.5 * h * U <= tol, 1, 0) if mu else ca.SX(0, 1)
         D = ca.mtimes(Wn.T, WiW)
-        b = ca.mtimes(Wn.T, v_free) + cs.e * U
+        # Newton's law acts on approaching contacts only (000 (4): v_n(t-) <= 0)
+        b = ca.mtimes(Wn.T, v_free) + cs.e * ca.fmin(U, 0)
         Dm = ca.SX(D)
         for i in range(mu):
             for j in range(mu):
@@ -264,26 +301,40 @@ class MoreauJean:
                 gq = ca.substitute(gap, q, q_next)
                 Wq = ca.substitute(Wn, q, q_next)
                 Mq = ca.substitute(mdl.M, q, q_next)
-                MiW = ca.solve(Mq, Wq)
+                MiW = _small_solve(Mq, Wq)
                 mu_p = lcp_sx(ca.mtimes(Wq.T, MiW), gq, max_enum=self.max_enum)
                 q_next = q_next + ca.mtimes(MiW, mu_p)
         t_next = t + h
         E = 0.5 * ca.mtimes([v.T, mdl.M, v]) + (0 if self.potential is None else self.potential)
-        Xn = ca.vertcat(q_next, v_next, t_next, th, kappa, h, thm, tol)
+        Xn = ca.vertcat(q_next, v_next, t_next, th, th_c, kappa, h, thm, tol)
         # outputs refer to the step start (k): energy, V, gaps, normal velocity; and the step's P, active set
-        Y = ca.vertcat(P, act, gap, U, E, V, u)
+        Y = ca.vertcat(P, act)
         self.ny = Y.shape[0]
+        Xn, Y = _cse(Xn, Y)
         self.step = ca.Function("mj_step", [X], [Xn, Y], ["x"], ["x_next", "y"])
-        self._diag = ca.Function("mj_state", [X], [Y], ["x"], ["y"])
-        self.f_uV = ca.Function("uV", [q, v, t, th, kappa], [u, V])
+        # energy, V, input, gaps, normal velocities: evaluated after the loop on the whole trajectory (map)
+        self._post = ca.Function("mj_post", [X], [ca.vertcat(gap, U, E, V, u)], ["x"], ["z"])
+        self.f_uV = ca.Function("uV", [q, v, t, th_c, kappa], [u, V])
 
-    def _loop(self, backend: str):
-        if backend in self._loops:
-            return self._loops[backend]
-        loop = self.step.mapaccum("mj_loop", self.chunk)
+    def _fused(self):
+        """``substeps`` steps inlined in one Function (fewer VM calls); its second
+        output stacks ``(q, v, t, P, active)`` after each substep."""
+        X = ca.SX.sym("x", self.nx)
+        xs, ys = X, []
+        n = self.model.n
+        for _ in range(self.substeps):
+            xs, y = self.step(xs)
+            ys.append(ca.vertcat(xs[:2 * n + 1], y))
+        return ca.Function("mj_fused", [X], [xs, ca.vertcat(*ys)], ["x"], ["x_next", "y"])
+
+    def _loop(self, backend: str, size: int):
+        key = (backend, size)
+        if key in self._loops:
+            return self._loops[key]
+        loop = self._fused().mapaccum("mj_loop", size // self.substeps)
         if backend == "c":
             loop = self._compile(loop)
-        self._loops[backend] = loop
+        self._loops[key] = loop
         return loop
 
     def _compile(self, fn: ca.Function) -> ca.Function:
@@ -322,9 +373,12 @@ class MoreauJean:
 
     # ------------------------------------------------------------------- run
     def initial_state(self, q0, v0, t0=0.0, *, h, theta=0.5, params=None, gains=None,
-                      activation_tol=DEFAULT_ACTIVATION_TOL) -> np.ndarray:
+                      activation_tol=DEFAULT_ACTIVATION_TOL, ctrl_params=None) -> np.ndarray:
         mdl = self.model
         th = mdl.theta_values if params is None else np.asarray(params, float)
+        thc = th if ctrl_params is None else np.asarray(ctrl_params, float)
+        if th.size != self.n_theta or thc.size != self.n_theta:
+            raise ParameterError(f"params must have length {self.n_theta} ({mdl.params.names})")
         kap = np.asarray(self.law.kappa_values if gains is None else gains, float)
         if kap.size != self.n_kappa:
             raise ParameterError(f"gains has length {kap.size}, law {self.law.name!r} has {self.law.kappa_names}")
@@ -336,17 +390,21 @@ class MoreauJean:
         v0 = np.asarray(v0, float).ravel()
         if q0.size != mdl.n or v0.size != mdl.n:
             raise ParameterError(f"q0, v0 must have length n = {mdl.n}, got {q0.size}, {v0.size}")
-        return np.r_[q0, v0, t0, th, kap, h, theta, activation_tol]
+        return np.r_[q0, v0, t0, th, thc, kap, h, theta, activation_tol]
 
     def run(self, q0, v0, t_end: float, h: float, *, t0: float = 0.0, theta: float = 0.5, params=None,
             gains=None, activation_tol: float = DEFAULT_ACTIVATION_TOL, backend: str | None = None,
+            ctrl_params=None,
             impact_vel_tol: float | None = None, progress: bool = False) -> ContactTrajectory:
         """Simulate from ``(q0, v0)`` at ``t0`` to ``t_end`` with step ``h``.
 
         Parameters
         ----------
         params : array, optional
-            Model parameter vector (default: the model's values).
+            Plant parameter vector (default: the model's values).
+        ctrl_params : array, optional
+            Parameter vector the law is evaluated with (default: ``params``);
+            differs from ``params`` for a mismatched plant.
         gains : array, optional
             Law parameters (default: the law's values; see ``law.values(...)``).
         theta : float
@@ -356,30 +414,38 @@ class MoreauJean:
             Predicted-gap threshold of the active-set decision.
         """
         x = self.initial_state(q0, v0, t0, h=h, theta=theta, params=params, gains=gains,
-                               activation_tol=activation_tol)
+                               activation_tol=activation_tol, ctrl_params=ctrl_params)
+        x_init = x.copy()
         N = int(np.ceil((t_end - t0) / h - 1e-9))
         if N <= 0:
             raise ParameterError(f"t_end = {t_end} must exceed t0 = {t0}")
         backend = backend or self.backend
-        loop = self._loop(backend)
-        nchunks = -(-N // self.chunk)
-        Xs, Ys = [], []
+        size = self.chunk if N >= self.chunk else max(64, 1 << (N - 1).bit_length())
+        loop = self._loop(backend, size)
+        nchunks = -(-N // size)
+        n, mu = self.model.n, self.cs.m_u
+        nyf = 2 * n + 1 + 2 * mu
+        Xacc = np.zeros((self.nx, size // self.substeps), order="F")
+        Yall = np.zeros((nyf, nchunks * size), order="F")
+        xin = np.array(x, float)
+        buf, run_chunk = loop.buffer()
+        buf.set_arg(0, memoryview(xin))
+        buf.set_res(0, memoryview(Xacc.reshape(-1, order="F")))
         tic = time.perf_counter()
         for c in range(nchunks):
-            Xc, Yc = loop(x)
-            Xc, Yc = np.asarray(Xc), np.asarray(Yc)
-            Xs.append(Xc)
-            Ys.append(Yc)
-            x = Xc[:, -1]
+            buf.set_res(1, memoryview(Yall[:, c * size:(c + 1) * size].reshape(-1, order="F")))
+            run_chunk()
+            xin[:] = Xacc[:, -1]
             if progress and (c % 50 == 0):
-                print(f"\rinvctl: moreau-jean {min(N, (c + 1) * self.chunk)}/{N} steps", end="", file=sys.stderr)
+                print(f"\rinvctl: moreau-jean {min(N, (c + 1) * size)}/{N} steps", end="", file=sys.stderr)
         wall = time.perf_counter() - tic
         if progress:
             print(file=sys.stderr)
-        X = np.hstack(Xs)[:, :N]
-        Y = np.hstack(Ys)[:, :N]
-        return self._package(x0=self.initial_state(q0, v0, t0, h=h, theta=theta, params=params, gains=gains,
-                                                   activation_tol=activation_tol),
+        Y = Yall[:, :N]
+        X = np.repeat(x_init.reshape(-1, 1), N, axis=1)
+        X[:2 * n + 1] = Y[:2 * n + 1]
+        Y = Y[2 * n + 1:]
+        return self._package(x0=x_init,
                              X=X, Y=Y, h=h, wall=wall, backend=backend, N=N,
                              impact_vel_tol=impact_vel_tol)
 
@@ -390,15 +456,15 @@ class MoreauJean:
             raise SimulationFailed(f"Moreau-Jean: non-finite state at step {k} (t = {x0[2 * n] + k * h:.6g}); "
                                    "reduce h or check the model/gains", diagnostics={"step": k})
         Xall = np.hstack([x0.reshape(-1, 1), X])
-        ylast = np.asarray(self._diag(Xall[:, -1])).ravel()
-        Yk = np.hstack([Y, ylast.reshape(-1, 1)])
+        Z = np.asarray(self._post.map(Xall.shape[1], "serial")(Xall))
         o = 0
         P = Y[o:o + mu].T; o += mu
-        act = Y[o:o + mu].T > 0.5; o += mu
-        gaps = Yk[o:o + mu].T; o += mu
-        Un = Yk[o:o + mu].T; o += mu
-        E = Yk[o]; V = Yk[o + 1]; o += 2
-        u = Yk[o:o + self.model.m].T
+        act = Y[o:o + mu].T > 0.5
+        o = 0
+        gaps = Z[o:o + mu].T; o += mu
+        Un = Z[o:o + mu].T; o += mu
+        E = Z[o]; V = Z[o + 1]; o += 2
+        u = Z[o:o + self.model.m].T
         t = Xall[2 * n]
         vtol = impact_vel_tol if impact_vel_tol is not None else 1e-8
         stats = {"wall_s": wall, "steps": N, "steps_per_s": N / wall if wall > 0 else float("inf"),

@@ -1,0 +1,192 @@
+"""``invctl simulate`` handlers of the joint-clearance scenes (paper 000).
+
+Every handler accepts all options of the ``simulate`` command
+(``controller``, ``plant_set``, ``t_end``, ``out``, ``plot``) and raises
+:class:`SceneError` for the ones its scene cannot honour.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import ParameterError, SceneError
+from ..model.params import parse_assignments
+from ..scenes import CommandResult
+from .timestepping import MoreauJean
+
+_OPTIONS = {"controller", "plant_set", "t_end", "out", "plot"}
+
+
+def _check_options(scene: str, options: dict):
+    unknown = sorted(set(options) - _OPTIONS)
+    if unknown:
+        raise SceneError(f"{scene}: simulate does not take option(s) {unknown}")
+
+
+def _finish(tr, options, text, data, title):
+    if options.get("out"):
+        data["out"] = str(tr.save(options["out"]))
+        text += f"\ntrajectory written to {data['out']}"
+    if options.get("plot"):
+        import matplotlib
+
+        matplotlib.use("Agg")
+        tr.plot(options["plot"], title=title)
+        data["plot"] = options["plot"]
+        text += f"\nfigure written to {options['plot']}"
+    return CommandResult(text, data)
+
+
+def _split(params: dict, defaults: dict, model_keys) -> tuple[dict, dict]:
+    unknown = sorted(set(params) - set(defaults))
+    if unknown:
+        raise ParameterError(f"unknown parameter(s) {unknown}; known: {sorted(defaults)}")
+    full = {**defaults, **params}
+    return full, {k: full[k] for k in model_keys}
+
+
+# ------------------------------------------------------------------ ball
+def bouncing_ball_command(scene, params: dict, **options) -> CommandResult:
+    """Drop the ball, compare impact times, post-impact velocities and the rest
+    time with the closed form."""
+    _check_options("bouncing_ball", options)
+    if options.get("controller") not in (None, "none"):
+        raise SceneError("bouncing_ball has no controller; drop --controller")
+    if options.get("plant_set"):
+        raise SceneError("bouncing_ball has no separate plant/controller models; use --set for parameters")
+    p = scene.check_params(params)
+    if options.get("t_end") is not None:
+        p["t_end"] = float(options["t_end"])
+    model = scene.build(**{k: p[k] for k in scene.MODEL_PARAMS})
+    mj = MoreauJean(model, potential=scene.potential(model), projection=bool(p["projection"]))
+    tr = mj.run([p["H"]], [0.0], p["t_end"], p["h"], theta=p["theta"])
+    ti, _, pre, post, _ = tr.impacts()
+    ex_t, ex_pre, ex_post, rest = scene.exact_impacts(p["H"], p["g"], p["e"], p["t_end"])
+    k = min(len(ti), len(ex_t), 5)
+    rest_num = tr.rest_time()
+    E = tr.energy
+    data = {
+        "impact_times": ti[:50].tolist(),
+        "impact_times_exact": ex_t[:50].tolist(),
+        "impact_time_errors": (ti[:k] - ex_t[:k]).tolist(),
+        "post_impact_velocities": post[:50].tolist(),
+        "post_impact_velocity_errors": (post[:k] - ex_post[:k]).tolist(),
+        "rest_time": rest_num, "rest_time_exact": rest,
+        "max_gap_violation": tr.max_gap_violation,
+        "max_energy_increase": float(np.max(np.diff(E), initial=0.0)),
+        "max_V_increase": tr.max_V_increase,
+        "steps_per_s": tr.stats["steps_per_s"], "backend": tr.stats["backend"], "steps": tr.stats["steps"],
+        "params": p,
+    }
+    text = (f"bouncing ball: H = {p['H']} m, e = {p['e']}, h = {p['h']} s, theta = {p['theta']}\n"
+            f"first impacts     {np.round(ti[:k], 5).tolist()}\n"
+            f"closed form       {np.round(ex_t[:k], 5).tolist()}\n"
+            f"rest time         {rest_num:.5g} s (closed form {rest:.5g} s)\n"
+            f"max penetration   {tr.max_gap_violation:.3e} m\n"
+            f"steps/s           {tr.stats['steps_per_s']:.3g} ({tr.stats['backend']})")
+    return _finish(tr, options, text, data, "bouncing ball")
+
+
+def bouncing_ball_tradeoff(scene, params: dict, smoke: bool = False):
+    """Trade-off spec (for ``invctl study tradeoff bouncing_ball``): error of the
+    first impact times against the closed form versus h."""
+    from ..studies.tradeoff import TradeoffSpec
+
+    p = scene.check_params(params)
+    model = scene.build(**{k: p[k] for k in scene.MODEL_PARAMS})
+    mj = MoreauJean(model, potential=scene.potential(model))
+    ex_t = scene.exact_impacts(p["H"], p["g"], p["e"], 10.0)[0]
+    t_end = min(ex_t[2] + 0.05, 10.0)
+
+    def run(h):
+        tic = time.perf_counter()
+        tr = mj.run([p["H"]], [0.0], t_end, float(h), theta=p["theta"])
+        wall = time.perf_counter() - tic
+        ti = tr.impacts()[0][:3]
+        return {"error": float(np.max(np.abs(ti - ex_t[:len(ti)]))), "time_s": wall}
+
+    values = [1e-2, 3e-3, 1e-3] if smoke else [1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5]
+    return TradeoffSpec(knob="h", values=values, run=run, reference="closed-form impact times",
+                        error_name="max error of the first three impact times [s]")
+
+
+# ------------------------------------------------------------- prismatic
+def prismatic_command(scene, params: dict, **options) -> CommandResult:
+    """Pre-loading (both actuated), PD regulation or the Remark 4 switching
+    strategy (body 1 only) on the prismatic clearance."""
+    _check_options("prismatic_clearance", options)
+    full, mp = _split(params, scene.PARAMS, scene.MODEL_PARAMS)
+    act = int(full["actuators"])
+    controller = options.get("controller") or ("pd" if act == 1 else "preload")
+    if options.get("t_end") is not None:
+        full["t_end"] = float(options["t_end"])
+    model = scene.build(actuators=act, **mp)
+    plant_over = parse_assignments(options.get("plant_set"), option="--plant-set")
+    bad = sorted(set(plant_over) - set(scene.MODEL_PARAMS))
+    if bad:
+        raise SceneError(f"--plant-set accepts model parameters {list(scene.MODEL_PARAMS)}, got {bad}")
+    plant = model.with_params(**plant_over)
+    l, L = full["l"], full["L"]
+    data: dict = {"controller": controller}
+    if controller == "pd":
+        if act != 1:
+            raise SceneError("controller 'pd' acts on body 1 only: use --set actuators=1")
+        from ..control.pdplus import pd_gravity
+
+        law = pd_gravity(model, Kp=full["Kp"], Kv=full["Kv"], q_d=full["qd"], idx=[0])
+        q0, v0 = [0.0, l + 0.5 * (L - 2 * l)], [0.0, full["v20"]]
+    elif controller == "preload":
+        from ..control.preload import preload_check, preload_law
+
+        q0, v0 = [0.0, l], [0.0, 0.0]
+        chk = preload_check(model, q0, v0, [0])
+        Kp = full["Kp"] if act == 2 else 0.0
+        Kv = full["Kv"] if act == 2 else 0.0
+        law = preload_law(model, [0], beta=full["beta"], Kp=Kp, Kv=Kv,
+                          y_d=[full["qd"], full["qd"] + l][:act])
+        data["E_hat"] = chk.E_hat.tolist()
+    elif controller == "switching":
+        if act != 1:
+            raise SceneError("controller 'switching' (Remark 4) drives body 1 only: use --set actuators=1")
+        law = scene.switching_law(model, Kp=full["Kp"], Kv=full["Kv"], amp=full["amp"], period=full["period"])
+        q0, v0 = [0.0, l], [0.0, 0.0]
+    elif controller == "none":
+        from ..control.pdplus import zero_input
+
+        law = zero_input()
+        q0, v0 = [0.0, l + 0.5 * (L - 2 * l)], [0.0, full["v20"]]
+    else:
+        raise SceneError(f"prismatic_clearance: unknown controller {controller!r}; choose pd, preload, switching, none")
+    mj = MoreauJean(model, law, projection=bool(full["projection"]))
+    tr = mj.run(q0, v0, full["t_end"], full["h"], theta=full["theta"], params=plant.theta_values,
+                ctrl_params=model.theta_values, activation_tol=full["activation_tol"])
+    data.update({
+        "impact_times": tr.impact_times[:100].tolist(),
+        "n_impacts": int(tr.impact_times.size),
+        "max_gap_violation": tr.max_gap_violation,
+        "max_V_increase": tr.max_V_increase if law.info.get("lyapunov", True) else None,
+        "steps_per_s": tr.stats["steps_per_s"], "backend": tr.stats["backend"], "steps": tr.stats["steps"],
+        "q_final": tr.q[-1].tolist(), "v_final": tr.v[-1].tolist(),
+    })
+    text = f"prismatic clearance, controller {controller}, {act} actuator(s), h = {full['h']} s\n"
+    if controller == "preload":
+        lam = tr.P[:, 0] / full["h"]
+        err = float(np.max(np.abs(lam - full["beta"])))
+        data["multiplier_error"] = err
+        data["contact_kept"] = bool(np.all(tr.active[:, 0]))
+        data["max_f1"] = float(np.max(np.abs(tr.gaps[:, 0])))
+        text += (f"multiplier P/h vs beta = {full['beta']}: max error {err:.3e}; contact kept: "
+                 f"{data['contact_kept']}; max |f1| = {data['max_f1']:.2e}\n")
+    if controller == "pd":
+        data["q1_error_final"] = float(tr.q[-1, 0] - full["qd"])
+    if controller == "switching":
+        w = 2 * np.pi / full["period"]
+        xd = l + full["amp"] * np.sin(w * tr.t)
+        data["q2_tracking_error_max_last_half"] = float(np.max(np.abs(tr.q[len(tr.t) // 2:, 1] - xd[len(tr.t) // 2:])))
+        modes = np.where(tr.gaps[:, 0] <= 1e-9, 1, np.where(tr.gaps[:, 1] <= 1e-9, 2, 0))
+        data["mode_switches"] = int(np.count_nonzero(np.diff(modes)))
+        text += f"body-2 tracking error (last half) {data['q2_tracking_error_max_last_half']:.3e} m\n"
+    text += (f"impacts {data['n_impacts']}, max gap violation {tr.max_gap_violation:.2e}, "
+             f"max V increase {data['max_V_increase']}, steps/s {tr.stats['steps_per_s']:.3g} ({tr.stats['backend']})")
+    return _finish(tr, options, text, data, f"prismatic clearance ({controller})")
