@@ -89,7 +89,8 @@ class InternalDynamics:
         except RuntimeError as exc:
             raise CoordinateError(
                 f"{self.model.name}: could not invert the coordinates at y-derivatives {ys}, eta = {eta} "
-                f"(Newton from q0 = {np.round(self.point, 4).tolist()} failed): {str(exc).splitlines()[-1]}"
+                f"(Newton from q0 = {np.round(self.point, 4).tolist()} failed; no consistent configuration with these "
+                f"outputs and internal state may exist): {str(exc).splitlines()[-1]}"
             ) from None
 
     def summary(self) -> str:

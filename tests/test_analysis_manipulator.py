@@ -1,0 +1,256 @@
+"""Analysis of the manipulator of 003 Sect. 6 against the paper's closed forms.
+
+Independent references typed from the paper: det Gamma (printed formula), the
+internal dynamics (55) and the state form of eta2' with the printed inverse
+(beta', gamma') before (55), the linearization coefficients C0, C1, C2 and
+the eigenvalues mu_1,2 of (51)-(52).  Tolerances: all quantities are exact
+formulas evaluated in double precision; the only error is round-off (and the
+Newton tolerance 1e-12 of the coordinate inversion), hence 1e-9 relative.
+"""
+import json
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import problems.manipulator as scene
+from invctl.analysis import (
+    consistent_state, internal_dynamics, linearize_internal, position_output_gamma,
+    relative_degree,
+)
+from invctl.analysis.commands import analyze_command
+from invctl.cli import main
+from invctl.errors import CoordinateError, SceneError
+
+
+def det_gamma_printed(q, p, x3_power=2):
+    """det Gamma as printed in 003 Sect. 6 (printed with X3^3; X3^2 is what (50) needs)."""
+    a, b, g = q[2], q[3], q[4]
+    M = scene.build(**{k: v for k, v in p.items()}).evaluate("M", q)
+    br = p["I3"] + p["m3"] * p["X3"] ** x3_power - p["m3"] * p["L3"] * p["X3"] * np.cos(g)
+    return -p["L1"] ** 2 * p["L2"] ** 2 * np.sin(a) * np.sin(a + b) * br / ((2 * p["L2"] + 4 * p["L3"]) * np.linalg.det(M))
+
+
+def consts(p):
+    L2, L3, m3 = p["L2"], p["L3"], p["m3"]
+    kap = m3 * L3**2 / 3
+    return L2, L3, m3, p["c"], p["D"], kap, 2 * L3 / (L2 + 2 * L3)
+
+
+def F55(eta, y, yd, p, *, printed=False):
+    """003 (55) typed from the paper.  ``printed=True``: exactly as printed; otherwise with the sign of the
+    (1 - delta) (L3 m3 / 2) sin(.) y1' term in the first factor of F2 corrected (see docs/analysis.md)."""
+    L2, L3, m3, c, D, kap, dl = consts(p)
+    e1, e2 = eta
+    k = 2 * (L2 + 2 * L3) / (kap * L2 * (2 - 3 * np.cos(e1)))
+    sn, cs = np.sin(y[1] + (1 - dl) * e1), np.cos(y[1] + (1 - dl) * e1)
+    F1 = k * (e2 - (kap + m3 * L2 * L3 / 4 * np.cos(e1)) * yd[1] + m3 * L3 / 2 * sn * yd[0])
+    sgn = -1 if printed else 1
+    fac1 = (1 - dl) * e2 + sgn * (1 - dl) * L3 * m3 / 2 * sn * yd[0] - L2 * L3 * m3 / 4 * np.cos(e1) * yd[1]
+    fac2 = L3 * m3 / 2 * cs * yd[0] + L2 * L3 * m3 / 4 * np.sin(e1) * k * (
+        kap * yd[1] - dl * e2 - dl * m3 * L3 / 2 * sn * yd[0])
+    F2 = -k * fac1 * fac2 - D * F1 - c * e1
+    return np.array([F1, F2])
+
+
+def eta2_dot_state_form(eta, y, yd, p):
+    """The paper's eta2' in the states (before (54)) with its printed beta', gamma' (after (54))."""
+    L2, L3, m3, c, D, kap, dl = consts(p)
+    e1, e2 = eta
+    k = 2 * (L2 + 2 * L3) / (kap * L2 * (2 - 3 * np.cos(e1)))
+    sn = np.sin(y[1] + (1 - dl) * e1)
+    bd = k * (kap * yd[1] - dl * e2 - dl * m3 * L3 / 2 * sn * yd[0])
+    gd = k * (e2 - (kap + m3 * L2 * L3 / 4 * np.cos(e1)) * yd[1] + m3 * L3 / 2 * sn * yd[0])
+    beta = y[1] - dl * e1
+    return (-L3 * m3 / 2 * np.cos(beta + e1) * (bd + gd) * yd[0]
+            - m3 / 4 * L2 * L3 * np.sin(e1) * bd * (bd + gd) - D * gd - c * e1)
+
+
+def random_internal_points(rng, count, p=scene.PARAMS):
+    """Random (y, y', eta) for which the loop closes: |s2 + d - L2/2 cos(beta)| < 0.9 L1 (alpha exists)."""
+    dl = 2 * p["L3"] / (p["L2"] + 2 * p["L3"])
+    found = 0
+    while found < count:
+        y = np.array([rng.uniform(-0.3, 0.0), rng.uniform(0.6, 1.1)])
+        eta = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.3, 0.3)])
+        beta = y[1] - dl * eta[0]
+        if abs(y[0] + p["d"] - 0.5 * p["L2"] * np.cos(beta)) < 0.9 * p["L1"] and 0 < beta < np.pi / 2:
+            found += 1
+            yield y, rng.uniform(-1, 1, 2), eta
+
+
+@pytest.fixture(scope="module")
+def paper_internal(manipulator):
+    return scene.manipulator_internal(manipulator, "sect3")
+
+
+@pytest.fixture(scope="module")
+def lin(manipulator, paper_internal):
+    return scene.manipulator_linearization(manipulator, internal=paper_internal)
+
+
+def test_relative_degree(manipulator):
+    rd = relative_degree(manipulator)
+    assert rd.r_aux == (2, 2, 2, 2) and rd.r_hat == 2 and rd.r_bar == 8
+    assert rd.samples == 200 and np.isfinite(rd.worst_condition) and rd.min_singular_value > 0
+
+
+@pytest.mark.parametrize("overrides", [{}, {"X3": 0.2, "I3": 0.03}, {"L2": 1.3, "L3": 0.7, "m3": 0.8}])
+def test_det_gamma_matches_closed_form_with_X3_squared(overrides):
+    model = scene.build(**overrides)
+    rd = relative_degree(model, samples=20)
+    G22 = position_output_gamma(model)
+    qs, vs = model.region.sample(10, 3)
+    for q, v in zip(qs, vs):
+        G_lie = np.array(rd.gamma(q, v, model.theta_values))
+        G_closed = np.array(G22(q, model.theta_values))
+        np.testing.assert_allclose(G_lie, G_closed, rtol=1e-12, atol=1e-12)
+        d = np.linalg.det(G_lie)
+        assert d == pytest.approx(det_gamma_printed(q, model.values, 2), rel=1e-9)
+    # the printed X3^3 is a typo: with the default parameters it is off by a large factor
+    q = qs[0]
+    d = np.linalg.det(np.array(rd.gamma(q, vs[0], model.theta_values)))
+    assert abs(det_gamma_printed(q, model.values, 3) - d) > 0.01 * abs(d)
+
+
+def test_det_gamma_has_one_sign_on_U(manipulator):
+    """det Gamma never vanishes on U (sampled): it is > 0 everywhere; the printed closed form is > 0 too,
+    since its bracket I3 + m3 X3^2 - m3 L3 X3 cos(gamma) < 0 on U (the paper's 'det Gamma < 0' is a sign slip)."""
+    rd = relative_degree(manipulator, samples=1000, rng=7)
+    assert rd.det_range[0] > 0
+    p = manipulator.values
+    qs, _ = manipulator.region.sample(500, 11)
+    bracket = p["I3"] + p["m3"] * p["X3"] ** 2 - p["m3"] * p["L3"] * p["X3"] * np.cos(qs[:, 4])
+    assert np.all(bracket < 0)
+
+
+def test_internal_dynamics_agree_with_55(manipulator, paper_internal):
+    p = manipulator.values
+    rng = np.random.default_rng(0)
+    for y, yd, eta in random_internal_points(rng, 15):
+        ours = paper_internal((y, yd), eta)
+        np.testing.assert_allclose(ours, F55(eta, y, yd, p), rtol=1e-9, atol=1e-9)
+        assert ours[1] == pytest.approx(eta2_dot_state_form(eta, y, yd, p), rel=1e-9, abs=1e-9)
+    # the printed (55) (sign of one term) disagrees with the paper's own state form away from y1' = 0
+    y, yd, eta = np.array([-0.1, 0.8]), np.array([0.7, -0.4]), np.array([0.3, 0.1])
+    assert abs(F55(eta, y, yd, p, printed=True)[1] - eta2_dot_state_form(eta, y, yd, p)) > 1e-2
+
+
+def test_sect2_equals_sect3_same_coordinates(manipulator, paper_internal):
+    s2 = scene.manipulator_internal(manipulator, "sect2")
+    rng = np.random.default_rng(1)
+    for y, yd, eta in random_internal_points(rng, 10):
+        np.testing.assert_allclose(s2((y, yd), eta), paper_internal((y, yd), eta), rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.parametrize("method", ["sect2", "sect3"])
+def test_internal_dynamics_follow_the_dae(manipulator, paper_internal, method):
+    """Both coordinate choices (paper's and Lemma 3.1/3.2 default) satisfy d/dt phi(x) = q(y, y', eta) along
+    the DAE for any input: the same internal dynamics up to the coordinate change."""
+    q0 = scene.initial_configuration(manipulator)
+    default = internal_dynamics(manipulator, method, point=q0)
+    acc = manipulator.accel_and_multipliers
+    th = manipulator.theta_values
+    m = manipulator
+    X = ca.vertcat(m.q, m.v)
+    out = ca.Function("out", [m.q, m.v, m.theta], [m.h, ca.mtimes(ca.jacobian(m.h, m.q), m.v)])
+    rng = np.random.default_rng(2)
+    for _ in range(8):
+        q, v = consistent_state(m, q0 + rng.uniform(-0.15, 0.15, 5), rng.uniform(-1, 1, 5))
+        u = rng.uniform(-5, 5, 2)
+        a = np.array(acc(q, v, u, th)[0]).ravel()
+        y, yd = (np.array(o).ravel() for o in out(q, v, th))
+        for idyn in (default, paper_internal):
+            deta = ca.Function("d", [m.q, m.v, m.theta], [ca.jacobian(idyn.phi_expr, X)])
+            eta = np.array(idyn.eta(q, v, th)).ravel()
+            true_rate = np.array(deta(q, v, th)) @ np.concatenate([v, a])
+            np.testing.assert_allclose(idyn((y, yd), eta), true_rate, rtol=1e-8, atol=1e-8)
+
+
+def test_linearization_structure_51_52(manipulator, lin):
+    p = manipulator.values
+    L2, L3, m3, c, D, kap, dl = consts(p)
+    ref = scene.reference(manipulator)
+    b0, bf = ref(ref.t0)[1, 0], ref(ref.tf)[1, 0]
+    C0 = (2 * L2 + 4 * L3) / (kap * L2)
+    C1 = -L3 * m3 * (L2 + 2 * L3) / (2 * kap * L2) * (np.sin(b0) + np.sin(bf))
+    C2_printed = (4 * kap + L2 * L3 * m3) / (10 * kap * L2) * (L2 + 2 * L3)
+    np.testing.assert_allclose(lin.Q, [[0, -C0], [-c, D * C0]], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(lin.P_list[0], np.zeros((2, 2)), atol=1e-9)
+    # C2 as printed has 10 kappa L2 in the denominator; the Jacobian of (55) gives 2 kappa L2
+    np.testing.assert_allclose(lin.P_list[1], [[C1, 5 * C2_printed], [-D * C1, -D * 5 * C2_printed]], rtol=1e-9)
+    np.testing.assert_allclose(lin.P, lin.Q @ lin.P_list[1], rtol=1e-12)
+    np.testing.assert_allclose(lin.F[0], -lin.P_list[1])
+    mu = D * C0 / 2 + np.array([-1, 1]) * np.sqrt((D * C0 / 2) ** 2 + C0 * c)
+    np.testing.assert_allclose(np.sort(lin.eigenvalues.real), mu, rtol=1e-10)
+    assert lin.k == 1 and mu[0] < 0 < mu[1]
+    # T of (39) is the inverse of the paper's T = [mu2/c mu1/c; 1 1]
+    np.testing.assert_allclose(np.linalg.inv(lin.T), [[mu[1] / c, mu[0] / c], [1, 1]], rtol=1e-9)
+    np.testing.assert_allclose(lin.T @ lin.Q @ np.linalg.inv(lin.T), np.diag(mu), atol=1e-9)
+    assert lin.Q_tilde[0, 0] == pytest.approx(mu[1])
+
+
+def test_default_coordinates_give_the_same_eigenvalues(manipulator, lin):
+    """At an equilibrium, linearizations in different coordinates are similar: same eigenvalues."""
+    q0 = scene.initial_configuration(manipulator)
+    default = internal_dynamics(manipulator, "sect3", point=q0)
+    paper = scene.manipulator_internal(manipulator)
+    th = manipulator.theta_values
+    ref = scene.reference(manipulator)
+    for t in (ref.t0, ref.tf):
+        y, z = ref(t).ravel(), np.zeros(2)
+        # the physical equilibrium gamma = 0, v = 0 with these outputs
+        q = np.array(paper.state(y_0=y, y_1=z, eta=z, theta=th)["q"]).ravel()
+        lp = linearize_internal(manipulator, paper, [([y, z], z)])
+        ld = linearize_internal(manipulator, default, [([y, z], np.array(default.eta(q, np.zeros(5), th)).ravel())])
+        np.testing.assert_allclose(np.sort(ld.eigenvalues.real), np.sort(lp.eigenvalues.real), rtol=1e-8)
+
+
+def test_psi_is_the_unstable_coordinate(manipulator, lin):
+    """Psi (58) = [0 1] T (eta - P2 y), assembled here by hand from the paper's coordinates."""
+    psi = lin.psi_function()
+    th = manipulator.theta_values
+    rng = np.random.default_rng(4)
+    q0 = scene.initial_configuration(manipulator)
+    for _ in range(5):
+        q, v = consistent_state(manipulator, q0 + rng.uniform(-0.1, 0.1, 5), rng.uniform(-1, 1, 5))
+        M = manipulator.evaluate("M", q)
+        eta = np.array([q[4], M[4] @ v])
+        y = manipulator.evaluate("h", q).ravel()
+        expected = (lin.T @ (eta - lin.P_list[1] @ y))[1]
+        assert float(psi(q, v, th)) == pytest.approx(expected, rel=1e-12, abs=1e-12)
+
+
+def test_phi_prime_singular_is_reported(manipulator):
+    """eta1 = beta + delta gamma duplicates the output h2: Phi' is singular everywhere."""
+    def bad_phi(model):
+        return ca.vertcat(model.h[1], ca.mtimes(model.M[4, :], model.v))
+
+    with pytest.raises(CoordinateError, match="Phi' is singular at q = ") as err:
+        internal_dynamics(manipulator, "sect3", bad_phi, point=scene.initial_configuration(manipulator), samples=20)
+    assert err.value.diagnostics["sigma_min"] < 1e-10
+
+
+def test_LK_phi_nonzero_is_reported(manipulator):
+    with pytest.raises(CoordinateError, match="L_K phi != 0"):
+        internal_dynamics(manipulator, "sect2", lambda m: ca.vertcat(m.q[4], m.v[4]),
+                          point=scene.initial_configuration(manipulator), samples=20)
+
+
+def test_analyze_command_json(capsys):
+    assert main(["analyze", "manipulator", "--json", "--samples", "50", "--set", "m3=0.6"]) == 0
+    data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert data["relative_degree"] == [2, 2, 2, 2] and data["r_bar"] == 8
+    assert data["params"]["m3"] == 0.6 and data["params"]["I3"] == pytest.approx(0.6 * 0.25 / 12)
+    Q, P = np.array(data["Q"]), np.array(data["P"])
+    assert Q.shape == (2, 2) and P.shape == (2, 2)
+    eigs = np.sort(np.array(data["internal_eigs"]))
+    np.testing.assert_allclose(eigs, np.sort(np.linalg.eigvals(Q).real), rtol=1e-12)
+    assert eigs[0] < 0 < eigs[1]
+    assert data["checks"]["relative_degree_exists"] and data["checks"]["A2"]["passed"]
+    assert data["checks"]["sect2_vs_sect3_max_diff"] < 1e-9
+
+
+def test_analyze_rejects_unknown_option():
+    with pytest.raises(SceneError, match="does not take"):
+        analyze_command(scene, {}, samples=10, controller="C1")
