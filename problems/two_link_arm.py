@@ -118,14 +118,27 @@ def redundant_configuration(model: Model, q1: float, q2: float) -> np.ndarray:
                      -p["L1"] * math.cos(q1) - p["lc2"] * math.cos(th2)])
 
 
+def zero_dynamics_equilibrium(model: Model, q1: float = 0.0) -> float:
+    """q2* with c2 q2 + m2 g lc2 sin(q1 + q2) = 0 (link 2 at rest while q1 is held), by Newton."""
+    p = model.values
+    a = p["m2"] * p["g"] * p["lc2"]
+    q2 = 0.0
+    for _ in range(50):
+        r = p["c2"] * q2 + a * math.sin(q1 + q2)
+        q2 -= r / (p["c2"] + a * math.cos(q1 + q2))
+        if abs(r) < 1e-15:
+            break
+    return q2
+
+
 def zero_dynamics_eigenvalues(model: Model, q1: float = 0.0):
-    """Closed form: eigenvalues of the linearized zero dynamics J2 q2'' = -(c2 + m2 g lc2 cos q1) q2 - D2 q2'
-    at q1 held, q2 = 0."""
+    """Closed form: eigenvalues of the zero dynamics J2 q2'' = -c2 q2 - D2 q2' - m2 g lc2 sin(q1 + q2)
+    (q1 held) linearized at their equilibrium q2*."""
     p = model.values
     J2 = p["I2"] + p["m2"] * p["lc2"] ** 2
-    k = (p["c2"] + p["m2"] * p["g"] * p["lc2"] * math.cos(q1)) / J2
-    b = p["D2"] / J2
-    return np.roots([1.0, b, k])
+    q2 = zero_dynamics_equilibrium(model, q1)
+    k = (p["c2"] + p["m2"] * p["g"] * p["lc2"] * math.cos(q1 + q2)) / J2
+    return np.roots([1.0, p["D2"] / J2, k])
 
 
 def reference(model: Model, *, y0: float = 0.0, yf: float = 0.5, t0: float = 0.0, tf: float = 1.0) -> Reference:

@@ -1,0 +1,177 @@
+"""Textbook cases: cart-pole (non-minimum phase), colocated two-link arm (minimum phase,
+Gamma = Schur complement case of 003 Sect. 2.3), knife edge (non-holonomic), and
+outputs whose relative degree does not exist.
+
+References are closed forms derived by hand in the scene docstrings; they are
+exact, so tolerances only cover round-off and the 1e-12 Newton tolerance.
+"""
+import casadi as ca
+import numpy as np
+import pytest
+
+import problems.cartpole as cartpole
+import problems.knife_edge as knife
+import problems.two_link_arm as arm
+from invctl.analysis import (
+    auxiliary_system, colocated_check, consistent_state, internal_dynamics, linearize_internal, relative_degree,
+    schur_complement,
+)
+from invctl.errors import CoordinateError, RelativeDegreeError
+
+
+# ------------------------------------------------------------------ cart-pole
+def test_cartpole_zero_dynamics_closed_form():
+    model = cartpole.build(D=0.3)
+    p = model.values
+    J = p["I"] + p["mp"] * p["l"] ** 2
+    idyn = internal_dynamics(model, "sect3", point=[0.0, 0.0])
+    assert idyn.dim == 2 and np.allclose(idyn.E, [[0, 1]])
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        y, yd = rng.uniform(-1, 1, 1), rng.uniform(-1, 1, 1)
+        e1, e2 = rng.uniform(-1, 1), rng.uniform(-2, 2)
+        e1d = e2 - p["mp"] * p["l"] * np.cos(e1) * yd[0] / J
+        e2d = (p["mp"] * p["g"] * p["l"] * np.sin(e1) - p["mp"] * p["l"] * np.sin(e1) * yd[0] * e1d - p["D"] * e1d) / J
+        np.testing.assert_allclose(idyn((y, yd), [e1, e2]), [e1d, e2d], rtol=1e-10, atol=1e-12)
+    lin = linearize_internal(model, idyn, [([[0.0], [0.0]], [0.0, 0.0])])
+    np.testing.assert_allclose(np.sort(lin.eigenvalues.real), cartpole.zero_dynamics_eigenvalues(model), rtol=1e-10)
+    assert lin.k == 1 and not lin.minimum_phase
+
+
+def test_cartpole_is_colocated_with_positive_gamma():
+    rep = colocated_check(cartpole.build(), samples=50)
+    assert rep.colocated and rep.gamma_min_eig > 0 and rep.schur_min_eig > 0
+
+
+# ------------------------------------------------------------- two-link arm
+def test_two_link_arm_minimum_phase_closed_form():
+    model = arm.build()
+    idyn = internal_dynamics(model, "sect3", point=[0.0, 0.0])
+    for q1 in (0.0, 0.4):
+        q2 = arm.zero_dynamics_equilibrium(model, q1)
+        lin = linearize_internal(model, idyn, [([[q1], [0.0]], [q2, 0.0])])
+        ev = np.sort_complex(lin.eigenvalues)
+        np.testing.assert_allclose(ev, np.sort_complex(arm.zero_dynamics_eigenvalues(model, q1)), rtol=1e-9)
+        assert lin.minimum_phase and lin.k == 0
+
+
+def test_two_link_arm_redundant_schur_complement_equals_minimal_gamma():
+    """003 Sect. 2.3: with the joint as a holonomic constraint Gamma is symmetric positive definite and the
+    Schur complement S of (15) is the high-gain of the reduced system, i.e. Gamma of the minimal model."""
+    red, mini = arm.build_redundant(), arm.build()
+    rep = colocated_check(red, samples=60)
+    assert rep.colocated and rep.gamma_max_asym < 1e-12 and rep.gamma_min_eig > 0 and rep.schur_min_eig > 0
+    rd_min = relative_degree(mini, samples=10)
+    S = schur_complement(red)
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        q1, q2 = rng.uniform(-2, 2), rng.uniform(-1.2, 1.2)
+        qr = arm.redundant_configuration(red, q1, q2)
+        S_val = float(S(qr, np.zeros(4), red.theta_values))
+        G_min = float(rd_min.gamma([q1, q2], [0, 0], mini.theta_values))
+        assert S_val == pytest.approx(G_min, rel=1e-12)
+
+
+def test_two_link_arm_redundant_internal_dynamics_match_minimal():
+    red, mini = arm.build_redundant(), arm.build()
+    idyn = internal_dynamics(red, "sect3", point=arm.redundant_configuration(red, 0.0, 0.0))
+    assert idyn.dim == 2
+    for q1 in (0.0, 0.4):
+        q2 = arm.zero_dynamics_equilibrium(mini, q1)
+        lr = linearize_internal(red, idyn, [([[q1], [0.0]], np.array(
+            idyn.eta(arm.redundant_configuration(red, q1, q2), np.zeros(4), red.theta_values)).ravel())])
+        np.testing.assert_allclose(np.sort_complex(lr.eigenvalues),
+                                   np.sort_complex(arm.zero_dynamics_eigenvalues(mini, q1)), rtol=1e-8)
+
+
+def test_two_link_arm_sect2_equals_sect3():
+    model = arm.build_redundant()
+    q0 = arm.redundant_configuration(model, 0.1, 0.2)
+    s3 = internal_dynamics(model, "sect3", point=q0)
+    s2 = internal_dynamics(model, "sect2", s3.phi_expr, point=q0)
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        ys = (rng.uniform(-0.3, 0.3, 1), rng.uniform(-1, 1, 1))
+        eta = rng.uniform(-0.3, 0.3, 2)
+        np.testing.assert_allclose(s2(ys, eta), s3(ys, eta), rtol=1e-10, atol=1e-10)
+
+
+def test_tip_output_relative_degree_undefined_at_stretched_arm():
+    model = arm.build_tip()
+    with pytest.raises(RelativeDegreeError, match="det Gamma changes sign") as err:
+        relative_degree(model, samples=100)
+    assert err.value.partial is not None and err.value.diagnostics["sigma_min"] > 0
+    # at the stretched arm itself the error names the point and Gamma's smallest singular value
+    with pytest.raises(RelativeDegreeError, match=r"does not exist at q = \[0.3, 0.0\].*smallest singular value") as err:
+        relative_degree(model, samples=0, points=[[0.3, 0.0]])
+    assert err.value.diagnostics["sigma_min"] < 1e-12
+
+
+# --------------------------------------------------------------- knife edge
+def test_knife_edge_relative_degree_and_gamma():
+    model = knife.build()
+    rd = relative_degree(model, samples=100)
+    assert rd.r_aux == (1, 2, 2) and rd.r_hat == 2 and rd.r_bar == 5
+    p = model.values
+    for th in (-1.0, 0.0, 0.7):
+        G = np.array(rd.gamma([0.3, -0.2, th], [0.1, 0.2, 0.3], model.theta_values))
+        assert np.linalg.det(G) == pytest.approx(np.cos(th) / (p["m"] ** 2 * p["I"]), rel=1e-12)
+
+
+def test_knife_edge_internal_dynamics_closed_form():
+    model = knife.build()
+    idyn = internal_dynamics(model, "sect3", point=[0.0, 0.0, 0.3])
+    assert idyn.dim == 1 and idyn.dim2 == 0
+    s2 = internal_dynamics(model, "sect2", point=[0.0, 0.0, 0.3])
+    rng = np.random.default_rng(1)
+    for _ in range(10):
+        y, yd, eta = rng.uniform([-1, -1.0], [1, 1.0]), rng.uniform(-1, 1, 2), rng.uniform(-1, 1, 1)
+        expected = np.tan(y[1]) * yd[0]
+        assert idyn((y, yd), eta)[0] == pytest.approx(expected, rel=1e-10, abs=1e-12)
+        assert s2((y, yd), eta)[0] == pytest.approx(expected, rel=1e-10, abs=1e-12)
+        q, v = (np.array(a).ravel() for a in idyn.state(y_0=y, y_1=yd, eta=eta, theta=model.theta_values).values())
+        assert abs(model.evaluate("J", q) @ v) < 1e-12  # the velocity respects the constraint
+
+
+def test_knife_edge_position_output_has_no_relative_degree():
+    with pytest.raises(RelativeDegreeError, match="smallest singular value is 0"):
+        relative_degree(knife.build_position_output(), samples=20)
+
+
+# ------------------------------------------------------------ auxiliary ODE
+@pytest.mark.parametrize("build", [knife.build, arm.build_redundant])
+def test_auxiliary_ode_reproduces_the_dae(build):
+    """(10) with u_aux = (mu, lam, u) from the index-1 DAE gives the DAE's acceleration."""
+    model = build()
+    aux = auxiliary_system(model)
+    acc = model.accel_and_multipliers
+    th = model.theta_values
+    rng = np.random.default_rng(2)
+    qs, _ = model.region.sample(5, 4)
+    for q in qs:
+        q, v = consistent_state(model, q, rng.uniform(-1, 1, model.n))
+        u = rng.uniform(-2, 2, model.m)
+        a, lam, mu = (np.array(x).ravel() for x in acc(q, v, u, th))
+        xdot, yaux = aux.function(q, v, np.concatenate([mu, lam, u]), th)
+        np.testing.assert_allclose(np.array(xdot).ravel(), np.concatenate([v, a]), rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(np.array(yaux).ravel()[: model.p + model.ell], 0, atol=1e-10)
+
+
+# -------------------------------------------------------------- bad inputs
+def test_phi_with_wrong_size_is_reported():
+    model = cartpole.build()
+    with pytest.raises(CoordinateError, match="phi has 1 rows.*dimension 2n - r_bar = 4 - 2 = 2"):
+        internal_dynamics(model, "sect2", lambda m: m.q[1], point=[0, 0])
+
+
+def test_velocity_coordinate_violating_25_is_reported():
+    model = cartpole.build()
+    with pytest.raises(CoordinateError, match="L_K phi != 0"):
+        internal_dynamics(model, "sect3", lambda m: ca.vertcat(m.q[1], m.v[1]), point=[0, 0], samples=10)
+
+
+def test_linearization_point_with_wrong_derivative_count():
+    model = cartpole.build()
+    idyn = internal_dynamics(model, point=[0, 0])
+    with pytest.raises(CoordinateError, match="r_hat = 2 output derivatives, got 1"):
+        linearize_internal(model, idyn, [([[0.0]], [0.0, 0.0])])
