@@ -1,0 +1,355 @@
+"""Closed-loop simulation of a constrained multibody plant (003 (1)) with feedforward and feedback.
+
+The plant DAE ``q' = v, M v' = f + G^T lam + B u, g(q) = 0`` is reduced to index 1 with
+Baumgarte stabilization of the acceleration constraint,
+
+    G a = -(G' v) v - 2 alpha G v - beta^2 g(q),
+
+so drift of ``g`` and ``G v`` decays instead of growing; both are reported.  Plant, controller
+(:class:`invctl.control.funnel_nmp.NMPFunnelController` or none), feedforward (sampled causal
+``u_ff``, a B-spline of time) and reference form ONE CasADi expression graph that drives CVODES
+(BDF, exact Jacobian by AD) over the output grid; cumulative errors are quadratures of the same
+integrator.  The run is split into chunks (one integrator, start time as parameter) so that leaving
+the funnel stops it with :class:`~invctl.errors.FunnelViolation` carrying the trajectory so far.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields
+
+import casadi as ca
+import numpy as np
+
+from ..errors import FunnelViolation, ParameterError, SimulationFailed
+
+__all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acceleration", "sampled_signal"]
+
+#: a level counts as outside the funnel at this ratio (the law clips 1 - phi^2 e^2 at 1e-6)
+VIOLATION_RATIO = 1.0 - 5e-7
+
+
+@dataclass
+class ClosedLoopResult:
+    """Trajectory of a closed-loop run (all arrays with time along the last axis).
+
+    ``ratios`` holds ``phi_i,j |e_i,j|`` for every level and ``phi ||e_bar||`` last
+    (``< 1`` inside the funnels); ``drift_g``/``drift_Gv`` are ``max |g(q)|`` and ``max |G v|``.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    z: np.ndarray
+    u: np.ndarray
+    u_ff: np.ndarray
+    u_fb: np.ndarray
+    y: np.ndarray
+    y_ref: np.ndarray
+    r: np.ndarray
+    r_ref: np.ndarray
+    ratios: np.ndarray
+    e_bar: np.ndarray
+    phi_bar: np.ndarray
+    drift_g: np.ndarray
+    drift_Gv: np.ndarray
+    cumulative_output_error: float
+    cumulative_endeffector_error: float
+    wall_s: float
+    controller: str = ""
+    status: str = "ok"
+    message: str = ""
+    ratio_names: list = field(default_factory=list)
+    q_names: list = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def output_error(self) -> np.ndarray:
+        return np.linalg.norm(self.y - self.y_ref, axis=0)
+
+    @property
+    def endeffector_error(self) -> np.ndarray:
+        return np.linalg.norm(self.r - self.r_ref, axis=0)
+
+    @property
+    def max_funnel_ratio(self) -> float:
+        return float(np.max(self.ratios)) if self.ratios.size else 0.0
+
+    @property
+    def funnel_margin(self) -> float:
+        """``1 - max ratio``: how far the worst level stayed from its funnel boundary."""
+        return 1.0 - self.max_funnel_ratio if self.ratios.size else float("nan")
+
+    @property
+    def max_constraint_drift(self) -> float:
+        return float(max(np.max(self.drift_g, initial=0.0), np.max(self.drift_Gv, initial=0.0)))
+
+    @property
+    def input_peaks(self) -> np.ndarray:
+        return np.max(np.abs(self.u), axis=1)
+
+    def summary(self) -> dict:
+        return {"controller": self.controller, "status": self.status,
+                "t_end": float(self.t[-1]) if self.t.size else 0.0,
+                "cumulative_output_error": self.cumulative_output_error,
+                "cumulative_endeffector_error": self.cumulative_endeffector_error,
+                "max_funnel_ratio": self.max_funnel_ratio if self.ratios.size else None,
+                "funnel_margin": self.funnel_margin if self.ratios.size else None,
+                "max_constraint_drift": self.max_constraint_drift,
+                "input_peaks": self.input_peaks.tolist(),
+                "final_output_error": float(self.output_error[-1]) if self.t.size else None,
+                "wall_s": self.wall_s}
+
+    def save(self, path) -> None:
+        """Write all arrays and scalars to ``.npz``."""
+        data = {}
+        for f in fields(self):
+            val = getattr(self, f.name)
+            data[f.name] = np.asarray(val) if not isinstance(val, dict) else np.asarray(repr(val))
+        np.savez(path, **data)
+
+    @classmethod
+    def load(cls, path) -> "ClosedLoopResult":
+        with np.load(path, allow_pickle=False) as d:
+            kw = {}
+            for f in fields(cls):
+                a = d[f.name]
+                if f.name in ("cumulative_output_error", "cumulative_endeffector_error", "wall_s"):
+                    kw[f.name] = float(a)
+                elif f.name in ("controller", "status", "message"):
+                    kw[f.name] = str(a)
+                elif f.name in ("ratio_names", "q_names"):
+                    kw[f.name] = [str(x) for x in a]
+                elif f.name == "stats":
+                    kw[f.name] = {}
+                else:
+                    kw[f.name] = np.array(a)
+        return cls(**kw)
+
+    def plot(self, path=None):
+        """Outputs, errors, inputs and funnel (one figure)."""
+        from ..plot.tracking import plot_run
+
+        return plot_run(self, path)
+
+
+def plant_acceleration(model, alpha: float = 20.0, beta: float = 20.0) -> ca.Function:
+    """``(q, v, u, theta) -> (a, lam)`` of the Baumgarte-stabilized index-1 system
+    ``[M -G^T -J^T; G 0 0; J 0 0] [a; lam; mu] = [f + B u; -G'vv - 2 alpha G v - beta^2 g; -(Jv+j)'v - alpha (J v + j)]``."""
+    q, v, th = model.q, model.v, model.theta
+    u = ca.SX.sym("u", model.m)
+    n, l, p = model.n, model.ell, model.p
+    Gv = ca.mtimes(model.G, v)
+    Jv = ca.mtimes(model.J, v) + model.j
+    K = ca.blockcat([[model.M, -model.G.T, -model.J.T],
+                     [model.G, ca.SX(l, l), ca.SX(l, p)],
+                     [model.J, ca.SX(p, l), ca.SX(p, p)]])
+    rhs = ca.vertcat(model.f + ca.mtimes(model.B, u),
+                     -ca.mtimes(ca.jacobian(Gv, q), v) - 2 * alpha * Gv - beta**2 * model.g,
+                     -ca.mtimes(ca.jacobian(Jv, q), v) - alpha * Jv)
+    sol = ca.solve(K, rhs)
+    return ca.Function("plant_acc", [q, v, u, th], [sol[:n], sol[n:n + l]], ["q", "v", "u", "theta"], ["a", "lam"])
+
+
+def sampled_signal(t, values, name="u_ff") -> ca.Function:
+    """MX Function of time from samples (cubic B-spline; held constant outside the samples)."""
+    t = np.asarray(t, float).ravel()
+    vals = np.asarray(values, float).reshape(-1, t.size)
+    if t.size < 4 or np.any(np.diff(t) <= 0):
+        raise ParameterError(f"{name}: need >= 4 strictly increasing sample times")
+    interp = ca.interpolant(name, "bspline", [t], vals.T.ravel())
+    tt = ca.MX.sym("t")
+    out = ca.if_else(tt < t[0], ca.DM(vals[:, 0]), ca.if_else(tt > t[-1], ca.DM(vals[:, -1]), interp(tt)))
+    return ca.Function(name + "_of_t", [tt], [out], ["t"], [name])
+
+
+class ClosedLoop:
+    """Plant + controller + feedforward + reference compiled into one integrator.
+
+    Parameters
+    ----------
+    plant : Model
+        The simulated plant (its parameter values are the integrator's parameter, so the same
+        object simulates other plants with ``run(theta=...)``).
+    reference : Reference
+        ``y_ref``.
+    controller : NMPFunnelController, optional
+        Feedback; ``None`` for pure feedforward.
+    u_ff : (t, values) or casadi.Function, optional
+        Causal feedforward samples (shape (m, N)) or an MX Function of ``t``.
+    endeffector : callable, optional
+        ``r(y)`` built from CasADi operations; its error is integrated as well.
+    t_end, dt : float
+        Horizon and output step.
+    chunks : int
+        Integrator calls per run (funnel checks between them).
+    """
+
+    def __init__(self, plant, reference, *, controller=None, u_ff=None, endeffector=None, t_end=2.0, dt=1e-3,
+                 chunks=8, baumgarte=(20.0, 20.0), rtol=1e-8, atol=1e-10, name="", max_num_steps=20000):
+        if not t_end > 0 or not dt > 0:
+            raise ParameterError(f"need t_end > 0 and dt > 0, got t_end={t_end}, dt={dt}")
+        self.plant, self.reference, self.controller = plant, reference, controller
+        self.endeffector, self.name = endeffector, name
+        self.t_end, self.dt = float(t_end), float(dt)
+        n_steps = int(round(self.t_end / self.dt))
+        self.chunks = max(1, min(int(chunks), n_steps))
+        self.per_chunk = int(np.ceil(n_steps / self.chunks))
+        self.n_steps = self.per_chunk * self.chunks
+        self.dt = self.t_end / self.n_steps
+        n, m = plant.n, plant.m
+        nz = controller.nz if controller is not None else 0
+        self.nx, self.nz = 2 * n + nz, nz
+        t = ca.MX.sym("t")
+        x = ca.MX.sym("x", self.nx)
+        theta = ca.MX.sym("theta", plant.theta.numel())
+        t_start = ca.MX.sym("t_start")
+        q, v, z = x[:n], x[n:2 * n], x[2 * n:]
+        tt = t_start + t
+        if isinstance(u_ff, ca.Function):
+            self.u_ff_fn = u_ff
+        elif u_ff is not None:
+            self.u_ff_fn = sampled_signal(*u_ff)
+        else:
+            self.u_ff_fn = None
+        uff = self.u_ff_fn(tt) if self.u_ff_fn is not None else ca.MX.zeros(m)
+        if controller is not None:
+            ufb, ratios, ebar, _, zdot = controller.symbolic(tt, q, v, z)
+            phib = controller.phi_bar.function(0)(tt)
+        else:
+            ufb, ratios, ebar, zdot, phib = ca.MX.zeros(m), ca.MX(0, 1), ca.MX(0, 1), ca.MX(0, 1), ca.MX(0)
+        u = uff + ufb
+        acc = plant_acceleration(plant, *baumgarte)
+        a, lam = acc(q, v, u, theta)
+        h = plant.function("h")(q, v, theta)
+        yref = reference.function(0)(tt)
+        quad = [ca.norm_2(h - yref)]
+        if endeffector is not None:
+            r, rref = endeffector(h), endeffector(yref)
+            quad.append(ca.norm_2(r - rref))
+        else:
+            r, rref = h, yref
+            quad.append(ca.norm_2(h - yref))
+        dae = {"t": t, "x": x, "p": ca.vertcat(theta, t_start), "ode": ca.vertcat(v, a, zdot), "quad": ca.vertcat(*quad)}
+        grid = np.linspace(0.0, self.per_chunk * self.dt, self.per_chunk + 1)[1:]
+        opts = {"abstol": atol, "reltol": rtol, "max_num_steps": max_num_steps, "linear_solver": "csparse",
+                "print_stats": False}
+        self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
+        self.step_integrator = ca.integrator("closed_loop_step", "cvodes", dae, 0.0, [self.dt], opts)
+        G = plant.function("G")(q, theta)
+        mon = ca.Function("monitor", [t, t_start, x, theta],
+                          [u, uff, ufb, h, yref, r, rref, ratios, ca.norm_2(ebar) if ebar.numel() else ca.MX(0),
+                           phib, ca.norm_inf(plant.function("g")(q, theta)), ca.norm_inf(ca.mtimes(G, v))],
+                          ["t", "t_start", "x", "theta"],
+                          ["u", "u_ff", "u_fb", "y", "y_ref", "r", "r_ref", "ratios", "e_bar", "phi_bar", "g", "Gv"])
+        self.monitor = mon
+        self._mon_map = {}
+
+    def _monitor(self, t, X, theta):
+        N = t.size
+        fn = self._mon_map.get(N)
+        if fn is None:
+            fn = self._mon_map[N] = self.monitor.map(N)
+        out = fn(t[None, :], np.zeros((1, N)), X, np.tile(theta[:, None], (1, N)))
+        return [np.array(o) for o in out]
+
+    def run(self, q0, v0=None, theta=None, *, controller_label=None, raise_on_violation=True) -> ClosedLoopResult:
+        """Integrate from ``(q0, v0)`` (plant at rest by default) and return the trajectory.
+
+        Raises
+        ------
+        FunnelViolation
+            When a level leaves its funnel (``partial`` = trajectory up to the violation,
+            ``diagnostics`` = time, level, ratio, margin).
+        SimulationFailed
+            When the integrator fails inside the funnel.
+        """
+        plant = self.plant
+        theta = plant.theta_values if theta is None else np.asarray(theta, float)
+        q0 = np.asarray(q0, float).ravel()
+        v0 = np.zeros(plant.n) if v0 is None else np.asarray(v0, float).ravel()
+        z0 = self.controller.z0(q0, v0) if self.controller is not None else np.zeros(0)
+        x = np.concatenate([q0, v0, z0])
+        wall0 = time.perf_counter()
+        Xs, Ts, quad = [x[:, None]], [np.zeros(1)], np.zeros(2)
+        status, message, fail = "ok", "", None
+        for c in range(self.chunks):
+            ts = c * self.per_chunk * self.dt
+            tg = ts + self.dt * np.arange(1, self.per_chunk + 1)
+            try:
+                out = self.integrator(x0=x, p=np.concatenate([theta, [ts]]))
+                Xc, qf = np.array(out["xf"]), np.array(out["qf"])
+            except RuntimeError as exc:
+                Xc, tg, qf, fail = self._steps(x, ts, theta, exc)
+            Xs.append(Xc)
+            Ts.append(tg)
+            if Xc.shape[1]:
+                x = Xc[:, -1]
+                quad = quad + np.asarray(qf).reshape(2, -1)[:, -1]
+            mon_ratios = self._monitor(tg, Xc, theta)[7] if Xc.shape[1] and self.controller is not None else None
+            if fail is not None or (mon_ratios is not None and mon_ratios.size and mon_ratios.max() >= VIOLATION_RATIO):
+                break
+        wall = time.perf_counter() - wall0
+        T = np.concatenate(Ts)
+        X = np.hstack(Xs)
+        res = self._result(T, X, theta, quad, wall, controller_label or self.name)
+        viol = np.nonzero(res.ratios.max(axis=0) >= VIOLATION_RATIO)[0] if res.ratios.size else np.zeros(0, int)
+        if viol.size:
+            idx = int(viol[0])
+            level = int(np.argmax(res.ratios[:, idx]))
+            cut = self._result(T[:idx + 1], X[:, :idx + 1], theta, None, wall, res.controller)
+            cut.status, cut.message = "funnel_violation", f"left the funnel at t = {T[idx]:.4g} s"
+            diag = {"t": float(T[idx]), "level": res.ratio_names[level] if res.ratio_names else level,
+                    "ratio": float(res.ratios[level, idx]), "margin": float(1 - res.ratios[level, idx]),
+                    "max_ratio_before": float(res.ratios[:, :idx].max()) if idx else float("nan")}
+            if raise_on_violation:
+                raise FunnelViolation(
+                    f"{res.controller or 'closed loop'}: the error left the funnel at t = {T[idx]:.4g} s "
+                    f"(level {diag['level']}, ratio {diag['ratio']:.6g} >= 1); widen the funnel (larger r, p), "
+                    "raise the gains kappa, or add feedforward", partial=cut, diagnostics=diag)
+            return cut
+        if fail is not None:
+            res.status, res.message = "failed", str(fail).splitlines()[-1][:300]
+            raise SimulationFailed(
+                f"{res.controller or 'closed loop'}: the integrator failed at t = {T[-1]:.4g} s inside the funnel "
+                f"(max ratio {res.max_funnel_ratio if res.ratios.size else float('nan'):.4g}): {res.message}; "
+                "try a smaller dt or looser tolerances", partial=res, diagnostics={"t": float(T[-1])})
+        return res
+
+    def _steps(self, x, ts, theta, exc):
+        """Re-run a failed chunk step by step to keep the trajectory up to the failure."""
+        cols, tg, qf = [], [], np.zeros(2)
+        for kstep in range(self.per_chunk):
+            t0 = ts + kstep * self.dt
+            try:
+                out = self.step_integrator(x0=x, p=np.concatenate([theta, [t0]]))
+            except RuntimeError as e2:
+                return (np.array(cols).T if cols else np.zeros((self.nx, 0))), np.array(tg), qf[:, None], e2
+            x = np.array(out["xf"]).ravel()
+            qf = qf + np.array(out["qf"]).ravel()
+            cols.append(x)
+            tg.append(t0 + self.dt)
+            if self.controller is not None:
+                if self._monitor(np.array([t0 + self.dt]), x[:, None], theta)[7].max() >= VIOLATION_RATIO:
+                    return np.array(cols).T, np.array(tg), qf[:, None], None
+        return np.array(cols).T, np.array(tg), qf[:, None], exc
+
+    def _result(self, T, X, theta, quad, wall, label):
+        n = self.plant.n
+        u, uff, ufb, y, yref, r, rref, ratios, ebar, phib, dg, dgv = self._monitor(T, X, theta)
+        if quad is None:
+            eo, er = np.linalg.norm(y - yref, axis=0), np.linalg.norm(r - rref, axis=0)
+            quad = (np.trapezoid(eo, T), np.trapezoid(er, T)) if T.size > 1 else (0.0, 0.0)
+        names = list(self.controller.ratio_names) if self.controller is not None else []
+        return ClosedLoopResult(
+            t=T, q=X[:n], v=X[n:2 * n], z=X[2 * n:], u=u, u_ff=uff, u_fb=ufb, y=y, y_ref=yref, r=r, r_ref=rref,
+            ratios=ratios if self.controller is not None else np.zeros((0, T.size)),
+            e_bar=ebar.ravel(), phi_bar=phib.ravel(), drift_g=dg.ravel(), drift_Gv=dgv.ravel(),
+            cumulative_output_error=float(quad[0]), cumulative_endeffector_error=float(quad[1]), wall_s=wall,
+            controller=label, ratio_names=names, q_names=list(self.plant.q_names),
+            stats={"chunks": self.chunks, "dt": self.dt})
+
+
+def simulate_closed_loop(plant, reference, q0, v0=None, **options) -> ClosedLoopResult:
+    """One-call form: ``ClosedLoop(plant, reference, **options).run(q0, v0)``."""
+    label = options.pop("controller_label", None)
+    return ClosedLoop(plant, reference, **options).run(q0, v0, controller_label=label)
