@@ -1,7 +1,8 @@
 """Linearized internal dynamics and the stable/unstable split, 003 Sect. 5 steps 2-4.
 
 (37)  eta' = Q eta + sum_i P_i y^(i-1)      (Jacobians of q at a point, or their mean)
-(38)  eta' = Q eta + P y,   P = sum_i Q^(i-1) P_i,   eta_(38) = F0 eta + sum_i F_i y^(i-1)
+(38)  eta' = Q eta + P y,   P = sum_i Q^(i-1) P_i,   eta_(38) = F0 eta + sum_i F_i y^(i-1),
+      F0 = I,  F_l = -sum_{j=1}^{r_hat-l} Q^(j-1) P_(j+l)
 (39)  T Q T^-1 = [[Q1^, Q2^], [0, Q~]],  T P = [P^; P~],  sigma(Q1^) in C-, sigma(Q~) in closed C+
 (40)  eta2' = Q~ eta2 + P~ y
 (A1), (A2), eta2_ref^0 by the integral (43) or the Sylvester equation (44).
@@ -370,7 +371,10 @@ def from_matrices(model, internal, Q, P_list, *, split="schur", points=None) -> 
     d, r = Q.shape[0], len(P_list)
     P = sum(np.linalg.matrix_power(Q, i) @ P_list[i] for i in range(r))
     F0 = np.eye(d)
-    F = [-sum((P_list[l + j] for j in range(1, r - l)), np.zeros_like(P_list[0])) for l in range(r)]
+    # F_l = -sum_{j=1}^{r-l} Q^(j-1) P_(j+l)  (the printed recursion of 003 Sect. 5 omits Q^(j-1); it only
+    # matters for r_hat >= 3, see docs/analysis.md)
+    F = [-sum((np.linalg.matrix_power(Q, j - 1) @ P_list[l + j] for j in range(1, r - l)), np.zeros_like(P_list[0]))
+         for l in range(r)]
     ev = np.linalg.eigvals(Q)
     ev = ev[np.argsort(ev.real)]
     tol = _IMAG_TOL * max(1.0, np.abs(Q).max())
