@@ -190,3 +190,92 @@ def prismatic_command(scene, params: dict, **options) -> CommandResult:
     text += (f"impacts {data['n_impacts']}, max gap violation {tr.max_gap_violation:.2e}, "
              f"max V increase {data['max_V_increase']}, steps/s {tr.stats['steps_per_s']:.3g} ({tr.stats['backend']})")
     return _finish(tr, options, text, data, f"prismatic clearance ({controller})")
+
+
+# ------------------------------------------------------------------ gears
+def gear_ehat(scene, c4: float, J: float = 1.0):
+    """``(D, E_hat)`` of 000 Example 4 at ``f1 = f4 = 0`` for equal inertias ``J``."""
+    from ..control.preload import preload_check
+
+    model = scene.build(c4=c4, J1=J, J2=J, J3=J)
+    q = scene.preloaded_configuration(model)
+    chk = preload_check(model, q, np.zeros(3), [0, 3])
+    from ..contact.mechanics import ContactSystem
+
+    D = ContactSystem(model).delassus(q, [0, 3])
+    return D, chk.E_hat
+
+
+def gear_analyze(scene, params: dict, **options) -> CommandResult:
+    """E_hat of Example 4 computed for both f4 variants, compared with the
+    printed matrix; the printed persistent-contact conditions are tested on
+    ``samples`` random torques."""
+    unknown = sorted(set(options) - {"samples"})
+    if unknown:
+        raise SceneError(f"gear_backlash analyze does not take option(s) {unknown}")
+    full, _ = _split(params, scene.PARAMS, scene.MODEL_PARAMS)
+    J = full["J1"]
+    if not (full["J1"] == full["J2"] == full["J3"]):
+        raise SceneError("the printed matrices of Example 4 assume J1 = J2 = J3; set equal inertias")
+    out = {}
+    for label, c4 in (("printed_f4", -1.0), ("mesh_f4", 1.0)):
+        D, E = gear_ehat(scene, c4, J)
+        out[label] = {"D_times_J": (D * J).tolist(), "E_hat": E.tolist(),
+                      "E_hat_error_vs_printed": float(np.max(np.abs(E - scene.PRINTED_E_HAT))),
+                      "D_error_vs_printed": float(np.max(np.abs(D * J - scene.PRINTED_D_TIMES_J)))}
+    rng = np.random.default_rng(0)
+    n = int(options.get("samples") or 200)
+    tau = rng.normal(size=(n, 3))
+    lhs = np.all(tau @ scene.PRINTED_E_HAT.T < 0, axis=1)
+    rhs = (2 * tau[:, 0] > tau[:, 1] + tau[:, 2]) & (tau[:, 0] > -tau[:, 1] + 2 * tau[:, 2])
+    out["printed_conditions_agree"] = bool(np.all(lhs == rhs))
+    out["samples"] = n
+    text = ("000 Example 4 (J1 = J2 = J3):\n"
+            f"  printed E_hat          {np.round(scene.PRINTED_E_HAT * 3, 6).tolist()} / 3\n"
+            f"  ours, f4 as printed    {np.round(np.array(out['printed_f4']['E_hat']) * 3, 6).tolist()} / 3 "
+            f"(max diff {out['printed_f4']['E_hat_error_vs_printed']:.3g})\n"
+            f"  ours, f4 = th3 - th2 + a4 {np.round(np.array(out['mesh_f4']['E_hat']) * 3, 6).tolist()} / 3 "
+            f"(max diff {out['mesh_f4']['E_hat_error_vs_printed']:.3g})\n"
+            f"  D*J (both variants)    {np.round(out['mesh_f4']['D_times_J'], 6).tolist()} (printed [[2,-1],[-1,2]])\n"
+            f"  printed conditions 2t1 > t2 + t3, t1 > -t2 + 2t3 <=> E_hat t < 0 on {n} samples: "
+            f"{out['printed_conditions_agree']}")
+    return CommandResult(text, out)
+
+
+def gear_command(scene, params: dict, **options) -> CommandResult:
+    """Pre-load f1 and f4 (law (13)) while a collocated PD moves the train."""
+    _check_options("gear_backlash", options)
+    full, mp = _split(params, scene.PARAMS, scene.MODEL_PARAMS)
+    controller = options.get("controller") or "preload"
+    if controller != "preload":
+        raise SceneError(f"gear_backlash offers controller 'preload' only, got {controller!r}")
+    if options.get("t_end") is not None:
+        full["t_end"] = float(options["t_end"])
+    model = scene.build(c4=full["c4"], **mp)
+    plant_over = parse_assignments(options.get("plant_set"), option="--plant-set")
+    bad = sorted(set(plant_over) - set(scene.MODEL_PARAMS))
+    if bad:
+        raise SceneError(f"--plant-set accepts model parameters {list(scene.MODEL_PARAMS)}, got {bad}")
+    plant = model.with_params(**plant_over)
+    from ..control.preload import preload_check, preload_law
+
+    q0 = scene.preloaded_configuration(model)
+    chk = preload_check(model, q0, np.zeros(3), [0, 3])
+    beta = np.array([full["beta1"], full["beta2"]])
+    law = preload_law(model, [0, 3], beta=beta, Kp=full["Kp"], Kv=full["Kv"], y_d=q0 + full["qd"])
+    mj = MoreauJean(model, law)
+    tr = mj.run(q0, np.zeros(3), full["t_end"], full["h"], theta=full["theta"], params=plant.theta_values,
+                ctrl_params=model.theta_values, activation_tol=full["activation_tol"])
+    lam = tr.P[:, [0, 3]] / full["h"]
+    err = float(np.max(np.abs(lam - beta)))
+    data = {"E_hat": chk.E_hat.tolist(), "rank": chk.rank, "multiplier_error": err,
+            "contacts_kept": bool(np.all(tr.active[:, [0, 3]])),
+            "max_gap_f1_f4": float(np.max(np.abs(tr.gaps[:, [0, 3]]))),
+            "impact_times": tr.impact_times[:100].tolist(), "max_gap_violation": tr.max_gap_violation,
+            "max_V_increase": None, "steps_per_s": tr.stats["steps_per_s"], "backend": tr.stats["backend"],
+            "q_final": tr.q[-1].tolist()}
+    text = (f"gear backlash, pre-loading f1 = f4 = 0 with beta = {beta.tolist()}\n"
+            f"E_hat = {np.round(chk.E_hat, 6).tolist()} (rank {chk.rank})\n"
+            f"multiplier error {err:.3e}, contacts kept: {data['contacts_kept']}, "
+            f"max |f1|,|f4| = {data['max_gap_f1_f4']:.2e}, steps/s {tr.stats['steps_per_s']:.3g}")
+    return _finish(tr, options, text, data, "gear backlash (pre-loading)")

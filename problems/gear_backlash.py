@@ -1,0 +1,79 @@
+"""Three cogwheels with backlash (000 Fig. 2(c), Example 4).
+
+``q = (theta1, theta2, theta3)``, ``M = diag(J1, J2, J3)``, ``E = I_3``
+(every wheel driven), four gaps (000 Example 4):
+
+    f1 = -theta1 + theta2 + alpha1,   f2 = theta1 - theta2 + alpha2,
+    f3 = -theta3 + theta2 + alpha3,   f4 = c4 theta3 - theta2 + alpha4.
+
+The paper prints ``f4 = -theta3 - theta2 + alpha4`` (``c4 = -1``), but its
+printed ``E_hat`` belongs to ``c4 = +1`` -- the other flank of the mesh whose
+first flank is ``f3`` (``grad f4 = -grad f3``).  ``c4 = +1`` is the default;
+``--set c4=-1`` reproduces the printed formula (see docs/reproduction.md).
+Pre-loading keeps ``f1 = f4 = 0`` with multipliers ``beta``.
+"""
+from __future__ import annotations
+
+import sys
+
+import casadi as ca
+import numpy as np
+
+from invctl.model import Gap, Model, ParamSet
+
+PARAMS = {
+    "J1": 0.01, "J2": 0.01, "J3": 0.01,
+    "alpha1": 0.01, "alpha2": 0.01, "alpha3": 0.01, "alpha4": 0.01, "e": 0.5, "c4": 1.0,
+    "beta1": 1.0, "beta2": 1.0, "Kp": 2.0, "Kv": 0.5, "qd": 0.5,
+    "h": 1e-4, "theta": 0.5, "t_end": 2.0, "activation_tol": 1e-12,
+}
+MODEL_PARAMS = ("J1", "J2", "J3", "alpha1", "alpha2", "alpha3", "alpha4", "e")
+
+#: 000 Example 4, J1 = J2 = J3 = J
+PRINTED_D_TIMES_J = np.array([[2.0, -1.0], [-1.0, 2.0]])
+PRINTED_E_HAT = np.array([[-2.0, 1.0, 1.0], [-1.0, -1.0, 2.0]]) / 3.0
+
+
+def build(**overrides: float) -> Model:
+    """The gear train; ``c4`` selects the f4 variant (+1 mesh-consistent, -1 as printed)."""
+    c4 = float(overrides.get("c4", PARAMS["c4"]))
+    P = ParamSet(list(MODEL_PARAMS))
+    q = ca.SX.sym("q", 3)
+    v = ca.SX.sym("v", 3)
+    a = [P[f"alpha{i}"] for i in range(1, 5)]
+    gaps = [
+        Gap("f1", -q[0] + q[1] + a[0], "e"),
+        Gap("f2", q[0] - q[1] + a[1], "e"),
+        Gap("f3", -q[2] + q[1] + a[2], "e"),
+        Gap("f4", c4 * q[2] - q[1] + a[3], "e"),
+    ]
+    M = ca.diag(ca.vertcat(P["J1"], P["J2"], P["J3"]))
+    ov = {k: v_ for k, v_ in overrides.items() if k in MODEL_PARAMS}
+    return Model("gear_backlash", q, v, P, {k: PARAMS[k] for k in MODEL_PARAMS}, M=M, f=ca.SX.zeros(3),
+                 B=ca.DM.eye(3), gaps=gaps, overrides=ov, q_names=["theta1", "theta2", "theta3"],
+                 u_names=["tau1", "tau2", "tau3"])
+
+
+def preloaded_configuration(model: Model, theta1: float = 0.0) -> np.ndarray:
+    """A configuration with ``f1 = f4 = 0``."""
+    p = model.values
+    th2 = theta1 - p["alpha1"]
+    c4 = float(np.array(ca.Function("c", [model.q, model.theta], [ca.jacobian(model.gaps[3].expr, model.q)])(
+        np.zeros(3), model.theta_values))[0, 2])
+    th3 = (th2 - p["alpha4"]) / c4
+    return np.array([theta1, th2, th3])
+
+
+def _simulate(params, **options):
+    from invctl.simulate.contact_commands import gear_command
+
+    return gear_command(sys.modules[__name__], params, **options)
+
+
+def _analyze(params, **options):
+    from invctl.simulate.contact_commands import gear_analyze
+
+    return gear_analyze(sys.modules[__name__], params, **options)
+
+
+COMMANDS = {"simulate": _simulate, "analyze": _analyze}
