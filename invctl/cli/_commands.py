@@ -40,6 +40,8 @@ def _study(p: argparse.ArgumentParser) -> None:
 
 def _pipeline(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out-dir", dest="out_dir", default="invctl-out", help="folder for figures and data")
+    p.add_argument("--t-end", dest="t_end", type=float, default=None, help="simulation end time")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
 COMMAND_OPTIONS = {
