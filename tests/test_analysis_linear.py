@@ -9,7 +9,6 @@ relative, backward integration with rtol 1e-11: 1e-7.
 import casadi as ca
 import numpy as np
 import pytest
-import scipy.linalg as sla
 from scipy.integrate import solve_ivp
 
 import problems.cartpole as cartpole
@@ -131,3 +130,22 @@ def test_psi_tracks_the_linear_unstable_state_along_the_linearization(manipulato
         q = np.array(internal.state(y_0=y, y_1=[0, 0], eta=[0, 0], theta=th)["q"]).ravel()
         expected = -(lin.T @ lin.P_list[1] @ np.array(y))[1]
         assert float(psi(q, np.zeros(5), th)) == pytest.approx(expected, rel=1e-10)
+
+
+def test_results_save_load_and_plot(manipulator, tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from invctl.analysis import load_linearization, relative_degree
+
+    lin = scene.manipulator_linearization(manipulator)
+    lin.to_npz(tmp_path / "lin.npz")
+    data = load_linearization(tmp_path / "lin.npz")
+    back = from_matrices(manipulator, lin.internal, data["Q"], data["P_list"], split=data["split"])
+    np.testing.assert_array_equal(back.P, lin.P)
+    np.testing.assert_array_equal(back.T, lin.T)
+    rd = relative_degree(manipulator, samples=30)
+    rd.to_npz(tmp_path / "rd.npz")
+    with np.load(tmp_path / "rd.npz") as d:
+        assert d["worst_condition"] == rd.worst_condition and d["conditions"].size == 30
+    assert lin.plot() is not None and rd.plot() is not None

@@ -7,7 +7,7 @@ initial value (43)/(44) of the new reference dynamics.
 """
 from .auxiliary import AuxiliarySystem, auxiliary_system, consistent_state
 from .internal import InternalDynamics, default_coordinates, design_point, internal_dynamics, xi_expression
-from .linearize import A1Report, A2Report, LinearizedInternal, from_matrices, linearize_internal
+from .linearize import A1Report, A2Report, LinearizedInternal, from_matrices, linearize_internal, load_linearization
 from .relative_degree import (
     ColocationReport, RelativeDegree, colocated_check, is_position_output, position_output_gamma,
     relative_degree, schur_complement,
@@ -17,5 +17,5 @@ __all__ = [
     "A1Report", "A2Report", "AuxiliarySystem", "ColocationReport", "InternalDynamics", "LinearizedInternal",
     "RelativeDegree", "auxiliary_system", "colocated_check", "consistent_state", "default_coordinates",
     "design_point", "from_matrices", "internal_dynamics", "is_position_output", "linearize_internal",
-    "position_output_gamma", "relative_degree", "schur_complement", "xi_expression",
+    "load_linearization", "position_output_gamma", "relative_degree", "schur_complement", "xi_expression",
 ]

@@ -24,13 +24,12 @@ kernel basis at ``q0``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
 
 import casadi as ca
 import numpy as np
 
 from ..errors import CoordinateError
-from .auxiliary import auxiliary_system, consistent_state, eval_batch, region_samples
+from .auxiliary import auxiliary_system, cache_of, consistent_state, eval_batch, region_samples
 from .relative_degree import is_position_output, lie_chain, relative_degree
 
 _LK_TOL = 1e-9
@@ -214,6 +213,21 @@ def internal_dynamics(model, method: str = "sect3", phi=None, *, point=None, sam
     """
     if method not in ("sect2", "sect3"):
         raise CoordinateError(f"method must be 'sect2' or 'sect3', got {method!r}")
+    key = None
+    if phi is None or callable(phi):
+        key = ("internal", method, phi, None if point is None else tuple(np.asarray(point, float).ravel()),
+               samples, repr(rng), tuple(model.theta_values),
+               None if check_points is None else repr([np.asarray(c).tolist() for c in check_points]))
+        cache = cache_of(model)
+        if key in cache:
+            return cache[key]
+    result = _internal_dynamics(model, method, phi, point, samples, rng, check_points)
+    if key is not None:
+        cache[key] = result
+    return result
+
+
+def _internal_dynamics(model, method, phi, point, samples, rng, check_points) -> InternalDynamics:
     rd = relative_degree(model, samples=samples, rng=rng)
     if rd.r_hat is None:
         raise CoordinateError(f"{model.name}: outputs have different relative degrees {rd.r_output}; "

@@ -229,6 +229,27 @@ class LinearizedInternal:
             integral = integral + sla.expm(-Q1 * tf) @ np.linalg.solve(Q1, P1 @ yf)
         return Winv @ lift @ integral
 
+    def plot(self, ax=None):
+        """Eigenvalues of Q (stable: o, closed right half plane: x) in the complex plane."""
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(4.5, 3.5))
+        ev = self.eigenvalues
+        st = ev.real < 0
+        ax.plot(ev[st].real, ev[st].imag, "o", label="stable")
+        ax.plot(ev[~st].real, ev[~st].imag, "x", ms=9, label="unstable / marginal")
+        ax.axvline(0, color="k", lw=0.6)
+        ax.set(xlabel="Re", ylabel="Im", title="linearized internal dynamics (38)")
+        ax.legend()
+        return ax
+
+    def to_npz(self, path) -> None:
+        """Save Q, P_1..P_r, P, F0, F, T, k and the split to ``path`` (.npz); read back with :func:`load_linearization`."""
+        np.savez(path, Q=self.Q, P=self.P, P_list=np.array(self.P_list), F0=self.F0, F=np.array(self.F), T=self.T,
+                 k=self.k, Q_tilde=self.Q_tilde, P_tilde=self.P_tilde, eigenvalues=self.eigenvalues,
+                 split=self.split)
+
     def summary(self) -> str:
         ev = ", ".join(f"{e.real:.6g}" + (f"{e.imag:+.6g}j" if abs(e.imag) > 0 else "") for e in self.eigenvalues)
         return (f"linearized internal dynamics (38): eigenvalues of Q: [{ev}]; "
@@ -272,6 +293,17 @@ class A2Report:
 
     def to_dict(self) -> dict:
         return {"passed": self.passed, "l1": self.l1, "l2": self.l2, "message": self.message}
+
+
+def load_linearization(path) -> dict:
+    """The arrays saved by :meth:`LinearizedInternal.to_npz` (a dict; rebuild with :func:`from_matrices`)."""
+    with np.load(path) as data:
+        out = {k: data[k] for k in data.files}
+    out["P_list"] = list(out["P_list"])
+    out["F"] = list(out["F"])
+    out["k"] = int(out["k"])
+    out["split"] = str(out["split"])
+    return out
 
 
 def _ref_batch(reference, s):

@@ -91,6 +91,28 @@ class RelativeDegree:
             f"det in [{self.det_range[0]:.4g}, {self.det_range[1]:.4g}]"
         )
 
+    def plot(self, ax=None):
+        """Condition number of Gamma and det Gamma over the sample points (one figure)."""
+        import matplotlib.pyplot as plt
+
+        cond, dets = self.diagnostics.get("conditions"), self.diagnostics.get("dets")
+        if ax is None:
+            _, ax = plt.subplots(1, 2, figsize=(9, 3.2))
+        ax[0].semilogy(np.sort(cond)[::-1], ".")
+        ax[0].set(xlabel="sample (sorted)", ylabel="cond(Gamma)", title=f"r = {list(self.r_aux)}")
+        ax[1].hist(dets, bins=30)
+        ax[1].set(xlabel="det Gamma", ylabel="count", title=self.region or "samples")
+        ax[0].figure.tight_layout()
+        return ax
+
+    def to_npz(self, path) -> None:
+        """Save the numbers (not the CasADi Function) to ``path`` (.npz)."""
+        np.savez(path, r_aux=np.array(self.r_aux), r_bar=self.r_bar, r_hat=-1 if self.r_hat is None else self.r_hat,
+                 worst_condition=self.worst_condition, worst_q=self.worst_point[0], worst_v=self.worst_point[1],
+                 min_singular_value=self.min_singular_value, det_range=np.array(self.det_range),
+                 conditions=self.diagnostics.get("conditions", np.zeros(0)),
+                 dets=self.diagnostics.get("dets", np.zeros(0)), sample_q=self.diagnostics.get("q", np.zeros(0)))
+
     def to_dict(self) -> dict:
         return {
             "r_aux": list(self.r_aux), "r_hat": self.r_hat, "r_output": list(self.r_output),
@@ -198,6 +220,7 @@ def relative_degree(model, samples: int = 200, rng=0, *, points=None) -> Relativ
         worst_point=(qs[kc], vs[kc]), min_singular_value=float(smin.min()),
         min_singular_point=(qs[kmin], vs[kmin]), det_range=(float(dets.min()), float(dets.max())),
         samples=qs.shape[0], region=region,
+        diagnostics={"conditions": cond, "dets": dets, "sigma_min": smin, "q": qs, "v": vs},
     )
     bad = ~np.isfinite(smin) | (smin <= _SINGULAR_TOL * np.maximum(smax, 1.0))
     if not np.any(bad) and dets.min() < 0 < dets.max():
