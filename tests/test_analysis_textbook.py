@@ -175,3 +175,33 @@ def test_linearization_point_with_wrong_derivative_count():
     idyn = internal_dynamics(model, point=[0, 0])
     with pytest.raises(CoordinateError, match="r_hat = 2 output derivatives, got 1"):
         linearize_internal(model, idyn, [([[0.0]], [0.0, 0.0])])
+
+
+def test_velocity_output_relative_degree_one_by_sect2():
+    """Two masses coupled by a spring-damper, force on mass 1, velocity output y = v1 (r_hat = 1): the general
+    Sect. 2 route with user coordinates eta = (q1, q2, v2) (L_K phi = 0: M is diagonal and the input acts on
+    v1 only). Closed form: q1' = y, q2' = v2, v2' = (-k2 (q2 - q1) - d2 (v2 - y)) / m2."""
+    from invctl.model import Model, ParamSet
+
+    P = ParamSet(["m1", "m2", "k2", "d2"])
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    spring = P["k2"] * (q[1] - q[0]) + P["d2"] * (v[1] - v[0])
+    model = Model("msd", q, v, P, {"m1": 1.0, "m2": 0.5, "k2": 3.0, "d2": 0.2},
+                  M=ca.diag(ca.vertcat(P["m1"], P["m2"])), f=ca.vertcat(spring, -spring), B=ca.DM([[1], [0]]),
+                  h=v[0])
+    rd = relative_degree(model, samples=20)
+    assert rd.r_aux == (1,) and rd.r_hat == 1 and rd.r_bar == 1
+    with pytest.raises(CoordinateError, match="position output"):
+        internal_dynamics(model, "sect3", point=[0, 0])
+    idyn = internal_dynamics(model, "sect2", lambda m: ca.vertcat(m.q, m.v[1]), point=[0, 0], samples=20)
+    assert idyn.dim == 3
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        y, (q1, q2, v2) = rng.uniform(-1, 1, 1), rng.uniform(-1, 1, 3)
+        expected = [y[0], v2, (-3.0 * (q2 - q1) - 0.2 * (v2 - y[0])) / 0.5]
+        np.testing.assert_allclose(idyn((y,), [q1, q2, v2]), expected, rtol=1e-12, atol=1e-12)
+    lin = linearize_internal(model, idyn, [([[0.0]], [0.0, 0.0, 0.0])])
+    # q1 is a pure integrator of y: one zero eigenvalue; the rest is the spring-damper of mass 2
+    ev = np.sort_complex(lin.eigenvalues)
+    np.testing.assert_allclose(np.sort_complex(np.concatenate([[0.0], np.roots([1, 0.2 / 0.5, 3.0 / 0.5])])), ev,
+                               atol=1e-12)
