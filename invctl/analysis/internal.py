@@ -124,9 +124,9 @@ def xi_expression(model, rd=None) -> tuple[ca.SX, list]:
 
 def _null_rows(A: np.ndarray, k: int) -> np.ndarray:
     """k orthonormal rows spanning ker A, each signed so its largest entry is positive."""
-    _, s, Vt = np.linalg.svd(A)
-    N = Vt[A.shape[0]:] if k == A.shape[1] - A.shape[0] else Vt[-k:]
-    N = N[-k:]
+    if k == 0:
+        return np.zeros((0, A.shape[1]))
+    N = np.linalg.svd(A)[2][-k:].copy()
     for i in range(N.shape[0]):
         if N[i, np.argmax(np.abs(N[i]))] < 0:
             N[i] = -N[i]
@@ -273,6 +273,13 @@ def _internal_dynamics(model, method, phi, point, samples, rng, check_points) ->
     sv = np.linalg.svd(dP, compute_uv=False)
     smin = sv[:, -1] / np.maximum(sv[:, 0], 1.0)
     checks = {"LK_max": float(lk.max()), "Phi_sigma_min": float(sv[:, -1].min()), "points_checked": qs.shape[0]}
+    if phi is None and samples:
+        # Lemma 3.1 coordinates are local: report (not require) where on the region Phi' stays invertible
+        qr, vr = region_samples(model, samples, rng)
+        dPr = eval_batch(chk, qr, vr, theta=model.theta_values)[1]
+        svr = np.linalg.svd(dPr, compute_uv=False)
+        checks["Phi_invertible_fraction_region"] = float(np.mean(svr[:, -1] > _PHI_SINGULAR_TOL * np.maximum(svr[:, 0], 1.0)))
+        checks["Phi_sigma_min_region"] = float(svr[:, -1].min())
     scale = max(1.0, float(np.max(np.abs(dP))))
     if lk.max() > _LK_TOL * scale:
         k = int(np.argmax(lk))
