@@ -93,20 +93,28 @@ class ContactTrajectory:
 
     # ---------------------------------------------------------- derived data
     def impacts(self, contact: int | None = None):
-        """Impact steps: ``(k, i)`` pairs with ``P[k, i] > 0`` and approach
-        velocity ``W_i^T v_k < -impact_vel_tol``; returns arrays
+        """Impact steps (see :meth:`impact_mask`); returns arrays
         ``(times, contact index, pre-impact normal velocity, post-impact
         normal velocity, post-impact v)``.  The impact time is reported as
         the mid-point of the step (first-order accurate)."""
-        Un = self.stats.get("Un")
-        if Un is None:
-            raise SimulationFailed("trajectory has no normal velocities (stats['Un'])")
-        pre, post = Un[:-1], Un[1:]
-        hit = (self.P > 0) & (pre < -self.impact_vel_tol)
+        pre, post = self.stats["Un"][:-1], self.stats["Un"][1:]
+        hit = self.impact_mask()
         if contact is not None:
             hit[:, [i for i in range(hit.shape[1]) if i != contact]] = False
         k, i = np.nonzero(hit)
         return self.t[k] + 0.5 * self.h, i, pre[k, i], post[k, i], self.v[k + 1]
+
+    def impact_mask(self) -> np.ndarray:
+        """``(steps, m_u)`` flags of impacts: the contact carries an impulse, was
+        approaching (``W_i^T v_k < -impact_vel_tol``) and carried none in the
+        previous step (so persistent contact along a curved boundary, whose
+        normal velocity is O(h) each step, is not counted as impacts)."""
+        Un = self.stats.get("Un")
+        if Un is None:
+            raise SimulationFailed("trajectory has no normal velocities (stats['Un'])")
+        loaded = self.P > 0
+        prev = np.vstack([np.zeros((1, loaded.shape[1]), bool), loaded[:-1]])
+        return loaded & ~prev & (Un[:-1] < -self.impact_vel_tol)
 
     @property
     def impact_times(self) -> np.ndarray:

@@ -46,8 +46,7 @@ class LyapunovReport:
 def lyapunov_report(tr) -> LyapunovReport:
     """Jumps of ``tr.V`` at the impact steps of a :class:`ContactTrajectory`."""
     dV = np.diff(tr.V)
-    Un = tr.stats["Un"]
-    imp = np.any((tr.P > 0) & (Un[:-1] < -tr.impact_vel_tol), axis=1)
+    imp = np.any(tr.impact_mask(), axis=1)
     jumps = dV[imp]
     smooth = dV[~imp]
     return LyapunovReport(float(np.max(dV, initial=0.0)), float(np.max(jumps, initial=0.0)),
