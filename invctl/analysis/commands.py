@@ -1,6 +1,6 @@
 """``invctl analyze <scene>``: relative degree, Gamma conditioning, internal dynamics, linearization.
 
-A scene may define ``analysis_setup(model) -> dict`` with any of
+A scene may define ``analysis_setup(model[, samples]) -> dict`` with any of
 
 ``internal``      an :class:`InternalDynamics` (default: Sect. 3 coordinates at the design point),
 ``linearization`` a :class:`LinearizedInternal` (default: at the design point, y-derivatives 0),
@@ -10,6 +10,7 @@ A scene may define ``analysis_setup(model) -> dict`` with any of
 """
 from __future__ import annotations
 
+import inspect
 import time
 
 import numpy as np
@@ -87,8 +88,15 @@ def analyze_command(scene_module, params: dict, samples: int = 200, **options) -
         raise SceneError(f"--samples must be positive, got {samples}")
     t0 = time.perf_counter()
     model = scene_module.build(**params)
-    setup = scene_module.analysis_setup(model) if hasattr(scene_module, "analysis_setup") else {}
+    t_setup = time.perf_counter()
+    setup = {}
+    if hasattr(scene_module, "analysis_setup"):
+        hook = scene_module.analysis_setup
+        takes_samples = "samples" in inspect.signature(hook).parameters
+        setup = hook(model, samples=samples) if takes_samples else hook(model)
+    t_setup = time.perf_counter() - t_setup
     res = analyze(model, setup, samples)
+    res["timings"]["scene_setup_s"] = t_setup
     rd, internal, lin, checks = res["rd"], res["internal"], res["lin"], res["checks"]
     wall = time.perf_counter() - t0
     p, l, m = rd.blocks
