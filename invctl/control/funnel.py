@@ -149,7 +149,9 @@ class Funnel:
         sampled on ``(0, horizon]`` (log-spaced from ``1e-6 t_scale``) and on a dense linear
         grid of the first ``20 t_scale`` seconds; bounded means finite and not growing over
         the last decade of the horizon (sup over ``[h/10, h]`` no larger than 1.5 times the
-        sup over ``[h/100, h/10]`` plus a small absolute slack).
+        sup over ``[h/100, h/10]`` plus a small absolute slack); ``liminf > 0`` means the
+        minimum over the last decade is positive and at least half that of the decade before
+        (a sampled test: a function decaying slower than that, e.g. ``1/log t``, passes).
         """
         k = int(k)
         if k < 0:
@@ -192,8 +194,10 @@ class Funnel:
         if not min_pos > 0:
             problems.append(f"phi(t) <= 0 at t = {ts[ts > 0][np.argmin(positive)]:.3g} (must be > 0 for t > 0)")
         liminf = float(phi[ts >= horizon / 10].min())
-        if not liminf > 1e-12:
-            problems.append(f"liminf phi ~ {liminf:.3g} is not positive: the funnel would widen without bound")
+        before = float(phi[(ts >= horizon / 100) & (ts < horizon / 10)].min())
+        if not liminf > 1e-12 or liminf < 0.5 * before:
+            problems.append(f"liminf phi ~ {liminf:.3g} is not positive (min {before:.3g} on [h/100, h/10], "
+                            f"{liminf:.3g} on [h/10, h]): the funnel would widen without bound")
         return FunnelCheck(not problems, k, "sampled", tuple(bounds), min_pos, liminf, tuple(problems))
 
     def __repr__(self) -> str:

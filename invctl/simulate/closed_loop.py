@@ -26,6 +26,8 @@ __all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acce
 
 #: a level counts as outside the funnel at this ratio (the law clips 1 - phi^2 e^2 at 1e-6)
 VIOLATION_RATIO = 1.0 - 5e-7
+#: an integrator failure with a level this close to its boundary counts as leaving the funnel
+BOUNDARY_RATIO = 0.999
 
 
 @dataclass
@@ -307,6 +309,20 @@ class ClosedLoop:
                     f"(level {diag['level']}, ratio {diag['ratio']:.6g} >= 1); widen the funnel (larger r, p), "
                     "raise the gains kappa, or add feedforward", partial=cut, diagnostics=diag)
             return cut
+        if fail is not None and res.ratios.size and res.ratios[:, -max(2, T.size // 20):].max() >= BOUNDARY_RATIO:
+            level = int(np.argmax(res.ratios[:, -1]))
+            res.status = "funnel_violation"
+            res.message = f"reached the funnel boundary at t = {T[-1]:.4g} s; the integrator stopped"
+            diag = {"t": float(T[-1]), "level": res.ratio_names[level] if res.ratio_names else level,
+                    "ratio": float(res.ratios[:, -1].max()), "margin": float(1 - res.ratios[:, -1].max()),
+                    "integrator": str(fail).splitlines()[-1][:200]}
+            if raise_on_violation:
+                raise FunnelViolation(
+                    f"{res.controller or 'closed loop'}: the error reached the funnel boundary at t = {T[-1]:.4g} s "
+                    f"(level {diag['level']}, ratio {diag['ratio']:.6g}); the gain 1/(1 - phi^2 e^2) grew beyond what "
+                    "the integrator can follow. Widen the funnel (larger r, p), raise the gains kappa, or add "
+                    "feedforward", partial=res, diagnostics=diag)
+            return res
         if fail is not None:
             res.status, res.message = "failed", str(fail).splitlines()[-1][:300]
             raise SimulationFailed(
@@ -353,3 +369,53 @@ def simulate_closed_loop(plant, reference, q0, v0=None, **options) -> ClosedLoop
     """One-call form: ``ClosedLoop(plant, reference, **options).run(q0, v0)``."""
     label = options.pop("controller_label", None)
     return ClosedLoop(plant, reference, **options).run(q0, v0, controller_label=label)
+
+
+def scipy_reference_run(loop: ClosedLoop, q0, v0=None, theta=None, *, method="LSODA", rtol=1e-8, atol=1e-10,
+                        u_ff=None):
+    """The same closed loop run by ``scipy.integrate.solve_ivp`` with a Python/numpy right-hand side.
+
+    Independent of :class:`ClosedLoop`'s assembly: the plant uses the foundation's index-1 function
+    ``Model.accel_and_multipliers`` (no Baumgarte terms), the feedforward a scipy cubic spline of the
+    same samples, the controller its compiled ``output``/``state`` Functions called per evaluation.
+    Returns ``(t, X, wall_s, nfev)`` on the loop's output grid.
+    """
+    from scipy.integrate import solve_ivp
+    from scipy.interpolate import make_interp_spline
+
+    plant, ctrl = loop.plant, loop.controller
+    n = plant.n
+    theta = plant.theta_values if theta is None else np.asarray(theta, float)
+    acc = plant.accel_and_multipliers
+    if u_ff is not None:
+        tff, vff = u_ff
+        spline = make_interp_spline(np.asarray(tff), np.asarray(vff).T, k=3)
+        t_lo, t_hi = float(tff[0]), float(tff[-1])
+        uff = lambda t: spline(min(max(t, t_lo), t_hi))  # noqa: E731
+    else:
+        uff = lambda t: np.zeros(plant.m)  # noqa: E731
+    if ctrl is not None:
+        state, output, _ = ctrl.functions()
+    q0 = np.asarray(q0, float).ravel()
+    v0 = np.zeros(n) if v0 is None else np.asarray(v0, float).ravel()
+    z0 = ctrl.z0(q0, v0) if ctrl is not None else np.zeros(0)
+
+    def rhs(t, x):
+        q, v, z = x[:n], x[n:2 * n], x[2 * n:]
+        u = uff(t)
+        if ctrl is not None:
+            u = u + np.asarray(output(t, q, v, z)).ravel()
+            zd = np.asarray(state(t, q, v, z)).ravel()
+        else:
+            zd = np.zeros(0)
+        a = np.asarray(acc(q, v, u, theta)[0]).ravel()
+        return np.concatenate([v, a, zd])
+
+    t_eval = np.linspace(0.0, loop.t_end, loop.n_steps + 1)
+    wall0 = time.perf_counter()
+    sol = solve_ivp(rhs, (0.0, loop.t_end), np.concatenate([q0, v0, z0]), method=method, rtol=rtol, atol=atol,
+                    t_eval=t_eval)
+    wall = time.perf_counter() - wall0
+    if not sol.success:
+        raise SimulationFailed(f"scipy reference run failed: {sol.message}", diagnostics={"t": float(sol.t[-1])})
+    return sol.t, sol.y, wall, sol.nfev

@@ -76,16 +76,18 @@ def _plant(scene, model, plant_params, plant_factors):
 
 
 def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, invert=True, t_end=2.0, dt=1e-3,
-                   feedback=None, plant_factors=None, q0=None, progress=False) -> TrackingSetup:
+                   feedback=None, plant_factors=None, q0=None, reference=None, progress=False) -> TrackingSetup:
     """Build the reference model (``params``), the plant (``PLANT_FACTORS`` then ``plant_params``),
     the linearization, the funnel controller (the scene's ``FEEDBACK`` updated by ``feedback``) and,
-    if ``invert`` and no ``inverse`` is given, the servo-constraint inverse of the reference model."""
+    if ``invert`` and no ``inverse`` is given, the servo-constraint inverse of the reference model.
+    ``reference`` (a Reference or ``model -> Reference``) replaces the scene's reference."""
     timings = {}
     t0 = time.perf_counter()
     params = dict(params or {})
     model = scene.build(**params)
     plant = _plant(scene, model, plant_params, plant_factors)
-    ref = scene.reference(model)
+    ref = scene.reference(model) if reference is None else (reference(model) if callable(reference) and not
+                                                                 hasattr(reference, "expr") else reference)
     lin = scene.manipulator_linearization(model, ref) if hasattr(scene, "manipulator_linearization") else None
     timings["analysis"] = time.perf_counter() - t0
     t0 = time.perf_counter()
