@@ -205,3 +205,10 @@ def test_velocity_output_relative_degree_one_by_sect2():
     ev = np.sort_complex(lin.eigenvalues)
     np.testing.assert_allclose(np.sort_complex(np.concatenate([[0.0], np.roots([1, 0.2 / 0.5, 3.0 / 0.5])])), ev,
                                atol=1e-12)
+
+
+def test_phi_with_foreign_symbols_is_reported():
+    model = cartpole.build()
+    foreign = ca.SX.sym("q", 2)  # same name as model.q, but another symbol
+    with pytest.raises(CoordinateError, match="not the model's"):
+        internal_dynamics(model, "sect2", ca.vertcat(foreign[1], model.v[1]), point=[0, 0])

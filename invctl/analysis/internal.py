@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from ..errors import CoordinateError
+from ..errors import CoordinateError, ModelError
 from .auxiliary import auxiliary_system, cache_of, consistent_state, eval_batch, region_samples
 from .relative_degree import is_position_output, lie_chain, relative_degree
 
@@ -163,9 +163,12 @@ def _as_expr(model, phi) -> ca.SX:
     expr = ca.SX(expr)
     if expr.shape[1] != 1:
         expr = ca.vec(expr)
-    stray = {s.name() for s in ca.symvar(expr)} - {s.name() for s in ca.symvar(ca.vertcat(model.q, model.v, model.theta))}
+    own = ca.vertcat(model.q, model.v, model.theta)
+    stray = ca.symvar(ca.substitute(expr, own, ca.SX.zeros(own.shape[0])))
     if stray:
-        raise CoordinateError(f"{model.name}: phi depends on symbols {sorted(stray)} that are not q, v or theta")
+        raise CoordinateError(
+            f"{model.name}: phi depends on symbols {sorted(x.name() for x in stray)} that are not the model's "
+            "q, v or theta (build phi from model.q, model.v, model.theta, e.g. phi = lambda m: m.q[4])")
     return expr
 
 
@@ -178,7 +181,7 @@ def design_point(model, q0=None, rng=0) -> np.ndarray:
     for q in qs:
         try:
             qc = consistent_state(model, q)[0]
-        except Exception:  # noqa: BLE001 - try the next sample
+        except ModelError:
             continue
         if model.region is None or model.region.contains(qc):
             return qc
