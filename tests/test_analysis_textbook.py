@@ -212,3 +212,14 @@ def test_phi_with_foreign_symbols_is_reported():
     foreign = ca.SX.sym("q", 2)  # same name as model.q, but another symbol
     with pytest.raises(CoordinateError, match="not the model's"):
         internal_dynamics(model, "sect2", ca.vertcat(foreign[1], model.v[1]), point=[0, 0])
+
+
+def test_wrong_sizes_at_evaluation_are_reported():
+    from invctl.errors import DimensionError
+
+    model = cartpole.build()
+    idyn = internal_dynamics(model, point=[0, 0])
+    with pytest.raises(DimensionError, match=r"eta has length 3, expected 2n - r_bar = 2"):
+        idyn(([0.0], [0.0]), [0.0, 0.0, 0.0])
+    with pytest.raises(DimensionError, match=r"y\^\(1\) has length 2, expected m = 1"):
+        linearize_internal(model, idyn, [([[0.0], [0.0, 1.0]], [0.0, 0.0])])

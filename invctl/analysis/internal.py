@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from ..errors import CoordinateError, ModelError
+from ..errors import CoordinateError, DimensionError, ModelError
 from .auxiliary import auxiliary_system, cache_of, consistent_state, eval_batch, region_samples
 from .relative_degree import is_position_output, lie_chain, relative_degree
 
@@ -82,9 +82,10 @@ class InternalDynamics:
     def __call__(self, ys, eta, theta=None) -> np.ndarray:
         """Evaluate ``eta'`` at output derivatives ``ys = (y, y', ...)`` and ``eta``."""
         th = self.model.theta_values if theta is None else np.asarray(theta, float)
-        args = {f"y_{k}": np.asarray(y, float) for k, y in enumerate(ys)}
+        args = point_args(self, (ys, eta))
+        eta = args.pop("eta")
         try:
-            return np.array(self.rhs(**args, eta=np.asarray(eta, float), theta=th)["eta_dot"]).ravel()
+            return np.array(self.rhs(**args, eta=eta, theta=th)["eta_dot"]).ravel()
         except RuntimeError as exc:
             raise CoordinateError(
                 f"{self.model.name}: could not invert the coordinates at y-derivatives {ys}, eta = {eta} "
@@ -96,6 +97,22 @@ class InternalDynamics:
         return (f"internal dynamics ({self.method}, {self.coordinates}): dimension {self.dim} "
                 f"(eta1: {self.dim1}, eta2: {self.dim2}); max |L_K phi| = {self.checks.get('LK_max', 0):.2g}, "
                 f"min sigma(Phi') = {self.checks.get('Phi_sigma_min', float('nan')):.3g}")
+
+
+def point_args(internal, point) -> dict:
+    """Accept ``(ys, eta)`` with ``ys`` an (r_hat, m) array or list of m-vectors."""
+    ys, eta = point
+    ys = [np.asarray(y, float).ravel() for y in ys]
+    if len(ys) != internal.r_hat:
+        raise CoordinateError(f"a linearization point needs r_hat = {internal.r_hat} output derivatives, got {len(ys)}")
+    m = internal.model.ny
+    eta = np.asarray(eta, float).ravel()
+    bad = [f"y^({k}) has length {y.size}, expected m = {m}" for k, y in enumerate(ys) if y.size != m]
+    if eta.size != internal.dim:
+        bad.append(f"eta has length {eta.size}, expected 2n - r_bar = {internal.dim}")
+    if bad:
+        raise DimensionError(f"{internal.model.name}: point (ys, eta) = {point!r}: " + "; ".join(bad))
+    return {**{f"y_{k}": y for k, y in enumerate(ys)}, "eta": eta}
 
 
 def xi_expression(model, rd=None) -> tuple[ca.SX, list]:

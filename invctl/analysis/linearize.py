@@ -17,6 +17,7 @@ import scipy.linalg as sla
 
 from ..errors import CoordinateError, StabilityError
 from .auxiliary import eval_batch, region_samples
+from .internal import point_args
 from .relative_degree import schur_complement
 
 _IMAG_TOL = 1e-9
@@ -341,15 +342,6 @@ def _gauss_panels(fn, a, b, tol, order=20):
     return cur
 
 
-def _point_args(internal, point):
-    """Accept ``(ys, eta)`` with ``ys`` an (r_hat, m) array or list of m-vectors."""
-    ys, eta = point
-    ys = [np.asarray(y, float).ravel() for y in ys]
-    if len(ys) != internal.r_hat:
-        raise CoordinateError(f"a linearization point needs r_hat = {internal.r_hat} output derivatives, got {len(ys)}")
-    return {**{f"y_{k}": y for k, y in enumerate(ys)}, "eta": np.asarray(eta, float).ravel()}
-
-
 def jacobian_function(internal) -> ca.Function:
     """``(y_0.., eta, theta) -> (dq/deta, dq/dy_0, ..., dq/dy_{r-1})`` (cached on the internal object)."""
     fn = internal.__dict__.get("_jac_fn")
@@ -383,7 +375,7 @@ def linearize_internal(model, internal, points, combine: str = "mean", *, split:
     th = model.theta_values
     Qs, Ps = [], []
     for pt in points:
-        args = _point_args(internal, pt)
+        args = point_args(internal, pt)
         try:
             out = jac(**args, theta=th)
         except RuntimeError as exc:
