@@ -234,7 +234,7 @@ class ClosedLoop:
         dae = {"t": t, "x": x, "p": ca.vertcat(theta, t_start), "ode": ca.vertcat(v, a, zdot), "quad": ca.vertcat(*quad)}
         grid = np.linspace(0.0, self.per_chunk * self.dt, self.per_chunk + 1)[1:]
         opts = {"abstol": atol, "reltol": rtol, "max_num_steps": max_num_steps, "linear_solver": "csparse",
-                "print_stats": False}
+                "print_stats": False, "disable_internal_warnings": True}
         self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
         self.step_integrator = ca.integrator("closed_loop_step", "cvodes", dae, 0.0, [self.dt], opts)
         G = plant.function("G")(q, theta)

@@ -1,0 +1,143 @@
+"""Closed-loop simulation of the manipulator (003 Sect. 6): compiled loop vs an independent scipy run,
+quadratures, constraint drift, results I/O, and the extremes (tight funnel, larger mismatch,
+start near the boundary, shorter transition): inside the funnel or FunnelViolation, never a cryptic failure."""
+import numpy as np
+import pytest
+import scipy.linalg as sla
+
+import problems.manipulator as scene
+from invctl.errors import FunnelViolation, SceneError
+from invctl.simulate.closed_loop import ClosedLoopResult, scipy_reference_run
+from invctl.studies.tracking import run_controller, setup_tracking
+
+
+@pytest.fixture(scope="module")
+def c2_setup():
+    return setup_tracking(scene, invert=False)
+
+
+@pytest.fixture(scope="module")
+def c2_run(c2_setup):
+    return run_controller(c2_setup, "C2")
+
+
+def test_c2_inside_funnel_with_small_drift(c2_run):
+    r = c2_run
+    assert r.status == "ok" and r.t[-1] == pytest.approx(2.0)
+    assert r.max_funnel_ratio < 1.0
+    print(f"C2: margin {r.funnel_margin:.3f}, input peaks {r.input_peaks.round(2)}, drift {r.max_constraint_drift:.2g}")
+    # Baumgarte (alpha = beta = 20/s) with CVODES rtol 1e-8 keeps |g| and |G v| near the tolerance
+    assert r.max_constraint_drift < 1e-6
+    # the feedback reaches the final point: error at t_end well inside the final funnel width
+    assert r.output_error[-1] < 0.02
+
+
+def test_compiled_loop_matches_independent_scipy_run(c2_setup, c2_run):
+    """Same closed loop by scipy LSODA (plant from Model.accel_and_multipliers without Baumgarte,
+    controller called per evaluation) at tight tolerances: states agree to 1e-5 (both runs at
+    relative tolerance <= 1e-8 on a 2 s horizon with funnel gains up to ~1e2)."""
+    loop = c2_setup.loop("C2")
+    t, X, wall, nfev = scipy_reference_run(loop, c2_setup.q0, method="LSODA", rtol=1e-9, atol=1e-11)
+    n = c2_setup.plant.n
+    err = np.abs(X[:2 * n] - np.vstack([c2_run.q, c2_run.v])).max()
+    assert err < 1e-5, err
+    # cumulative error: quadrature inside CVODES vs trapezoid of the scipy trajectory
+    y = np.array(c2_setup.plant.function("h").map(t.size)(X[:n], X[n:2 * n], np.tile(c2_setup.plant.theta_values[:, None], (1, t.size))))
+    e = np.linalg.norm(y - c2_setup.reference(t), axis=0)
+    assert np.trapezoid(e, t) == pytest.approx(c2_run.cumulative_output_error, rel=1e-4)
+
+
+def test_quadrature_matches_trapezoid_of_grid(c2_run):
+    r = c2_run
+    assert np.trapezoid(r.output_error, r.t) == pytest.approx(r.cumulative_output_error, rel=1e-5)
+    assert np.trapezoid(r.endeffector_error, r.t) == pytest.approx(r.cumulative_endeffector_error, rel=1e-5)
+
+
+def test_result_save_load_plot(c2_run, tmp_path):
+    p = tmp_path / "c2.npz"
+    c2_run.save(p)
+    back = ClosedLoopResult.load(p)
+    np.testing.assert_array_equal(back.q, c2_run.q)
+    assert back.cumulative_output_error == c2_run.cumulative_output_error
+    assert back.ratio_names == c2_run.ratio_names
+    fig = back.plot(tmp_path / "c2.png")
+    assert (tmp_path / "c2.png").stat().st_size > 1000
+    assert fig is not None
+
+
+def _outcome(setup, name="C2", **kw):
+    try:
+        r = run_controller(setup, name, **kw)
+        return "inside", r
+    except FunnelViolation as exc:
+        d = exc.diagnostics
+        assert exc.partial is not None and exc.partial.t.size >= 1
+        assert d["t"] == pytest.approx(exc.partial.t[-1])
+        assert d["margin"] <= 1e-3 and "level" in d
+        return "violation", exc.partial
+
+
+def test_tight_funnel():
+    """A final width of 2 mm on the last level (20x tighter): the funnel law still holds it (large gain)."""
+    s = setup_tracking(scene, invert=False, feedback={"phi_bar": (1.0, 3.0, 0.002)})
+    kind, r = _outcome(s)
+    print(f"tight funnel: {kind} at t = {r.t[-1]:.3f}, max ratio {r.max_funnel_ratio:.4f}, "
+          f"input peaks {r.input_peaks.round(2)}")
+    assert kind in ("inside", "violation")
+
+
+def test_start_outside_funnel_stops_at_once():
+    """A funnel narrower than the initial error (phi = 1/1e-7 from t = 0) stops at the first grid point."""
+    s = setup_tracking(scene, invert=False, feedback={"funnels": [(0.0, 0.0, 1e-7)] * 2})
+    kind, r = _outcome(s)
+    assert kind == "violation"
+    assert r.t[-1] <= 2e-3
+
+
+@pytest.mark.parametrize("factor", [1.5])
+def test_larger_mismatch(factor):
+    s = setup_tracking(scene, invert=False, plant_factors={"m3": factor})
+    kind, r = _outcome(s)
+    print(f"m3 x {factor}: {kind}, max ratio {r.max_funnel_ratio:.3f}, input peaks {r.input_peaks.round(2)}")
+    assert kind in ("inside", "violation")
+    if kind == "inside":
+        assert r.max_funnel_ratio < 1
+
+
+def test_initial_error_close_to_boundary(c2_setup):
+    """Start with a velocity (consistent: G v0 = 0) that puts the last level at 90 % of its funnel."""
+    model, ctrl = c2_setup.model, c2_setup.controller
+    q0 = c2_setup.q0
+    G = model.evaluate("G", q0)
+    N = sla.null_space(G)
+    direction = N @ np.ones(N.shape[1])
+    _, out, mon = ctrl.functions()
+
+    def ratio(s):
+        return float(np.array(mon(0.0, q0, s * direction, [])[0]).max())
+
+    lo, hi = 0.0, 1.0
+    while ratio(hi) < 0.9:
+        hi *= 2
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ratio(mid) < 0.9 else (lo, mid)
+    v0 = hi * direction
+    assert ratio(hi) == pytest.approx(0.9, abs=1e-6)
+    kind, r = _outcome(c2_setup, v0=v0)
+    print(f"start at ratio 0.9: {kind}, max ratio {r.max_funnel_ratio:.4f}, input peaks {r.input_peaks.round(2)}")
+    assert r.ratios[:, 0].max() == pytest.approx(0.9, abs=1e-6)
+
+
+def test_shorter_transition():
+    s = setup_tracking(scene, invert=False, reference=lambda m: scene.reference(m, tf=0.3))
+    kind, r = _outcome(s)
+    print(f"tf = 0.3 s: {kind}, max ratio {r.max_funnel_ratio:.3f}, input peaks {r.input_peaks.round(2)}")
+    assert kind in ("inside", "violation")
+
+
+def test_unknown_controller_and_plant_parameter(c2_setup):
+    with pytest.raises(SceneError, match="C1"):
+        c2_setup.loop("C4")
+    with pytest.raises(SceneError, match="unknown parameter"):
+        setup_tracking(scene, invert=False, plant_params={"m9": 1.0})
