@@ -232,7 +232,7 @@ class MoreauJean:
     """
 
     def __init__(self, model, law: FeedbackLaw | None = None, *, potential=None, projection: bool = False,
-                 projection_iters: int = 2, backend: str = "auto", chunk: int = 8192, substeps: int = 4,
+                 projection_iters: int = 8, backend: str = "auto", chunk: int = 8192, substeps: int = 4,
                  max_enum: int = 4,
                  verbose: bool = False):
         if backend not in ("auto", "vm", "c"):
