@@ -183,10 +183,10 @@ def manipulator_linearization(model: Model, reference: Reference | None = None, 
     return linearize_internal(model, internal, points, combine="mean", split=split)
 
 
-def analysis_setup(model: Model) -> dict:
+def analysis_setup(model: Model, samples: int = 200) -> dict:
     """What ``invctl analyze manipulator`` analyzes: the paper's coordinates and linearization."""
     ref = reference(model)
-    internal = manipulator_internal(model)
+    internal = manipulator_internal(model, samples=samples)
     return {"internal": internal, "linearization": manipulator_linearization(model, ref, internal=internal),
             "reference": ref, "A1": A1_SCENE, "point": initial_configuration(model)}
 
