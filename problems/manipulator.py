@@ -187,8 +187,12 @@ def analysis_setup(model: Model, samples: int = 200) -> dict:
     """What ``invctl analyze manipulator`` analyzes: the paper's coordinates and linearization."""
     ref = reference(model)
     internal = manipulator_internal(model, samples=samples)
+    a1 = {"K of Sect. 6 (K1 sign adapted)": A1_SCENE}
+    feedback = globals().get("FEEDBACK")
+    if feedback and all(k in feedback for k in ("K", "k_i", "rho")):
+        a1["K of the feedback design (FEEDBACK)"] = {k: feedback[k] for k in ("K", "k_i", "rho")}
     return {"internal": internal, "linearization": manipulator_linearization(model, ref, internal=internal),
-            "reference": ref, "A1": A1_SCENE, "point": initial_configuration(model)}
+            "reference": ref, "point": initial_configuration(model), "A1": a1}
 
 
 def _analyze(params, **options):

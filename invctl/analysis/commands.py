@@ -5,7 +5,8 @@ A scene may define ``analysis_setup(model[, samples]) -> dict`` with any of
 ``internal``      an :class:`InternalDynamics` (default: Sect. 3 coordinates at the design point),
 ``linearization`` a :class:`LinearizedInternal` (default: at the design point, y-derivatives 0),
 ``reference``     a :class:`Reference` (for (A2) and eta2_ref^0),
-``A1``            ``{"K": [...], "k_i": [...], "rho": ...}`` to check (A1),
+``A1``            ``{"K": [...], "k_i": [...], "rho": ...}`` to check (A1), or a dict name -> such
+                  dicts to check several choices (the first is reported as ``checks["A1"]``),
 ``point``         the design configuration ``q0``.
 """
 from __future__ import annotations
@@ -70,8 +71,11 @@ def analyze(model, setup: dict | None = None, samples: int = 200) -> dict:
     a2 = lin.check_A2(ref)
     checks["A2"] = a2.to_dict()
     if "A1" in setup:
-        a1 = setup["A1"]
-        checks["A1"] = lin.check_A1(a1["K"], rho=a1.get("rho"), k_i=a1.get("k_i"), samples=samples).to_dict()
+        variants = {"scene": setup["A1"]} if "K" in setup["A1"] else dict(setup["A1"])
+        reports = {name: lin.check_A1(a1["K"], rho=a1.get("rho"), k_i=a1.get("k_i"), samples=samples).to_dict()
+                   for name, a1 in variants.items()}
+        checks["A1"] = next(iter(reports.values()))
+        checks["A1_all"] = reports
     eta_ref0 = None
     if ref is not None and lin.k and a2.l2 == 0:
         eta_ref0 = lin.eta2_ref0(ref)
@@ -124,10 +128,9 @@ def analyze_command(scene_module, params: dict, samples: int = 200, **options) -
     if lin.k:
         lines.append(f"  split (39, T by {lin.split}): Q~ = {_fmt(lin.Q_tilde)}, P~ = {_fmt(lin.P_tilde)}")
     lines.append(f"  (A2): {'holds' if checks['A2']['passed'] else 'NOT shown'} - {checks['A2']['message']}")
-    if "A1" in checks:
-        a1 = checks["A1"]
+    for name, a1 in checks.get("A1_all", {}).items():
         lines.append(
-            f"  (A1) with the scene's K (rho = {a1['rho']}): {'holds' if a1['passed'] else 'does NOT hold'} on the "
+            f"  (A1), {name} (rho = {a1['rho']}): {'holds' if a1['passed'] else 'does NOT hold'} on all "
             f"region samples ({100 * a1['fraction_satisfied']:.0f}% of {a1['samples']} points; min eig of sym. part "
             f"{a1['min_eig_sym']:.3g}, at the design point {a1['min_eig_at_design_point']:.3g})"
         )
