@@ -19,7 +19,8 @@ import numpy as np
 from ..errors import FunnelViolation, ParameterError, SceneError
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
-__all__ = ["CONTROLLERS", "TrackingSetup", "TrackingStudy", "setup_tracking", "run_controller", "run_tracking_study"]
+__all__ = ["CONTROLLERS", "TrackingSetup", "TrackingStudy", "a1_along", "setup_tracking", "run_controller",
+           "run_tracking_study"]
 
 CONTROLLERS = {"C1": "feedforward + funnel", "C2": "funnel only", "C3": "feedforward only"}
 
@@ -106,6 +107,25 @@ def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, inver
                          scene.end_effector_expr(model), timings)
 
 
+def a1_along(setup: TrackingSetup, res: ClosedLoopResult, stride: int = 10) -> dict:
+    """(A1) along a trajectory: smallest eigenvalue of the symmetric part of
+    ``rho [K_1 Q~^(k_1-1) P~; ...; K_m] S~(q, v)`` at every ``stride``-th grid point (> 0 required)."""
+    from ..analysis import schur_complement
+
+    ctrl = setup.controller
+    rows = [ctrl.K[i] @ np.linalg.matrix_power(ctrl.Qt, ctrl.k_i[i] - 1) @ ctrl.Pt for i in range(ctrl.q_rows)]
+    rows += [ctrl.K[i] for i in range(ctrl.q_rows, len(ctrl.K))]
+    Kmat = ctrl.rho * np.vstack(rows)
+    idx = np.arange(0, res.t.size, stride)
+    S = schur_complement(setup.model).map(idx.size)
+    th = np.tile(setup.model.theta_values[:, None], (1, idx.size))
+    Ss = np.array(S(res.q[:, idx], res.v[:, idx], th)).reshape(Kmat.shape[1], idx.size, -1).transpose(1, 0, 2)
+    KS = np.einsum("ij,njk->nik", Kmat, Ss)
+    ev = np.linalg.eigvalsh(0.5 * (KS + KS.transpose(0, 2, 1)))[:, 0]
+    return {"min_eig": float(ev.min()), "t_min": float(res.t[idx][np.argmin(ev)]),
+            "fraction_positive": float(np.mean(ev > 0))}
+
+
 def run_controller(setup: TrackingSetup, name: str, *, raise_on_violation=True, v0=None) -> ClosedLoopResult:
     """One closed-loop run of controller ``name`` on ``setup``."""
     return setup.loop(name).run(setup.q0, v0, controller_label=name, raise_on_violation=raise_on_violation)
@@ -188,7 +208,8 @@ def run_tracking_study(scene, params=None, plant_params=None, *, controllers=("C
             runs[name] = run_controller(setup, name)
         except FunnelViolation as exc:
             runs[name] = exc.partial
-    info = {"params": dict(params or {}), "plant": {k: v for k, v in setup.plant.values.items()
+    a1 = {name: a1_along(setup, r) for name, r in runs.items() if r.t.size > 1}
+    info = {"a1_along_trajectory": a1, "params": dict(params or {}), "plant": {k: v for k, v in setup.plant.values.items()
                                                     if v != setup.model.values.get(k)},
             "timings": dict(setup.timings), "t_end": setup.t_end, "dt": setup.dt}
     return TrackingStudy(runs, info)
