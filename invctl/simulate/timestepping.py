@@ -428,7 +428,9 @@ class MoreauJean:
         if N <= 0:
             raise ParameterError(f"t_end = {t_end} must exceed t0 = {t0}")
         backend = backend or self.backend
-        size = self.chunk if N >= self.chunk else max(64, 1 << (N - 1).bit_length())
+        # one compiled chunk size for C (compiled once, cached on disk); smaller VM loops for short runs
+        size = self.chunk if (N >= self.chunk or backend == "c") else max(64, 1 << (N - 1).bit_length())
+        size = max(size, self.substeps) // self.substeps * self.substeps
         loop = self._loop(backend, size)
         nchunks = -(-N // size)
         n, mu = self.model.n, self.cs.m_u
