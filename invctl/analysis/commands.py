@@ -66,6 +66,7 @@ def analyze(model, setup: dict | None = None, samples: int = 200) -> dict:
         "L_K_phi_max": internal.checks["LK_max"],
         "Phi_prime_sigma_min": internal.checks["Phi_sigma_min"],
         "sect2_vs_sect3_max_diff": cross,
+        "linearization_points_in_region": lin.diagnostics.get("points_in_region"),
     }
     ref = setup.get("reference")
     a2 = lin.check_A2(ref)
@@ -119,7 +120,10 @@ def analyze_command(scene_module, params: dict, samples: int = 200, **options) -
         f"{checks['Phi_prime_sigma_min']:.3g}"
         + (f", Sect. 2 vs Sect. 3 rhs differ by {checks['sect2_vs_sect3_max_diff']:.2g}"
            if checks["sect2_vs_sect3_max_diff"] is not None else ""),
-        f"linearization (37) at {len(lin.points)} point(s), derivative removal (38): eta' = Q eta + P y",
+        f"linearization (37) at {len(lin.points)} point(s)"
+        + (f" (configurations in the region: {lin.diagnostics['points_in_region']})"
+           if "points_in_region" in lin.diagnostics else "")
+        + ", derivative removal (38): eta' = Q eta + P y",
         f"  Q = {_fmt(lin.Q)}",
         f"  P = {_fmt(lin.P)}",
         f"  eigenvalues of Q: {np.round(eig, 6).tolist()}  "

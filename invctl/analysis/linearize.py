@@ -385,7 +385,18 @@ def linearize_internal(model, internal, points, combine: str = "mean", *, split:
         Ps.append([np.array(out[f"dq_dy_{k}"]) for k in range(internal.r_hat)])
     Q = np.mean(Qs, axis=0)
     P_list = [np.mean([P[k] for P in Ps], axis=0) for k in range(internal.r_hat)]
-    return from_matrices(model, internal, Q, P_list, split=split, points=list(points))
+    lin = from_matrices(model, internal, Q, P_list, split=split, points=list(points))
+    states = []
+    for pt in points:
+        args = point_args(internal, pt)
+        st = internal.state(**args, theta=th)
+        states.append(np.array(st["q"]).ravel())
+    lin.diagnostics["point_configurations"] = states
+    if model.region is not None:
+        lin.diagnostics["points_in_region"] = [bool(model.region.contains(q)) for q in states]
+    if len(Qs) > 1:
+        lin.diagnostics["jacobian_spread"] = float(max(np.max(np.abs(Qk - Q)) for Qk in Qs))
+    return lin
 
 
 def from_matrices(model, internal, Q, P_list, *, split="schur", points=None) -> LinearizedInternal:
