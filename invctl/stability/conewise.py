@@ -420,48 +420,81 @@ def lambda_numerical(sys: SwitchedErrorSystem, *, rtol: float = 1e-12, method: s
 # ---------------------------------------------------------------------------
 # ISS estimate (Theorem 2) and the report
 # ---------------------------------------------------------------------------
+def expm2(A: np.ndarray, ts) -> np.ndarray:
+    """``expm(A t)`` for a real 2x2 ``A`` and many ``t`` at once (Cayley-Hamilton, exact incl. q = 0).
+
+    ``e^{At} = e^{st} [(cosh qt - s sinh(qt)/q) I + sinh(qt)/q A]``, ``s = tr A/2``, ``q^2 = s^2 - det A``.
+    """
+    ts = np.atleast_1d(np.asarray(ts, float))
+    s = 0.5 * np.trace(A)
+    q = np.emath.sqrt(s * s - np.linalg.det(A) + 0j)
+    qt = q * ts
+    ep, em = np.exp((s + q) * ts), np.exp((s - q) * ts)
+    e_ch = 0.5 * (ep + em)
+    small = np.abs(qt) < 1e-3
+    x2 = np.where(small, qt * qt, 0)
+    series = np.exp(s * ts) * ts * (1 + x2 / 6 + x2 * x2 / 120 + x2**3 / 5040)
+    e_sh = np.where(small, series, (ep - em) / (2 * np.where(small, 1, q)))
+    c0 = (e_ch - s * e_sh).real
+    c1 = e_sh.real
+    return c0[:, None, None] * np.eye(2)[None] + c1[:, None, None] * A[None]
+
+
+def _sector_exit(sys: SwitchedErrorSystem, mode: int, z: np.ndarray) -> float | None:
+    """Time at which the flow of ``A_mode`` from ``z`` leaves the cone of ``mode`` (None: never)."""
+    from scipy.optimize import brentq
+
+    A = sys.A(mode)
+    D = sys.A(1) - sys.A(2)
+    sgn = 1.0 if mode == 1 else -1.0
+    ev = sys.eigenvalues(mode)
+    w = max(abs(complex(e).imag) for e in ev)
+    slow = min(abs(complex(e).real) for e in ev)
+    horizon = math.pi / w if w > 0 else 4.0 / slow
+    cap = 60.0 / slow + horizon
+
+    def g(tau):
+        zz = expm2(A, [tau])[0] @ z
+        return sgn * (zz @ D @ zz)
+
+    t_lo = 0.0
+    while t_lo < cap:
+        ts = np.linspace(t_lo, t_lo + horizon, 257)[1:]
+        Z = expm2(A, ts) @ z
+        G = sgn * np.einsum("ki,ij,kj->k", Z, D, Z)
+        bad = np.flatnonzero(G < 0)
+        if bad.size:
+            k = int(bad[0])
+            a = t_lo if k == 0 else ts[k - 1]
+            return brentq(g, a, ts[k], xtol=1e-15, rtol=1e-14) if g(a) > 0 else float(a)
+        t_lo += horizon
+        horizon *= 2
+    return None
+
+
 def worst_case_flow(sys: SwitchedErrorSystem, z0, t_end: float, n: int = 400):
-    """Exact trajectory of ``Sigma^w`` (matrix exponentials per sector, sectors located by bisection)."""
-    z0 = np.asarray(z0, float)
+    """Exact trajectory of ``Sigma^w`` on ``n`` uniform times in ``[0, t_end]`` (sector exits by root finding)."""
+    z = np.asarray(z0, float).copy()
     ts = np.linspace(0.0, t_end, n)
     out = np.empty((n, 2))
-    t, z = 0.0, z0.copy()
-    k = 0
-    while k < n:
+    t, k = 0.0, 0
+    for _ in range(10000):
         ang = math.atan2(z[1], z[0])
         probe = np.array([math.cos(ang - 1e-7), math.sin(ang - 1e-7)])
         mode = sys.worst_case_mode(probe)
         A = sys.A(mode)
-        D = sys.A(1) - sys.A(2)
-        sgn = 1.0 if mode == 1 else -1.0
-        # find the exit time of the current sector by stepping and bisection on gap sign
-        h = 0.05 / max(math.sqrt(sys.K(mode)), sys.B(mode) / 2, 1e-9)
-        tau, zz = 0.0, z
-        exit_tau = None
-        E = expm(A * h)
-        while tau < t_end - t:
-            zn = E @ zz
-            if sgn * (zn @ D @ zn) < 0:
-                lo, hi = tau, tau + h
-                for _ in range(60):
-                    mid = 0.5 * (lo + hi)
-                    zm = expm(A * mid) @ z
-                    if sgn * (zm @ D @ zm) < 0:
-                        hi = mid
-                    else:
-                        lo = mid
-                exit_tau = hi
-                break
-            tau += h
-            zz = zn
-        seg_end = t + (exit_tau if exit_tau is not None else (t_end - t))
-        while k < n and ts[k] <= seg_end + 1e-15:
-            out[k] = expm(A * (ts[k] - t)) @ z
-            k += 1
-        if exit_tau is None:
+        tau = _sector_exit(sys, mode, z)
+        seg_end = t_end if tau is None else min(t_end, t + tau)
+        sel = (ts >= t) & (ts <= seg_end)
+        if np.any(sel):
+            out[sel] = expm2(A, ts[sel] - t) @ z
+            k = int(np.flatnonzero(sel)[-1]) + 1
+        if tau is None or t + tau >= t_end or k >= n:
             break
-        z = expm(A * exit_tau) @ z
-        t = seg_end
+        z = expm2(A, [tau])[0] @ z
+        t += tau
+    if k < n:
+        out[k:] = out[k - 1] if k > 0 else z
     return ts, out
 
 
@@ -580,7 +613,7 @@ def _fmt_ev(ev) -> str:
                      else f"{float(e):.6g}" for e in ev)
 
 
-def analyze(sys: SwitchedErrorSystem, *, with_iss: bool = True) -> StabilityReport:
+def analyze(sys: SwitchedErrorSystem, *, with_iss: bool = True, n_angles: int = 72) -> StabilityReport:
     """Theorem 1 (visible eigenvectors, Lambda three ways) and Theorem 2 (ISS constants)."""
     _require_applicable(sys)
     vis = visible_eigenvectors(sys)
@@ -605,5 +638,5 @@ def analyze(sys: SwitchedErrorSystem, *, with_iss: bool = True) -> StabilityRepo
         report = StabilityReport(sys, ev, damping, vis, conds, l1, l2, lam, lam_b, rot.Lambda, rot.period,
                                  bool(lam < 1), "ii", None, notes)
     if with_iss and report.guas:
-        report = dataclasses.replace(report, iss=iss_bound(sys))
+        report = dataclasses.replace(report, iss=iss_bound(sys, n_angles=n_angles))
     return report
