@@ -254,3 +254,32 @@ def test_analyze_command_json(capsys):
 def test_analyze_rejects_unknown_option():
     with pytest.raises(SceneError, match="does not take"):
         analyze_command(scene, {}, samples=10, controller="C1")
+
+
+def test_sect3_velocity_reconstruction_is_28(manipulator):
+    """(28) literally: v = M^-1 [G^T B] Gamma^-1 (0, y') + V eta2 with V the kernel basis of [G; h'] normalized
+    by phi2 V = I (26), compared with the state the Sect. 3 route reconstructs; and (25): phi2 M^-1 [G^T B] = 0."""
+    m = manipulator
+    q0 = scene.initial_configuration(m)
+    idyn = internal_dynamics(m, "sect3", point=q0)
+    th = m.theta_values
+    phi2 = ca.Function("phi2", [m.q, m.theta], [ca.jacobian(idyn.phi_expr[idyn.dim1:], m.v)])
+    H = ca.Function("H", [m.q, m.theta], [ca.jacobian(m.h, m.q)])
+    rng = np.random.default_rng(8)
+    for _ in range(5):
+        q, _ = consistent_state(m, q0 + rng.uniform(-0.1, 0.1, 5))
+        y = m.evaluate("h", q).ravel()
+        yd, eta1 = rng.uniform(-1, 1, 2), float(np.array(idyn.eta(q, np.zeros(5), th))[0, 0])
+        eta2 = rng.uniform(-0.2, 0.2, 1)
+        st = idyn.state(y_0=y, y_1=yd, eta=np.concatenate([[eta1], eta2]), theta=th)
+        qs, vs = np.array(st["q"]).ravel(), np.array(st["v"]).ravel()
+        np.testing.assert_allclose(qs, q, atol=1e-10)
+        M, G, Hq, P2 = m.evaluate("M", q), m.evaluate("G", q), np.array(H(q, th)), np.array(phi2(q, th))
+        Bt = np.hstack([G.T, m.evaluate("B", q)])
+        C = np.vstack([G, Hq])
+        Gam = C @ np.linalg.solve(M, Bt)
+        N = np.linalg.svd(C)[2][-1:].T
+        V = N @ np.linalg.inv(P2 @ N)
+        v28 = np.linalg.solve(M, Bt) @ np.linalg.solve(Gam, np.concatenate([np.zeros(2), yd])) + V @ eta2
+        np.testing.assert_allclose(vs, v28, rtol=1e-9, atol=1e-10)
+        np.testing.assert_allclose(P2 @ np.linalg.solve(M, Bt), 0, atol=1e-12)
