@@ -137,6 +137,7 @@ class TrackingStudy:
 
     runs: dict
     info: dict = field(default_factory=dict)
+    setup: object = field(default=None, repr=False, compare=False)
 
     def reduction(self, kind: str = "output", a: str = "C1", b: str = "C2") -> float:
         """``1 - E_a / E_b`` for the cumulative ``kind`` ("output" or "endeffector") error."""
@@ -212,4 +213,4 @@ def run_tracking_study(scene, params=None, plant_params=None, *, controllers=("C
     info = {"a1_along_trajectory": a1, "params": dict(params or {}), "plant": {k: v for k, v in setup.plant.values.items()
                                                     if v != setup.model.values.get(k)},
             "timings": dict(setup.timings), "t_end": setup.t_end, "dt": setup.dt}
-    return TrackingStudy(runs, info)
+    return TrackingStudy(runs, info, setup)
