@@ -149,3 +149,16 @@ def test_results_save_load_and_plot(manipulator, tmp_path):
     with np.load(tmp_path / "rd.npz") as d:
         assert d["worst_condition"] == rd.worst_condition and d["conditions"].size == 30
     assert lin.plot() is not None and rd.plot() is not None
+
+
+def test_A1_design_point_margin_is_evaluated_at_the_design_point(manipulator):
+    from invctl.analysis import schur_complement
+
+    lin = scene.manipulator_linearization(manipulator)
+    K = np.array([[0.1 * lin.P_tilde[0, 0], 0.1 * lin.P_tilde[0, 1]], [1.0, 0.01]])
+    S = np.array(schur_complement(manipulator)(lin.internal.point, np.zeros(5), manipulator.theta_values))
+    KS = K @ S
+    expected = np.linalg.eigvalsh(0.5 * (KS + KS.T))[0]
+    for samples in (0, 7):
+        rep = lin.check_A1(**scene.A1_SCENE, samples=samples)
+        assert rep.min_eig_at_design_point == pytest.approx(expected, rel=1e-12)

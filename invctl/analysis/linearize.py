@@ -77,7 +77,10 @@ class LinearizedInternal:
 
     # -------------------------------------------------------------- Psi (58)
     def psi_function(self) -> ca.Function:
-        """``Psi: (q, v, theta) -> eta2 = [0, I_k] T [0, F_1, ..., F_r, F_0] Phi(q, v)`` (Sect. 5, (58))."""
+        """``Psi: (q, v, theta) -> eta2 = [0, I_k] T [0, F_1, ..., F_r, F_0] Phi(q, v)`` (Sect. 5, (58)); built once."""
+        cached = self.__dict__.get("_psi")
+        if cached is not None:
+            return cached
         model, internal = self.model, self.internal
         from .internal import xi_expression
 
@@ -87,8 +90,10 @@ class LinearizedInternal:
             eta38 = eta38 + ca.mtimes(ca.DM(Fi), yk)
         d = self.Q.shape[0]
         sel = ca.DM(self.T[d - self.k:, :])
-        return ca.Function("Psi", [model.q, model.v, model.theta], [ca.mtimes(sel, eta38)],
-                           ["q", "v", "theta"], ["eta2"])
+        fn = ca.Function("Psi", [model.q, model.v, model.theta], [ca.mtimes(sel, eta38)],
+                         ["q", "v", "theta"], ["eta2"])
+        self.__dict__["_psi"] = fn
+        return fn
 
     # ------------------------------------------------------------- (A1), (A2)
     def check_A1(self, K, rho=None, k_i=None, samples=200, rng=0, points=None) -> "A1Report":
@@ -125,19 +130,17 @@ class LinearizedInternal:
         qs, vs = region_samples(model, samples, rng, [(self.internal.point, np.zeros(model.n))] + list(points or []))
         Ss = eval_batch(S, qs, vs, theta=model.theta_values)[0]
         KS = np.einsum("ij,njk->nik", Kmat, Ss)
-        sym_min = np.linalg.eigvalsh(0.5 * (KS + KS.transpose(0, 2, 1)))[:, 0]
+        design = int(samples)  # region samples come first, then the design point
+        sym = 0.5 * (KS + KS.transpose(0, 2, 1))
         if rho is None:
-            rho = 1 if sym_min[0] > 0 else -1
-            if rho == -1:
-                sym_min = np.linalg.eigvalsh(-0.5 * (KS + KS.transpose(0, 2, 1)))[:, 0]
-        else:
-            sym_min = np.linalg.eigvalsh(rho * 0.5 * (KS + KS.transpose(0, 2, 1)))[:, 0]
+            rho = 1 if np.linalg.eigvalsh(sym[design])[0] > 0 else -1
+        sym_min = np.linalg.eigvalsh(rho * sym)[:, 0]
         ok = sym_min > 0
         worst = int(np.argmin(sym_min))
         return A1Report(
             passed=bool(zero_res < 1e-12 and ok.all()), rho=int(rho), q=q, k_i=tuple(k_i),
             zero_conditions_residual=zero_res, min_eig_sym=float(sym_min.min()),
-            min_eig_at_design_point=float(sym_min[0]), fraction_satisfied=float(ok.mean()),
+            min_eig_at_design_point=float(sym_min[design]), fraction_satisfied=float(ok.mean()),
             worst_point=(qs[worst], vs[worst]), matrix=Kmat, samples=qs.shape[0],
         )
 
