@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 from ..errors import InvctlError, SceneError
+from ..model import Model
 from ..scenes import CommandResult
 from .internal import internal_dynamics
 from .linearize import linearize_internal
@@ -93,6 +94,9 @@ def analyze_command(scene_module, params: dict, samples: int = 200, **options) -
         raise SceneError(f"--samples must be positive, got {samples}")
     t0 = time.perf_counter()
     model = scene_module.build(**params)
+    if not isinstance(model, Model):
+        raise SceneError(f"scene {getattr(scene_module, '__name__', '?')!r}: build() returned "
+                         f"{type(model).__name__}, but invctl analyze needs an invctl.model.Model")
     t_setup = time.perf_counter()
     setup = {}
     if hasattr(scene_module, "analysis_setup"):
