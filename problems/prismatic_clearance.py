@@ -96,3 +96,9 @@ def _simulate(params, **options):
 
 
 COMMANDS = {"simulate": _simulate}
+
+
+def tradeoff_spec(params, smoke: bool = False):
+    from invctl.simulate.contact_commands import prismatic_tradeoff
+
+    return prismatic_tradeoff(sys.modules[__name__], params, smoke=smoke)

@@ -146,3 +146,31 @@ def test_timestep_study_slopes():
     assert 0.8 <= st.slope_time <= 1.6 and 0.8 <= st.slope_velocity <= 1.6
     assert np.all(st.penetration_projected <= 1e-10)
     assert st.plot() is not None
+
+
+def test_condition_52_separates_V_jumps():
+    """PD+ (57) on the crank: at impacts where (52) holds (grad f^T qd_dot >= 0 on the
+    contacts that take an impulse) V does not increase; positive jumps occur only where
+    (52) is violated (000 (51)-(52))."""
+    d = sc.COMMANDS["simulate"]({"projection": 1.0, "h": 1e-4}, controller="pdplus", t_end=2.0, plant_set=[],
+                                out=None, plot=None).data
+    assert d["n_impacts"] > 10 and d["impacts_violating_52"] > 0
+    assert d["max_V_jump_where_52_holds"] <= 1e-12
+    assert d["max_V_jump_where_52_violated"] > 0
+
+
+def test_juggling_law_linear_gap_dynamics():
+    """I/O linearization (25) on the prismatic clearance (both bodies driven), output y = f1:
+    in free flight y'' + Dy y' + Ky (y - y_d) = 0 (closed form), no contact is touched."""
+    from invctl.control.juggling import juggling_law
+
+    model = prism.build(actuators=2)
+    Ky, Dy, yd = 400.0, 30.0, 0.002
+    law = juggling_law(model, [0], Ky=Ky, Dy=Dy, y_d=yd)
+    y0 = 0.005
+    tr = MoreauJean(model, law, backend="vm").run([0.0, 0.05 + y0], [0.0, 0.0], 0.5, 1e-4)
+    assert np.all(tr.P == 0)
+    r = np.roots([1.0, Dy, Ky])  # distinct real roots (Dy^2 > 4 Ky)
+    c = np.linalg.solve([[1.0, 1.0], [r[0], r[1]]], [y0 - yd, 0.0])
+    y_exact = yd + (c[0] * np.exp(r[0] * tr.t) + c[1] * np.exp(r[1] * tr.t)).real
+    np.testing.assert_allclose(tr.gaps[:, 0], y_exact, atol=1e-8)  # theta = 1/2: O(h^2)

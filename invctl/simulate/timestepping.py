@@ -403,7 +403,7 @@ class MoreauJean:
     def run(self, q0, v0, t_end: float, h: float, *, t0: float = 0.0, theta: float = 0.5, params=None,
             gains=None, activation_tol: float = DEFAULT_ACTIVATION_TOL, backend: str | None = None,
             ctrl_params=None,
-            impact_vel_tol: float | None = None, progress: bool = False) -> ContactTrajectory:
+            impact_vel_tol: float | None = None, progress: bool | None = None) -> ContactTrajectory:
         """Simulate from ``(q0, v0)`` at ``t0`` to ``t_end`` with step ``h``.
 
         Parameters
@@ -420,6 +420,8 @@ class MoreauJean:
             conservative forces and e = 1; 1: implicit Euler, dissipative).
         activation_tol : float
             Predicted-gap threshold of the active-set decision.
+        progress : bool, optional
+            Report progress on stderr (default: only for runs of more than 5e6 steps).
         """
         x = self.initial_state(q0, v0, t0, h=h, theta=theta, params=params, gains=gains,
                                activation_tol=activation_tol, ctrl_params=ctrl_params)
@@ -428,6 +430,8 @@ class MoreauJean:
         if N <= 0:
             raise ParameterError(f"t_end = {t_end} must exceed t0 = {t0}")
         backend = backend or self.backend
+        if progress is None:
+            progress = N > 5_000_000
         # one compiled chunk size for C (compiled once, cached on disk); smaller VM loops for short runs
         size = self.chunk if (N >= self.chunk or backend == "c") else max(64, 1 << (N - 1).bit_length())
         size = max(size, self.substeps) // self.substeps * self.substeps
