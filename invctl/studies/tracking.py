@@ -100,7 +100,7 @@ def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, inver
             print("inverting the reference model (servo constraints) ...", file=sys.stderr)
         from ..inversion import invert_scene
 
-        inverse = invert_scene(scene, **({"params": params} if params else {}))
+        inverse = invert_scene(scene, params, model=model, reference=ref)
         timings["inversion"] = time.perf_counter() - t0
     q0 = scene.initial_configuration(plant) if q0 is None else np.asarray(q0, float)
     return TrackingSetup(scene, model, plant, ref, lin, ctrl, inverse, q0, float(t_end), float(dt),
