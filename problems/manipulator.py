@@ -203,6 +203,25 @@ def _analyze(params, **options):
 
 # --- inversion (003 Sect. 4, 6) --------------------------------------------
 
+#: the selection printed in 003 Sect. 6 (14 = 2n + l + p + m conditions):
+#: X(T0) = [0 0 a0 b0 0 | 0 0 * * * | 0 * | 0 0],  X(Tf) = [* * * * 0 | * * * * * | * 0 | 0 0]
+BOUNDARY_PAPER = {
+    "start": {"q": "all", "v": ["s1", "s2"], "lam": ["lam1"], "u": "all"},
+    "end": {"q": ["gamma"], "lam": ["lam2"], "u": "all"},
+}
+#: the default selection: same count, but every constraint-drift mode of the index-reduced
+#: model fixed at T0 and the unstable internal mode at Tf (gamma(Tf) = 0).  The printed one
+#: leaves drift modes to Tf, where the stabilized formulation cannot fix them (singular
+#: Jacobian) and the unstabilized one is ill-conditioned (docs/inversion.md).
+BOUNDARY = {
+    "start": {"q": "all", "v": ["s1", "s2", "alpha", "beta"], "lam": "all", "u": "all"},
+    "end": {"q": ["gamma"]},
+}
+#: horizon [T0, Tf] around [t0, tf] = [0, 1]: the pre-actuation decays like exp(24.4 t),
+#: the post-actuation like exp(-19.6 t) (eigenvalues of Q, invctl analyze), so 1 s on
+#: either side leaves < 1e-8 of either at the horizon ends
+INVERSION = {"T0": -1.0, "Tf": 2.0, "N": 200, "scheme": "hermite-simpson", **BOUNDARY}
+
 
 def _invert(params, **options):
     from invctl.inversion.commands import invert_command

@@ -1,0 +1,202 @@
+"""Direct collocation of ``X' = F(X, Y(t), theta)`` on a mesh of ``[T0, Tf]``.
+
+Schemes (a scheme is a coefficient table):
+
+``hermite-simpson``  compressed Hermite-Simpson (Lobatto IIIA, order 4): states at
+                     the mesh points, cubic Hermite interpolant collocated at the midpoint;
+``legendre<d>``      Gauss-Legendre collocation with ``d`` points (order 2d);
+``radau<d>``         Radau IIA collocation with ``d`` points (order 2d - 1).
+
+The transcription is built once per (servo model, selection, scheme, N): the
+step sizes, the reference samples ``Y = (y, y', y'', y''')`` at every
+collocation time, the model parameters and both equilibria are NLP
+*parameters*, so other meshes with the same N, other references, parameters or
+horizons reuse the same graph.  The graph is an unexpanded MX graph over two
+``map``-ped SX functions (the right-hand side at all nodes and one interval),
+so its size does not grow with N.
+"""
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+SCHEME_RE = re.compile(r"^(hermite-simpson|hs|legendre(\d+)|radau(\d+))$")
+
+
+@dataclass(frozen=True)
+class Scheme:
+    """A collocation scheme: points ``tau`` in (0, 1], derivative matrix ``C``,
+    continuity weights ``D`` and quadrature weights ``B`` (empty for Hermite-Simpson)."""
+
+    name: str
+    degree: int
+    tau: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    B: np.ndarray
+    order: int
+
+    @property
+    def is_hs(self) -> bool:
+        return self.name == "hermite-simpson"
+
+
+def get_scheme(name: str) -> Scheme:
+    """Parse ``hermite-simpson``, ``legendre<d>`` or ``radau<d>`` (d = 1..9)."""
+    key = str(name).strip().lower()
+    mt = SCHEME_RE.match(key)
+    if not mt:
+        raise ValueError(f"unknown collocation scheme {name!r}; use 'hermite-simpson', 'legendre<d>' or "
+                         "'radau<d>' (e.g. legendre3, radau3)")
+    if key in ("hermite-simpson", "hs"):
+        return Scheme("hermite-simpson", 3, np.array([0.5, 1.0]), np.zeros((0, 0)), np.zeros(0), np.zeros(0), 4)
+    kind = "legendre" if key.startswith("legendre") else "radau"
+    d = int(mt.group(2) or mt.group(3))
+    if not 1 <= d <= 9:
+        raise ValueError(f"collocation degree must be 1..9, got {d}")
+    tau = np.array(ca.collocation_points(d, kind))
+    allt = np.concatenate([[0.0], tau])
+    C = np.zeros((d + 1, d))
+    D = np.zeros(d + 1)
+    B = np.zeros(d + 1)
+    for j in range(d + 1):
+        coeff = np.poly1d([1.0])
+        for r in range(d + 1):
+            if r != j:
+                coeff *= np.poly1d([1.0, -allt[r]]) / (allt[j] - allt[r])
+        D[j] = coeff(1.0)
+        dcoeff = np.polyder(coeff)
+        C[j, :] = dcoeff(tau)
+        B[j] = np.polyint(coeff)(1.0)
+    return Scheme(f"{kind}{d}", d, tau, C, D, B, 2 * d if kind == "legendre" else 2 * d - 1)
+
+
+class Transcription:
+    """The NLP of one (servo model, selection, scheme, N); see module doc.
+
+    Decision vector ``x = [vec(X_mesh) (nx x N+1); vec(X_col) (nx x dN)]``;
+    constraints ``[defects; boundary conditions]``; parameters
+    ``[h (N); vec(Y at the scheme's sample times); theta; E0 (nx); Ef (nx)]``.
+    """
+
+    def __init__(self, servo, selection, scheme: Scheme, N: int, *, objective: float = 0.0):
+        t_build = time.perf_counter()
+        self.servo, self.selection, self.scheme, self.N = servo, selection, scheme, int(N)
+        L = servo.layout
+        nx, m4 = L.nx, 4 * L.m
+        ntheta = servo.model.theta.shape[0]
+        self.nx, self.m4, self.ntheta = nx, m4, ntheta
+        N = self.N
+        rhs = servo.rhs
+        Xs, Ys, th = ca.SX.sym("X", nx), ca.SX.sym("Y", m4), ca.SX.sym("theta", ntheta)
+        hs = ca.SX.sym("h")
+        ub = L.blocks["u"]
+        if scheme.is_hs:
+            Xa, Xb, Fa, Fb, Ym = (ca.SX.sym(s, nx) if s != "Ym" else ca.SX.sym(s, m4)
+                                  for s in ("Xa", "Xb", "Fa", "Fb", "Ym"))
+            Xm = 0.5 * (Xa + Xb) + hs / 8 * (Fa - Fb)
+            Fm = rhs(Xm, Ym, th)
+            defect = Xb - Xa - hs / 6 * (Fa + 4 * Fm + Fb)
+            energy = hs / 6 * (ca.sumsqr(Xa[ub]) + 4 * ca.sumsqr(Xm[ub]) + ca.sumsqr(Xb[ub]))
+            interval = ca.Function("hs_interval", [Xa, Xb, Fa, Fb, hs, Ym, th], [defect, energy],
+                                   ["Xa", "Xb", "Fa", "Fb", "h", "Ym", "theta"], ["defect", "energy"])
+            self.n_col, self.nY = 0, 2 * N + 1
+        else:
+            d = scheme.degree
+            Xk, Xk1 = ca.SX.sym("Xk", nx), ca.SX.sym("Xk1", nx)
+            Xc, Yc = ca.SX.sym("Xc", nx, d), ca.SX.sym("Yc", m4, d)
+            Xall = ca.horzcat(Xk, Xc)
+            Fc = ca.horzcat(*[rhs(Xc[:, r], Yc[:, r], th) for r in range(d)])
+            res = ca.mtimes(Xall, ca.DM(scheme.C)) - hs * Fc
+            cont = Xk1 - ca.mtimes(Xall, ca.DM(scheme.D))
+            energy = hs * sum(scheme.B[r + 1] * ca.sumsqr(Xc[ub, r]) for r in range(d))
+            interval = ca.Function("coll_interval", [Xk, Xc, Xk1, hs, Yc, th],
+                                   [ca.vertcat(ca.vec(res), cont), energy],
+                                   ["Xk", "Xc", "Xk1", "h", "Yc", "theta"], ["defect", "energy"])
+            self.n_col, self.nY = d * N, d * N
+        self.interval = interval
+        self.nX = nx * (N + 1) + nx * self.n_col
+        self.np = N + m4 * self.nY + ntheta + 2 * nx
+        x = ca.MX.sym("x", self.nX)
+        p = ca.MX.sym("p", self.np)
+        Xmesh = ca.reshape(x[:nx * (N + 1)], nx, N + 1)
+        o = 0
+        h = p[o:o + N].T
+        o += N
+        Y = ca.reshape(p[o:o + m4 * self.nY], m4, self.nY)
+        o += m4 * self.nY
+        theta = p[o:o + ntheta]
+        o += ntheta
+        E0, Ef = p[o:o + nx], p[o + nx:o + 2 * nx]
+        if scheme.is_hs:
+            Fn = rhs.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
+            defect, energy = interval.map(N)(Xmesh[:, :N], Xmesh[:, 1:], Fn[:, :N], Fn[:, 1:], h, Y[:, N + 1:], theta)
+        else:
+            Xcol = ca.reshape(x[nx * (N + 1):], nx, self.n_col)
+            defect, energy = interval.map(N)(Xmesh[:, :N], Xcol, Xmesh[:, 1:], h, Y, theta)
+        s0, sf = list(selection.start), list(selection.end)
+        bc = ca.vertcat(Xmesh[s0, 0] - E0[s0], Xmesh[sf, N] - Ef[sf])
+        self.g = ca.vertcat(ca.vec(defect), bc)
+        self.ng = self.g.shape[0]
+        self.square = self.ng == self.nX
+        self.objective = float(objective)
+        self.f = self.objective * ca.sum2(energy) if self.objective else ca.MX(0)
+        self._x, self._p = x, p
+        self._solvers: dict = {}
+        self._newton = None
+        self.build_s = time.perf_counter() - t_build
+
+    # ------------------------------------------------------------ layout
+    def sample_times(self, t_mesh: np.ndarray) -> np.ndarray:
+        """Times at which the reference is sampled (order of ``Y`` in ``p``)."""
+        h = np.diff(t_mesh)
+        if self.scheme.is_hs:
+            return np.concatenate([t_mesh, t_mesh[:-1] + 0.5 * h])
+        return (t_mesh[:-1, None] + h[:, None] * self.scheme.tau[None, :]).ravel()
+
+    def collocation_times(self, t_mesh: np.ndarray) -> np.ndarray:
+        """Times of the collocation states ``X_col`` (empty for Hermite-Simpson)."""
+        if self.scheme.is_hs:
+            return np.zeros(0)
+        h = np.diff(t_mesh)
+        return (t_mesh[:-1, None] + h[:, None] * self.scheme.tau[None, :]).ravel()
+
+    def parameters(self, t_mesh, Ysamples, theta, E0, Ef) -> np.ndarray:
+        return np.concatenate([np.diff(t_mesh), np.asarray(Ysamples, float).ravel(order="F"),
+                               np.asarray(theta, float), np.asarray(E0, float), np.asarray(Ef, float)])
+
+    def pack(self, Xmesh, Xcol=None) -> np.ndarray:
+        parts = [np.asarray(Xmesh, float).ravel(order="F")]
+        if self.n_col:
+            parts.append(np.asarray(Xcol, float).ravel(order="F"))
+        return np.concatenate(parts)
+
+    def unpack(self, x):
+        x = np.asarray(x, float).ravel()
+        nx, N = self.nx, self.N
+        Xmesh = x[:nx * (N + 1)].reshape(nx, N + 1, order="F")
+        Xcol = x[nx * (N + 1):].reshape(nx, self.n_col, order="F") if self.n_col else np.zeros((nx, 0))
+        return Xmesh, Xcol
+
+    # ------------------------------------------------------------ solvers
+    def ipopt(self, options: dict) -> ca.Function:
+        """The IPOPT solver for these options (built once per option set)."""
+        key = repr(sorted(options.items(), key=lambda kv: kv[0]))
+        if key not in self._solvers:
+            nlp = {"x": self._x, "p": self._p, "f": self.f, "g": self.g}
+            self._solvers[key] = ca.nlpsol("servo_bvp", "ipopt", nlp, options)
+        return self._solvers[key]
+
+    def newton_functions(self):
+        """``(x, p) -> g`` and ``(x, p) -> dg/dx`` (sparse), for the Newton backend."""
+        if self._newton is None:
+            if not self.square:
+                raise ValueError("the Newton backend needs a square system (as many conditions as unknowns)")
+            gfun = ca.Function("servo_g", [self._x, self._p], [self.g])
+            jfun = ca.Function("servo_jac", [self._x, self._p], [ca.jacobian(self.g, self._x)])
+            self._newton = (gfun, jfun)
+        return self._newton

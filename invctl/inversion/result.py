@@ -1,0 +1,230 @@
+"""The result of a stable inversion: :class:`Inverse`."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .collocation import get_scheme
+
+_BLOCKS = ("q", "v", "lam", "mu", "u")
+
+
+@dataclass
+class Inverse:
+    """Feedforward and state trajectories of a stable inversion (003 Sect. 4).
+
+    The trajectories are the collocation polynomials themselves: cubic Hermite
+    pieces through ``X_mesh`` with slopes ``dX_mesh`` (Hermite-Simpson) or the
+    Lagrange polynomials through ``X_mesh[:, k]`` and the ``d`` collocation states
+    of interval ``k`` (Legendre, Radau).  Outside ``[T0, Tf]`` they are held
+    constant (the equilibria).
+
+    Attributes
+    ----------
+    t_mesh : (N+1,) array
+    X_mesh : (nx, N+1) array, ``X = (q, v, lam, mu, u)``
+    dX_mesh : (nx, N+1) array, ``X'`` at the mesh (Hermite-Simpson)
+    X_col : (nx, dN) array, collocation states (Legendre, Radau)
+    sizes : dict with ``n, l, p, m``
+    t0, tf : float
+        Start and end of the reference transition (the causal feedforward starts at ``t0``).
+    diagnostics : dict
+        status, success, iterations, build_s, solve_s, residuals, mesh history, ...
+    """
+
+    scheme: str
+    t_mesh: np.ndarray
+    X_mesh: np.ndarray
+    dX_mesh: np.ndarray
+    X_col: np.ndarray
+    sizes: dict
+    t0: float
+    tf: float
+    names: dict = field(default_factory=dict)
+    diagnostics: dict = field(default_factory=dict)
+    y_ref_fn: object = None
+
+    def __post_init__(self):
+        self.t_mesh = np.asarray(self.t_mesh, float)
+        self.X_mesh = np.asarray(self.X_mesh, float)
+        self.dX_mesh = np.asarray(self.dX_mesh, float)
+        self.X_col = np.asarray(self.X_col, float)
+        self._scheme = get_scheme(self.scheme)
+        if not self._scheme.is_hs:
+            d = self._scheme.degree
+            allt = np.concatenate([[0.0], self._scheme.tau])
+            basis = []
+            for j in range(d + 1):
+                c = np.poly1d([1.0])
+                for r in range(d + 1):
+                    if r != j:
+                        c *= np.poly1d([1.0, -allt[r]]) / (allt[j] - allt[r])
+                basis.append(c)
+            self._basis = basis
+
+    # ------------------------------------------------------------ sizes
+    @property
+    def T0(self) -> float:
+        return float(self.t_mesh[0])
+
+    @property
+    def Tf(self) -> float:
+        return float(self.t_mesh[-1])
+
+    @property
+    def N(self) -> int:
+        return self.t_mesh.size - 1
+
+    @property
+    def nx(self) -> int:
+        return self.X_mesh.shape[0]
+
+    def _slice(self, block: str) -> slice:
+        n, l, p, m = (self.sizes[k] for k in ("n", "l", "p", "m"))
+        starts = {"q": 0, "v": n, "lam": 2 * n, "mu": 2 * n + l, "u": 2 * n + l + p}
+        lens = {"q": n, "v": n, "lam": l, "mu": p, "u": m}
+        return slice(starts[block], starts[block] + lens[block])
+
+    # ------------------------------------------------------------ interpolation
+    def X(self, t) -> np.ndarray:
+        """All unknowns at times ``t``: shape ``(nx, len(t))``."""
+        t = np.atleast_1d(np.asarray(t, float))
+        tc = np.clip(t, self.T0, self.Tf)
+        k = np.clip(np.searchsorted(self.t_mesh, tc, side="right") - 1, 0, self.N - 1)
+        h = self.t_mesh[k + 1] - self.t_mesh[k]
+        s = (tc - self.t_mesh[k]) / h
+        if self._scheme.is_hs:
+            s2, s3 = s * s, s * s * s
+            h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
+            return (self.X_mesh[:, k] * h00 + self.dX_mesh[:, k] * (h10 * h)
+                    + self.X_mesh[:, k + 1] * h01 + self.dX_mesh[:, k + 1] * (h11 * h))
+        d = self._scheme.degree
+        out = self.X_mesh[:, k] * self._basis[0](s)
+        for j in range(1, d + 1):
+            out = out + self.X_col[:, k * d + j - 1] * self._basis[j](s)
+        return out
+
+    def _block(self, block, t):
+        return self.X(t)[self._slice(block)]
+
+    def q(self, t) -> np.ndarray:
+        """Coordinates ``q(t)``: shape ``(n, len(t))``."""
+        return self._block("q", t)
+
+    def v(self, t) -> np.ndarray:
+        """Velocities ``v(t)``: shape ``(n, len(t))``."""
+        return self._block("v", t)
+
+    def lam(self, t) -> np.ndarray:
+        """Holonomic multipliers ``lam(t)``: shape ``(l, len(t))``."""
+        return self._block("lam", t)
+
+    def mu(self, t) -> np.ndarray:
+        """Non-holonomic multipliers ``mu(t)``: shape ``(p, len(t))``."""
+        return self._block("mu", t)
+
+    def u(self, t) -> np.ndarray:
+        """The non-causal feedforward ``u_ff(t)`` (with pre-/post-actuation): ``(m, len(t))``."""
+        return self._block("u", t)
+
+    def u_causal(self, t) -> np.ndarray:
+        """The causal feedforward of 003 Sect. 6: zero before ``t0``, ``u_bvp(t)`` after."""
+        t = np.atleast_1d(np.asarray(t, float))
+        return np.where(t[None, :] < self.t0, 0.0, self.u(t))
+
+    def y_ref(self, t) -> np.ndarray | None:
+        """The reference the inverse was computed for (``None`` after loading)."""
+        if self.y_ref_fn is None:
+            return None
+        return self.y_ref_fn(t)
+
+    @property
+    def success(self) -> bool:
+        return bool(self.diagnostics.get("success", False))
+
+    # ------------------------------------------------------------ output
+    def plot(self, path: str | None = None, *, dt: float | None = None):
+        """One figure: feedforward (causal dashed), coordinates, multipliers."""
+        import matplotlib.pyplot as plt
+
+        dt = dt or (self.Tf - self.T0) / 1500
+        t = np.arange(self.T0, self.Tf + 0.5 * dt, dt)
+        fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+        u, uc = self.u(t), self.u_causal(t)
+        for i in range(u.shape[0]):
+            nm = self.names.get("u", [f"u{i + 1}"])[i]
+            axes[0].plot(t, u[i], label=f"{nm} (non-causal)")
+            axes[0].plot(t, uc[i], "--", label=f"{nm} causal")
+        axes[0].set_ylabel("u_ff")
+        q = self.q(t)
+        for i in range(q.shape[0]):
+            axes[1].plot(t, q[i], label=self.names.get("q", [f"q{i + 1}"] * q.shape[0])[i])
+        axes[1].set_ylabel("q")
+        lam = self.lam(t)
+        for i in range(lam.shape[0]):
+            axes[2].plot(t, lam[i], label=f"lam{i + 1}")
+        mu = self.mu(t)
+        for i in range(mu.shape[0]):
+            axes[2].plot(t, mu[i], label=f"mu{i + 1}")
+        axes[2].set_ylabel("multipliers")
+        axes[2].set_xlabel("t [s]")
+        for ax in axes:
+            ax.axvspan(self.t0, self.tf, color="0.92", zorder=-1)
+            ax.legend(fontsize=7, ncol=3, loc="best")
+            ax.grid(alpha=0.3)
+        status = self.diagnostics.get("status", "?")
+        axes[0].set_title(f"stable inversion ({self.scheme}, N={self.N}, {status}); shaded: [t0, tf]")
+        fig.tight_layout()
+        if path:
+            fig.savefig(path, dpi=120)
+        return fig
+
+    def to_npz(self, path: str, dt: float | None = None) -> None:
+        """Save ``t, q, v, lam, mu, u, y_ref`` on a uniform grid of step ``dt`` plus the
+        collocation data (``t_mesh, X_mesh, dX_mesh, X_col``) needed by :meth:`from_npz`."""
+        dt = float(dt) if dt else (self.Tf - self.T0) / 1000
+        if not dt > 0:
+            raise ValueError(f"dt must be positive, got {dt}")
+        t = np.arange(self.T0, self.Tf + 0.5 * dt, dt)
+        X = self.X(t)
+        yr = self.y_ref(t)
+        meta = {"scheme": self.scheme, "sizes": self.sizes, "t0": self.t0, "tf": self.tf, "names": self.names,
+                "diagnostics": _jsonable(self.diagnostics)}
+        np.savez(path, t=t, q=X[self._slice("q")], v=X[self._slice("v")], lam=X[self._slice("lam")],
+                 mu=X[self._slice("mu")], u=X[self._slice("u")], u_causal=self.u_causal(t),
+                 y_ref=np.zeros((0, t.size)) if yr is None else yr,
+                 t_mesh=self.t_mesh, X_mesh=self.X_mesh, dX_mesh=self.dX_mesh, X_col=self.X_col,
+                 meta=np.array(json.dumps(meta)))
+
+    @classmethod
+    def from_npz(cls, path: str) -> "Inverse":
+        """Load what :meth:`to_npz` wrote (interpolants rebuilt from the collocation data)."""
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            inv = cls(meta["scheme"], z["t_mesh"], z["X_mesh"], z["dX_mesh"], z["X_col"], meta["sizes"],
+                      meta["t0"], meta["tf"], meta.get("names", {}), meta.get("diagnostics", {}))
+            if z["y_ref"].size:
+                t, yr = z["t"], z["y_ref"]
+                inv.y_ref_fn = lambda tt: np.vstack([np.interp(np.atleast_1d(tt), t, row) for row in yr])
+        return inv
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return f if np.isfinite(f) else str(f)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.bool_,)):
+        return bool(obj)
+    if isinstance(obj, (str, int, bool)) or obj is None:
+        return obj
+    return str(obj)

@@ -1,0 +1,481 @@
+"""``invert``: stable inversion of 003 (35)-(36) by collocation and IPOPT (or Newton).
+
+One call builds (or reuses) the transcription, computes both equilibria and a
+quasi-static initial guess along ``y_ref``, solves, checks the residuals and
+returns an :class:`Inverse`.  With ``tol`` it refines the mesh until the
+forward-check output error is below ``tol`` (see :func:`invert`).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import Any
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spl
+
+from ..errors import InversionFailed, ReferenceSignalError
+from .boundary import EquilibriumSolver, resolve_selection
+from .collocation import Transcription, get_scheme
+from .result import Inverse
+from .servo import ServoModel
+
+_SERVO_CACHE: dict = {}
+_TRANS_CACHE: dict = {}
+_EQ_CACHE: dict = {}
+
+IPOPT_DEFAULTS = {
+    "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
+    "ipopt.tol": 1e-10, "ipopt.constr_viol_tol": 1e-10, "ipopt.acceptable_tol": 1e-8,
+    "ipopt.linear_solver": "mumps",
+    # MUMPS: start with a generous workspace so IPOPT never enters its
+    # "increase mem_percent and refactorize" loop on large meshes
+    "ipopt.mumps_mem_percent": 4000,
+}
+
+
+def servo_model(model, formulation: str = "baumgarte", omega: float = 10.0) -> ServoModel:
+    """The cached :class:`ServoModel` (keyed by the symbolic model, not its parameter values)."""
+    key = (id(model.M), formulation, float(omega))
+    if key not in _SERVO_CACHE:
+        _SERVO_CACHE[key] = ServoModel(model, formulation, omega)
+    return _SERVO_CACHE[key]
+
+
+def transcription(servo, selection, scheme, N: int, objective: float = 0.0) -> Transcription:
+    """The cached :class:`Transcription` for (servo model, selection, scheme, N)."""
+    key = (id(servo), selection.start, selection.end, scheme.name, int(N), float(objective))
+    if key not in _TRANS_CACHE:
+        _TRANS_CACHE[key] = Transcription(servo, selection, scheme, N, objective=objective)
+    return _TRANS_CACHE[key]
+
+
+def _equilibrium_solver(model) -> EquilibriumSolver:
+    key = id(model.M)
+    if key not in _EQ_CACHE:
+        _EQ_CACHE[key] = EquilibriumSolver(model)
+    return _EQ_CACHE[key]
+
+
+class _Progress(ca.Callback):
+    """IPOPT iteration callback printing one line per iteration to stderr."""
+
+    def __init__(self, nx, ng, np_, label):
+        ca.Callback.__init__(self)
+        self.nx, self.ng, self.np_, self.label = nx, ng, np_, label
+        self.k = 0
+        self.t = time.perf_counter()
+        self.construct("progress", {})
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        n = ca.nlpsol_out(i)
+        if n in ("f",):
+            return ca.Sparsity.dense(1)
+        if n in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.nx)
+        if n in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.ng)
+        if n == "lam_p":
+            return ca.Sparsity.dense(self.np_)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        g = np.array(arg[ca.nlpsol_out().index("g")]).ravel()
+        viol = float(np.max(np.abs(g))) if g.size else 0.0
+        print(f"  [{self.label}] iter {self.k:3d}  max|g| = {viol:.3e}  ({time.perf_counter() - self.t:.2f} s)",
+              file=sys.stderr, flush=True)
+        self.k += 1
+        return [0]
+
+
+def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: str = "") -> np.ndarray:
+    """Quasi-static inverses along ``y_ref``: equilibria at ``times`` (continued from
+    ``q0``), with ``v`` and the multipliers/inputs made consistent with the motion.
+
+    Raises
+    ------
+    ReferenceSignalError
+        Where no equilibrium exists (reference outside the reachable workspace).
+    """
+    eq = _equilibrium_solver(model)
+    n, l, p, m = model.n, model.ell, model.p, model.m
+    ys = reference(times)
+    W, w = [], None
+    for k, t in enumerate(times):
+        X, _ = eq.solve(ys[:, k], guess_q=q0 if w is None else None, guess_w=w, where=f" at t = {t:.4g}{where}")
+        w = np.concatenate([X[:n], X[2 * n:]])
+        W.append(w)
+    W = np.array(W).T
+    Q = W[:n]
+    V = np.gradient(Q, times, axis=1) if times.size > 2 else np.zeros_like(Q)
+    if servo is None:
+        return np.vstack([Q, V, W[n:]])
+    # multipliers and inputs from the acceleration-level servo constraints at (q, v): A(q, v, z) = 0
+    X = np.vstack([Q, V, np.zeros((l + p + m, times.size))])
+    Y = servo.reference_samples(reference, times)
+    th = model.theta_values
+    _pos, _vel, acc = servo.residuals.map(times.size)(X, Y, th)
+    Az = np.array(servo.decoupling.map(times.size)(X, Y, th)).reshape(l + p + m, l + p + m, times.size, order="F")
+    acc = np.array(acc)
+    Z = np.stack([np.linalg.solve(Az[:, :, k], -acc[:, k]) for k in range(times.size)], axis=1)
+    return np.vstack([Q, V, Z])
+
+
+def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label):
+    gfun, jfun = tr.newton_functions()
+    x = np.array(x0, float)
+    t_start = time.perf_counter()
+    g = np.array(gfun(x, p)).ravel()
+    nrm = np.linalg.norm(g)
+    status, it = "Maximum_Iterations_Exceeded", 0
+    for it in range(1, max_iter + 1):
+        if np.max(np.abs(g)) < tol:
+            status = "Solve_Succeeded"
+            it -= 1
+            break
+        if time.perf_counter() - t_start > max_wall_time:
+            status = "Maximum_WallTime_Exceeded"
+            break
+        J = jfun(x, p)
+        col, row = J.sparsity().get_ccs()
+        A = sp.csc_matrix((np.array(J.nonzeros()).ravel(), row, col), shape=J.shape)
+        try:
+            dx = -spl.splu(A).solve(g)
+        except RuntimeError:
+            status = "Singular_Jacobian"
+            break
+        s = 1.0
+        while True:
+            g2 = np.array(gfun(x + s * dx, p)).ravel()
+            n2 = np.linalg.norm(g2)
+            if np.isfinite(n2) and (n2 <= (1 - 1e-4 * s) * nrm or n2 < tol):
+                break
+            s *= 0.5
+            if s < 1e-6:
+                break
+        if s < 1e-6:
+            status = "Line_Search_Failed"
+            break
+        x, g, nrm = x + s * dx, g2, n2
+        if progress:
+            print(f"  [{label}] newton {it:3d}  max|g| = {np.max(np.abs(g)):.3e}  step {s:.3g}", file=sys.stderr)
+    else:
+        if np.max(np.abs(g)) < tol:
+            status = "Solve_Succeeded"
+    return x, {"status": status, "iterations": it, "success": status == "Solve_Succeeded",
+               "max_constraint_violation": float(np.max(np.abs(g)))}
+
+
+def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N: int = 200,
+           mesh: np.ndarray | None = None, scheme: str = "hermite-simpson", formulation: str = "baumgarte",
+           omega: float = 10.0, backend: str = "ipopt", ipopt_options: dict | None = None,
+           max_iter: int = 100, max_wall_time: float = 120.0, newton_tol: float = 1e-10,
+           warm_start: Inverse | None = None, q_guess=None, objective: float | None = None,
+           allow_underdetermined: bool = False, residual_tol: float = 1e-4, tol: float | None = None,
+           max_refinements: int = 6, max_N: int = 4000, forward_options: dict | None = None,
+           progress: bool = False, continuation: bool = True) -> Inverse:
+    """Stable inversion by servo constraints (003 (35)) with boundary conditions (36).
+
+    Parameters
+    ----------
+    model : Model
+        The reference model (003 (1)); ``h`` must depend on ``q`` only.
+    reference : Reference
+        ``y_ref``; needs three continuous derivatives (jerk-level index reduction).
+    T0, Tf : float
+        The BVP horizon, ``T0 < t0`` and ``Tf > tf`` (pre- and post-actuation).
+    start, end : dict
+        Boundary selection by name (:mod:`invctl.inversion.boundary`).
+    N, mesh : int or array
+        Number of intervals of a uniform mesh, or the mesh itself.
+    scheme : str
+        ``hermite-simpson`` (default), ``legendre<d>``, ``radau<d>``.
+    formulation, omega : str, float
+        Index reduction (:mod:`invctl.inversion.servo`); default Baumgarte-stabilized
+        jerk level with rate 10/s.
+    backend : {"ipopt", "newton"}
+        IPOPT (default; options pass through ``ipopt_options`` verbatim, e.g.
+        ``{"ipopt.tol": 1e-12}``) or a sparse Newton method with line search on the
+        square system (SuperLU).
+    max_iter, max_wall_time : int, float
+        Limits of every solve.
+    warm_start : Inverse, optional
+        An earlier solution (any mesh) used as initial guess.
+    q_guess : array, optional
+        Configuration to start the equilibrium search at ``T0``.
+    objective : float, optional
+        Weight of the input energy; used when the inverse is not unique
+        (``allow_underdetermined`` with fewer than ``2n+l+p+m`` conditions).
+    residual_tol : float
+        Largest accepted position-level constraint residual at the mesh.
+    tol : float, optional
+        Requested forward-check output error: refine the mesh (error-driven,
+        warm-started) until met; meshes tried go to ``diagnostics["meshes"]``.
+    progress : bool
+        One line per iteration to stderr.
+    continuation : bool
+        When a cold solve fails, solve a slower transition first and continue.
+
+    Raises
+    ------
+    BoundaryConditionError, ReferenceSignalError, InversionFailed
+        ``InversionFailed.partial`` is the last iterate as an :class:`Inverse`.
+    """
+    if tol is not None:
+        return _refine(model, reference, T0=T0, Tf=Tf, start=start, end=end, N=N, mesh=mesh, scheme=scheme,
+                       formulation=formulation, omega=omega, backend=backend, ipopt_options=ipopt_options,
+                       max_iter=max_iter, max_wall_time=max_wall_time, newton_tol=newton_tol,
+                       warm_start=warm_start, q_guess=q_guess, objective=objective,
+                       allow_underdetermined=allow_underdetermined, residual_tol=residual_tol, tol=tol,
+                       max_refinements=max_refinements, max_N=max_N, forward_options=forward_options,
+                       progress=progress, continuation=continuation)
+    reference.require(3, "servo-constraint inversion (jerk-level index reduction of 003 (35))")
+    if not (T0 <= reference.t0 and Tf >= reference.tf and Tf > T0):
+        raise ReferenceSignalError(f"the horizon [T0, Tf] = [{T0}, {Tf}] must contain [t0, tf] = "
+                                   f"[{reference.t0}, {reference.tf}] (pre- and post-actuation)")
+    t_build = time.perf_counter()
+    sch = get_scheme(scheme)
+    servo = servo_model(model, formulation, omega)
+    sel = resolve_selection(servo, start, end, allow_underdetermined=allow_underdetermined)
+    if mesh is not None:
+        t_mesh = np.asarray(mesh, float)
+        N = t_mesh.size - 1
+        if N < 2 or np.any(np.diff(t_mesh) <= 0) or abs(t_mesh[0] - T0) > 1e-12 or abs(t_mesh[-1] - Tf) > 1e-12:
+            raise ValueError("mesh must be increasing from T0 to Tf with at least 3 points")
+    else:
+        t_mesh = np.linspace(T0, Tf, int(N) + 1)
+    under = len(sel.start) + len(sel.end) < servo.layout.nx
+    weight = float(objective) if objective is not None else (1.0 if under else 0.0)
+    tr = transcription(servo, sel, sch, N, weight)
+    build_s = time.perf_counter() - t_build
+    # equilibria and initial guess
+    t_guess = time.perf_counter()
+    q0 = q_guess if q_guess is not None else np.zeros(model.n)
+    qs_times = np.unique(np.concatenate([np.linspace(T0, Tf, 41), np.linspace(reference.t0, reference.tf, 81)]))
+    G = quasi_static_guess(model, reference, qs_times, q0, servo=servo)
+    E0 = np.concatenate([G[:model.n, 0], np.zeros(model.n), G[2 * model.n:, 0]])
+    Ef = np.concatenate([G[:model.n, -1], np.zeros(model.n), G[2 * model.n:, -1]])
+    # exact equilibria (the ends of the quasi-static path are static already, re-solve to be sure)
+    eq = _equilibrium_solver(model)
+    E0, _ = eq.solve(reference(T0).ravel(), guess_w=np.concatenate([E0[:model.n], E0[2 * model.n:]]),
+                     where=f" at T0 = {T0}")
+    Ef, _ = eq.solve(reference(Tf).ravel(), guess_w=np.concatenate([Ef[:model.n], Ef[2 * model.n:]]),
+                     where=f" at Tf = {Tf}")
+    tc = tr.collocation_times(t_mesh)
+    if warm_start is not None:
+        x0 = tr.pack(warm_start.X(t_mesh), warm_start.X(tc) if tc.size else None)
+    else:
+        interp = lambda tt: np.vstack([np.interp(tt, qs_times, row) for row in G])  # noqa: E731
+        x0 = tr.pack(interp(t_mesh), interp(tc) if tc.size else None)
+    Y = servo.reference_samples(reference, tr.sample_times(t_mesh))
+    theta = model.theta_values
+    p = tr.parameters(t_mesh, Y, theta, E0, Ef)
+    guess_s = time.perf_counter() - t_guess
+    label = f"{sch.name} N={N}"
+    x, info, solve_s, build_solver_s = _solve(tr, x0, p, backend=backend, ipopt_options=ipopt_options,
+                                              max_iter=max_iter, max_wall_time=max_wall_time,
+                                              newton_tol=newton_tol, progress=progress, label=label,
+                                              square=not under)
+    build_s += build_solver_s
+    cont_info = None
+    if not info["success"] and continuation and warm_start is None:
+        x, info, cont_info = _continuation(model, reference, tr, servo, t_mesh, x0, E0, Ef, theta,
+                                           backend=backend, ipopt_options=ipopt_options, max_iter=max_iter,
+                                           max_wall_time=max_wall_time, newton_tol=newton_tol,
+                                           progress=progress, label=label, square=not under)
+        solve_s += cont_info.pop("solve_s")
+    inv = _make_inverse(model, reference, servo, tr, sch, t_mesh, x, theta)
+    res = _residuals(inv, servo, reference, theta)
+    inv.diagnostics.update(info)
+    inv.diagnostics.update({
+        "backend": backend, "scheme": sch.name, "N": int(N), "formulation": formulation, "omega": omega,
+        "build_s": build_s, "solve_s": solve_s, "guess_s": guess_s, "unknowns": tr.nX, "equations": tr.ng,
+        "selection": sel.describe(), "T0": T0, "Tf": Tf, "residuals": res, "continuation": cont_info,
+    })
+    if not info["success"]:
+        raise InversionFailed(
+            f"stable inversion failed ({backend}: {info['status']} after {info['iterations']} iterations, "
+            f"max constraint violation {info.get('max_constraint_violation', float('nan')):.3g}) on {label}. "
+            "Try a finer mesh (N), a longer horizon, warm_start from a coarser solution, more iterations "
+            "(max_iter) or another boundary selection; the last iterate is in exc.partial",
+            partial=inv, diagnostics=inv.diagnostics)
+    if res["position_mesh"] > residual_tol:
+        raise InversionFailed(
+            f"the solution violates the position-level constraints g = 0, h = y_ref by "
+            f"{res['position_mesh']:.3g} > residual_tol = {residual_tol:.3g} at the mesh ({label}); refine the "
+            "mesh or check the boundary selection (drift modes must be fixed)", partial=inv,
+            diagnostics=inv.diagnostics)
+    return inv
+
+
+def _solve(tr, x0, p, *, backend, ipopt_options, max_iter, max_wall_time, newton_tol, progress, label, square,
+           lam_g0=None):
+    t0 = time.perf_counter()
+    if backend == "newton":
+        tr.newton_functions()
+        build = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        x, info = _newton(tr, x0, p, max_iter=max_iter, max_wall_time=max_wall_time, tol=newton_tol,
+                          progress=progress, label=label)
+        return x, info, time.perf_counter() - t1, build
+    if backend != "ipopt":
+        raise ValueError(f"backend must be 'ipopt' or 'newton', got {backend!r}")
+    opts: dict[str, Any] = dict(IPOPT_DEFAULTS)
+    opts["ipopt.max_iter"] = int(max_iter)
+    opts["ipopt.max_wall_time"] = float(max_wall_time)
+    if square:
+        # square system: the primal step solves J dx = -g whatever the Hessian; skip second derivatives
+        opts["ipopt.hessian_approximation"] = "limited-memory"
+    opts.update(ipopt_options or {})
+    if progress:
+        opts["iteration_callback"] = _Progress(tr.nX, tr.ng, tr.np, label)
+        key_opts = {k: v for k, v in opts.items() if k != "iteration_callback"}
+        key_opts["progress"] = True
+        solver = tr._solvers.get(repr(sorted(key_opts.items())))
+        if solver is None:
+            solver = ca.nlpsol("servo_bvp", "ipopt", {"x": tr._x, "p": tr._p, "f": tr.f, "g": tr.g}, opts)
+            tr._solvers[repr(sorted(key_opts.items()))] = solver
+    else:
+        solver = tr.ipopt(opts)
+    build = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    args = {"x0": x0, "p": p, "lbg": 0, "ubg": 0}
+    if lam_g0 is not None:
+        args["lam_g0"] = lam_g0
+    sol = solver(**args)
+    solve_s = time.perf_counter() - t1
+    st = solver.stats()
+    g = np.array(sol["g"]).ravel()
+    viol = float(np.max(np.abs(g))) if g.size else 0.0
+    ok = bool(st.get("success", False)) or (st.get("return_status") == "Solved_To_Acceptable_Level" and viol < 1e-8)
+    info = {"status": st.get("return_status", "?"), "iterations": int(st.get("iter_count", -1)),
+            "success": ok, "max_constraint_violation": viol}
+    return np.array(sol["x"]).ravel(), info, solve_s, build
+
+
+def _continuation(model, reference, tr, servo, t_mesh, x0, E0, Ef, theta, **kw):
+    """Homotopy from the quasi-static problem: reference samples scaled in time
+    (slower transition, s -> 1), each step warm-started from the last."""
+    from ..reference import Reference
+
+    steps = []
+    x = x0
+    total = 0.0
+    info = {"success": False, "status": "not run", "iterations": 0}
+    for stretch in (4.0, 2.0, 1.4, 1.0):
+        t = reference.t
+        tc = reference.t0
+        slow = ca.substitute(reference.expr, t, tc + (t - tc) / stretch)
+        ref_s = Reference(t, slow, reference.t0, reference.t0 + stretch * (reference.tf - reference.t0),
+                          reference.smoothness, reference.name)
+        Y = servo.reference_samples(ref_s, tr.sample_times(t_mesh))
+        p = tr.parameters(t_mesh, Y, theta, E0, Ef)
+        x, info, s, _ = _solve(tr, x, p, **kw)
+        total += s
+        steps.append({"stretch": stretch, "status": info["status"], "iterations": info["iterations"]})
+        if not info["success"]:
+            break
+    return x, info, {"steps": steps, "solve_s": total}
+
+
+def _make_inverse(model, reference, servo, tr, sch, t_mesh, x, theta) -> Inverse:
+    Xmesh, Xcol = tr.unpack(x)
+    dX = np.zeros_like(Xmesh)
+    if sch.is_hs:
+        Yn = servo.reference_samples(reference, t_mesh)
+        dX = np.array(servo.rhs.map(t_mesh.size)(Xmesh, Yn, theta))
+    L = servo.layout
+    return Inverse(sch.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
+                   reference.t0, reference.tf, servo.names, {}, y_ref_fn=reference)
+
+
+def _residuals(inv: Inverse, servo, reference, theta, samples_per_interval: int = 4) -> dict:
+    """Constraint residuals of (35) at the mesh and between mesh points, and the
+    collocation (defect) residual ``|X' - F(X)|`` of the interpolant."""
+    tm = inv.t_mesh
+    s = np.linspace(0, 1, samples_per_interval + 1)[1:-1]
+    tt = (tm[:-1, None] + np.diff(tm)[:, None] * s[None, :]).ravel()
+    out = {}
+    for name, t in (("mesh", tm), ("between", tt)):
+        X = inv.X(t)
+        Y = servo.reference_samples(reference, t)
+        pos, vel, acc = (np.array(r) for r in servo.residuals.map(t.size)(X, Y, theta))
+        out[f"position_{name}"] = float(np.max(np.abs(pos))) if pos.size else 0.0
+        out[f"velocity_{name}"] = float(np.max(np.abs(vel))) if vel.size else 0.0
+        out[f"acceleration_{name}"] = float(np.max(np.abs(acc))) if acc.size else 0.0
+    out["position"] = max(out["position_mesh"], out["position_between"])
+    return out
+
+
+def interval_errors(inv: Inverse, servo, reference, theta) -> np.ndarray:
+    """Local error estimate per interval: ``h_k * max |X'(t) - F(X(t), t)|`` of the
+    collocation polynomial at points that are not collocation points (scaled per
+    component by ``1 + max |X|``)."""
+    tm = inv.t_mesh
+    h = np.diff(tm)
+    s = np.array([0.17, 0.33, 0.67, 0.83])
+    tt = (tm[:-1, None] + h[:, None] * s[None, :]).ravel()
+    eps = 1e-6 * h.min()
+    dXn = (inv.X(tt + eps) - inv.X(tt - eps)) / (2 * eps)
+    Y = servo.reference_samples(reference, tt)
+    F = np.array(servo.rhs.map(tt.size)(inv.X(tt), Y, theta))
+    scale = 1.0 + np.max(np.abs(inv.X_mesh), axis=1, keepdims=True)
+    err = np.max(np.abs(dXn - F) / scale, axis=0).reshape(h.size, s.size).max(axis=1)
+    return err * h
+
+
+def _refine(model, reference, *, tol, max_refinements, max_N, forward_options, N, mesh, warm_start, **kw):
+    from .verify import forward_check
+
+    sch = get_scheme(kw["scheme"])
+    meshes = []
+    inv = warm_start
+    total_build = total_solve = 0.0
+    t_mesh = None if mesh is None else np.asarray(mesh, float)
+    for it in range(max_refinements + 1):
+        inv = invert(model, reference, N=N, mesh=t_mesh, warm_start=inv, **kw)
+        fc = forward_check(model, inv, reference, **(forward_options or {}))
+        total_build += inv.diagnostics["build_s"]
+        total_solve += inv.diagnostics["solve_s"]
+        meshes.append({"N": inv.N, "error": fc["error"], "iterations": inv.diagnostics["iterations"],
+                       "solve_s": inv.diagnostics["solve_s"], "build_s": inv.diagnostics["build_s"]})
+        if kw.get("progress"):
+            print(f"  refinement {it}: N = {inv.N}, forward-check error {fc['error']:.3e} (tol {tol:.1e})",
+                  file=sys.stderr)
+        if fc["error"] <= tol:
+            inv.diagnostics.update({"meshes": meshes, "max_output_error": fc["error"], "forward_check": {
+                k: fc[k] for k in ("error", "t_worst", "window", "windows", "rate")}, "tol": tol,
+                "total_build_s": total_build, "total_solve_s": total_solve})
+            return inv
+        if it == max_refinements or inv.N >= max_N:
+            break
+        servo = servo_model(model, kw["formulation"], kw["omega"])
+        err = np.maximum(interval_errors(inv, servo, reference, model.theta_values), 1e-300)
+        h = np.diff(inv.t_mesh)
+        order = sch.order
+        factor = min(4.0, max(1.5, (fc["error"] / tol) ** (1.0 / order) * 1.2))
+        N = min(max_N, int(math.ceil(inv.N * factor)))
+        dens = (err / h ** (order + 1)) ** (1.0 / (order + 1))
+        dens = np.maximum(dens, 0.05 * dens.max())
+        cum = np.concatenate([[0.0], np.cumsum(dens * h)])
+        t_mesh = np.interp(np.linspace(0, cum[-1], N + 1), cum, inv.t_mesh)
+        t_mesh[0], t_mesh[-1] = inv.T0, inv.Tf
+    tried = ", ".join(f"N={m['N']}: {m['error']:.2g}" for m in meshes)
+    raise InversionFailed(
+        f"mesh refinement did not reach the output error {tol:.2g}; meshes tried (forward-check error): {tried}; raise max_refinements/max_N or use a higher-order "
+        "scheme (legendre3)", partial=inv, diagnostics={"meshes": meshes})
