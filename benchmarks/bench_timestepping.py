@@ -11,8 +11,6 @@ gains reuses the compiled loop (timed separately).
 from __future__ import annotations
 
 import argparse
-import time
-
 import numpy as np
 
 import problems.prismatic_clearance as scene
@@ -79,9 +77,12 @@ def main(argv=None):
             best = min(best, tr.stats["wall_s"])
         results[backend] = N / best
         # new gains and parameters: same compiled loop, no re-tracing
-        tic = time.perf_counter()
-        tr2 = mj.run(q0, v0, t_end, h, gains=law.values(Kp1=200.0, Kv1=30.0), params=[1.0, 0.4, 0.05, 0.11, 0.3])
-        results[backend + "_new_params"] = N / tr2.stats["wall_s"]
+        best2 = np.inf
+        for k in range(3):
+            tr2 = mj.run(q0, v0, t_end, h, gains=law.values(Kp1=200.0 + k, Kv1=30.0), params=[1.0, 0.4, 0.05, 0.11, 0.3])
+            best2 = min(best2, tr2.stats["wall_s"])
+        results[backend + "_new_params"] = N / best2
+        assert len(mj._loops) == 1, "new parameters must not rebuild the loop"
         results[backend + "_traj"] = tr
     tic = time.perf_counter()
     ref = numpy_loop(np.array(q0), np.array(v0), args.numpy_steps, h, p["m1"], p["m2"], p["l"], p["L"], p["e"],

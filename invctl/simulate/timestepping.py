@@ -63,8 +63,15 @@ def c_compiler() -> str | None:
 
 
 def _cache_dir() -> Path:
+    """``$INVCTL_CACHE`` or ``~/.cache/invctl`` (a temporary folder if neither is writable)."""
     d = Path(os.environ.get("INVCTL_CACHE", Path.home() / ".cache" / "invctl"))
-    d.mkdir(parents=True, exist_ok=True)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        if not os.access(d, os.W_OK):
+            raise OSError(f"{d} is not writable")
+    except OSError:
+        d = Path(tempfile.gettempdir()) / f"invctl-cache-{os.getuid()}"
+        d.mkdir(parents=True, exist_ok=True)
     return d
 
 
@@ -339,9 +346,15 @@ class MoreauJean:
         key = (backend, size)
         if key in self._loops:
             return self._loops[key]
-        loop = self._fused().mapaccum("mj_loop", size // self.substeps)
+        fused = self._fused()
+        # a name unique to this loop's code: several compiled loops may live in one process
+        tag = hashlib.sha256(fused.serialize().encode() + str(size).encode()).hexdigest()[:16]
+        loop = fused.mapaccum(f"mj_{tag}", size // self.substeps)
         if backend == "c":
-            loop = self._compile(loop)
+            try:
+                loop = self._compile(loop)
+            except (OSError, RuntimeError, subprocess.SubprocessError) as exc:
+                print(f"invctl: generated-C backend unavailable ({exc}); using the CasADi VM", file=sys.stderr)
         self._loops[key] = loop
         return loop
 
@@ -350,20 +363,15 @@ class MoreauJean:
         if cc is None:
             return fn
         with tempfile.TemporaryDirectory() as tmp:
-            src = Path(tmp) / "mj_loop.c"
+            src = Path(tmp) / f"{fn.name()}.c"
             cg = ca.CodeGenerator(src.name, {"with_header": False})
             cg.add(fn)
-            cwd = os.getcwd()
-            os.chdir(tmp)
-            try:
-                cg.generate()
-            finally:
-                os.chdir(cwd)
+            cg.generate(str(tmp) + os.sep)
             code = src.read_text()
         key = hashlib.sha256(code.encode()).hexdigest()[:20]
         lib = _cache_dir() / f"mj_{key}.so"
         if not lib.exists():
-            csrc = _cache_dir() / f"mj_{key}.c"
+            csrc = _cache_dir() / f"mj_{key}.{os.getpid()}.c"
             csrc.write_text(code)
             tmp_lib = lib.with_suffix(f".{os.getpid()}.tmp.so")
             cmd = [cc, "-O3", "-march=native", "-fPIC", "-shared", str(csrc), "-o", str(tmp_lib), "-lm"]
@@ -377,6 +385,7 @@ class MoreauJean:
                     print(f"invctl: C compilation failed, using the CasADi VM:\n{res.stderr[:500]}", file=sys.stderr)
                     return fn
             os.replace(tmp_lib, lib)
+            csrc.unlink(missing_ok=True)
         return ca.external(fn.name(), str(lib))
 
     # ------------------------------------------------------------------- run
