@@ -19,6 +19,8 @@ def _invert(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=None, help="write the trajectory to this .npz file")
     p.add_argument("--dt", type=float, default=None, help="sampling step of the saved trajectory")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--backend", default=None, choices=["ipopt", "newton"],
+                   help="solver of the collocation equations (default ipopt)")
 
 
 def _simulate(p: argparse.ArgumentParser) -> None:
