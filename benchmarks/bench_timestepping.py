@@ -11,6 +11,7 @@ gains reuses the compiled loop (timed separately).
 from __future__ import annotations
 
 import argparse
+import time
 import numpy as np
 
 import problems.prismatic_clearance as scene
