@@ -340,7 +340,8 @@ def slider_crank_command(scene, params: dict, **options) -> CommandResult:
     else:
         text += (f"(52) violated at {cond['impacts_violating_52']} of {data['n_impacts']} impacts; largest V jump "
                  f"where (52) holds {cond['max_V_jump_where_52_holds']:.2e}, where violated "
-                 f"{cond['max_V_jump_where_52_violated']:.2e}\n")
+                 f"{cond['max_V_jump_where_52_violated']:.2e}; (54) violated on {cond['persistent_steps_violating_54']} "
+                 f"of {cond['persistent_steps']} persistent-contact steps\n")
         text += (f"tracking error max {data['tracking_error_max']:.3e} rad, last period "
                  f"{data['tracking_error_last_period']:.3e} rad")
     return _finish(tr, options, text, data, f"slider-crank clearance ({controller})")
@@ -352,7 +353,8 @@ def _condition_52_at_impacts(tr, model, full, controller):
     imp = tr.impact_mask()
     k, i = np.nonzero(imp)
     if controller != "pdplus" or k.size == 0:
-        return {"impacts_violating_52": 0, "max_V_jump_where_52_holds": 0.0, "max_V_jump_where_52_violated": 0.0}
+        return {"impacts_violating_52": 0, "max_V_jump_where_52_holds": 0.0, "max_V_jump_where_52_violated": 0.0,
+                "persistent_steps": 0, "persistent_steps_violating_54": 0}
     from ..contact.mechanics import ContactSystem
 
     cs = ContactSystem(model)
@@ -363,7 +365,13 @@ def _condition_52_at_impacts(tr, model, full, controller):
     margins = np.array([cs.gradients(tr.q[kk + 1])[:, ii] @ qd for kk, ii, qd in zip(k, i, qd_dot)])
     dV = tr.V[k + 1] - tr.V[k]
     ok = margins >= 0
-    return {"impacts_violating_52": int(np.count_nonzero(~ok)),
+    # (54) along persistent contact: loaded in consecutive steps, w = v
+    pers = (tr.P[1:, 0] > 0) & (tr.P[:-1, 0] > 0)
+    kp = np.flatnonzero(pers) + 1
+    qdp = full["amp"] * w * np.cos(w * tr.t[kp])
+    m54 = np.array([cs.gradients(tr.q[kk])[0, 0] * qq for kk, qq in zip(kp, qdp)])
+    return {"persistent_steps": int(kp.size), "persistent_steps_violating_54": int(np.count_nonzero(m54 < 0)),
+            "impacts_violating_52": int(np.count_nonzero(~ok)),
             "max_V_jump_where_52_holds": float(np.max(dV[ok], initial=-np.inf)) if ok.any() else 0.0,
             "max_V_jump_where_52_violated": float(np.max(dV[~ok], initial=-np.inf)) if (~ok).any() else 0.0}
 
