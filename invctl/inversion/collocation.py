@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+import scipy.sparse as sp
 
 SCHEME_RE = re.compile(r"^(hermite-simpson|hs|legendre(\d+)|radau(\d+))$")
 
@@ -190,6 +191,122 @@ class Transcription:
             nlp = {"x": self._x, "p": self._p, "f": self.f, "g": self.g}
             self._solvers[key] = ca.nlpsol("servo_bvp", "ipopt", nlp, options)
         return self._solvers[key]
+
+    # ------------------------------------------------ assembled residual and Jacobian
+    def _pattern(self):
+        """Row/column indices of the dense blocks of the Jacobian, and the permutation
+        that puts their values in CSC order (built once)."""
+        if getattr(self, "_pat", None) is not None:
+            return self._pat
+        nx, N = self.nx, self.N
+        r = np.arange(nx)
+        rows, cols = [], []
+        if self.scheme.is_hs:
+            k = np.arange(N)
+            for off in (0, 1):  # d defect_k / d X_{k+off}
+                rows.append((k[:, None, None] * nx + r[None, :, None]).repeat(nx, 2))
+                cols.append(((k + off)[:, None, None] * nx + r[None, None, :]).repeat(nx, 1))
+            nrow_int = N * nx
+        else:
+            d = self.scheme.degree
+            k = np.arange(N)
+            base = k * nx * (d + 1)
+            col0 = nx * (N + 1)
+            for i in range(d + 1):  # row block i (d = continuity)
+                rb = base[:, None, None] + i * nx + r[None, :, None]
+                for j in range(d + 2):  # column block: 0 = X_k, 1..d = X_c, d+1 = X_{k+1}
+                    if j == d + 1 and i < d:
+                        continue
+                    if j == 0:
+                        cb = k[:, None, None] * nx + r[None, None, :]
+                    elif j <= d:
+                        cb = col0 + (k * d + j - 1)[:, None, None] * nx + r[None, None, :]
+                    else:
+                        cb = (k + 1)[:, None, None] * nx + r[None, None, :]
+                    rows.append(rb.repeat(nx, 2))
+                    cols.append(cb.repeat(nx, 1))
+            nrow_int = N * nx * (d + 1)
+        s0, sf = np.array(self.selection.start, int), np.array(self.selection.end, int)
+        bc_rows = nrow_int + np.arange(s0.size + sf.size)
+        bc_cols = np.concatenate([s0, N * nx + sf])
+        rows = np.concatenate([a.ravel() for a in rows] + [bc_rows])
+        cols = np.concatenate([a.ravel() for a in cols] + [bc_cols])
+        A = sp.csc_matrix((np.arange(1, rows.size + 1, dtype=float), (rows, cols)), shape=(self.ng, self.nX))
+        perm = A.data.astype(np.int64) - 1
+        self._pat = (A.indices.copy(), A.indptr.copy(), perm, s0, sf)
+        return self._pat
+
+    def residual_and_jacobian(self, x, p):
+        """The constraint vector ``g`` and its sparse Jacobian (scipy CSC), assembled from
+        the mapped right-hand side and its Jacobian at the nodes (numpy, no loops over nodes)."""
+        nx, N, servo = self.nx, self.N, self.servo
+        indices, indptr, perm, s0, sf = self._pattern()
+        x = np.asarray(x, float).ravel()
+        p = np.asarray(p, float).ravel()
+        Xmesh, Xcol = self.unpack(x)
+        o = 0
+        h = p[o:o + N]
+        o += N
+        Y = p[o:o + self.m4 * self.nY].reshape(self.m4, self.nY, order="F")
+        o += self.m4 * self.nY
+        theta = p[o:o + self.ntheta]
+        o += self.ntheta
+        E0, Ef = p[o:o + nx], p[o + nx:o + 2 * nx]
+        I = np.eye(nx)  # noqa: E741
+        if self.scheme.is_hs:
+            F, JF = self._rhs_jac_map(N + 1)(Xmesh, Y[:, :N + 1], theta)
+            F = np.array(F)
+            JF = np.array(JF).reshape(nx, N + 1, nx).transpose(1, 0, 2)
+            Fa, Fb, JFa, JFb = F[:, :-1], F[:, 1:], JF[:-1], JF[1:]
+            Xm = 0.5 * (Xmesh[:, :-1] + Xmesh[:, 1:]) + h / 8 * (Fa - Fb)
+            Fm, JFm = self._rhs_jac_map(N)(Xm, Y[:, N + 1:], theta)
+            Fm = np.array(Fm)
+            JFm = np.array(JFm).reshape(nx, N, nx).transpose(1, 0, 2)
+            defect = Xmesh[:, 1:] - Xmesh[:, :-1] - h / 6 * (Fa + 4 * Fm + Fb)
+            hh = h[:, None, None]
+            dXa = 0.5 * I + hh / 8 * JFa
+            dXb = 0.5 * I - hh / 8 * JFb
+            Da = -I - hh / 6 * (JFa + 4 * np.einsum("kij,kjl->kil", JFm, dXa))
+            Db = I - hh / 6 * (JFb + 4 * np.einsum("kij,kjl->kil", JFm, dXb))
+            vals = [Da.ravel(), Db.ravel()]
+            g_int = defect.ravel(order="F")
+        else:
+            d = self.scheme.degree
+            C, D = self.scheme.C, self.scheme.D
+            F, JF = self._rhs_jac_map(d * N)(Xcol, Y, theta)
+            F = np.array(F).reshape(nx, N, d)
+            JF = np.array(JF).reshape(nx, N, d, nx).transpose(1, 2, 0, 3)  # k, i, row, col
+            Xc = Xcol.reshape(nx, N, d)
+            Xall = np.concatenate([Xmesh[:, :-1, None], Xc], axis=2)  # nx, N, d+1
+            res = np.einsum("rkj,ji->rki", Xall, C) - h[None, :, None] * F
+            cont = Xmesh[:, 1:] - np.einsum("rkj,j->rk", Xall, D)
+            g_int = np.concatenate([res.transpose(0, 2, 1).reshape(nx * d, N, order="F"), cont], axis=0)
+            g_int = g_int.ravel(order="F")
+            vals = []
+            hh = h[:, None, None]
+            for i in range(d + 1):
+                for j in range(d + 2):
+                    if j == d + 1 and i < d:
+                        continue
+                    if i < d:
+                        if j == 0:
+                            blk = np.broadcast_to(C[0, i] * I, (N, nx, nx))
+                        else:
+                            blk = C[j, i] * I - (hh * JF[:, i] if j - 1 == i else 0.0)
+                            blk = np.broadcast_to(blk, (N, nx, nx))
+                    else:
+                        blk = np.broadcast_to(I if j == d + 1 else -D[j] * I, (N, nx, nx))
+                    vals.append(np.ascontiguousarray(blk).ravel())
+        g = np.concatenate([g_int, Xmesh[s0, 0] - E0[s0], Xmesh[sf, N] - Ef[sf]])
+        data = np.concatenate(vals + [np.ones(s0.size + sf.size)])[perm]
+        J = sp.csc_matrix((data, indices, indptr), shape=(self.ng, self.nX))
+        return g, J
+
+    def _rhs_jac_map(self, k: int) -> ca.Function:
+        cache = self.__dict__.setdefault("_rjm", {})
+        if k not in cache:
+            cache[k] = self.servo.rhs_jac.map(k)
+        return cache[k]
 
     def newton_functions(self):
         """``(x, p) -> g`` and ``(x, p) -> dg/dx`` (sparse), for the Newton backend."""

@@ -174,6 +174,12 @@ class ServoModel:
         return self._fn("servo_rhs", [self._sym["F"]], ["F"])
 
     @cached_property
+    def rhs_jac(self) -> ca.Function:
+        """``(X, Y, theta) -> (F, dF/dX)`` (dense Jacobian, for assembled Newton steps)."""
+        S = self._sym
+        return self._fn("servo_rhs_jac", [S["F"], ca.densify(ca.jacobian(S["F"], S["X"]))], ["F", "dFdX"])
+
+    @cached_property
     def residuals(self) -> ca.Function:
         """``(X, Y, theta) -> (pos, vel, acc, dyn)`` constraint residuals of (35) and the
         acceleration level; ``dyn`` is zero by construction (kept for reports)."""
