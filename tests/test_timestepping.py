@@ -222,6 +222,13 @@ def test_bilateral_constraint_in_stepper():
     assert abs(ti[0] - t1) < 2e-5
     assert abs(post[0] + 0.5 * pre[0]) < 1e-3
     np.testing.assert_allclose(tr.v[:, 0], tr.v[:, 1], atol=1e-12)
+    from invctl.contact.mechanics import ContactSystem
+
+    cs = ContactSystem(model)
+    np.testing.assert_allclose(cs.delassus([0.0, 0.0]), [[0.5]], rtol=1e-14)  # (8): W^T (M^-1 - ...) W
+    cf = cs.contact_forces([0.0, 0.0], [0.0, 0.0])
+    np.testing.assert_allclose(cf.lam, [9.81], rtol=1e-13)
+    np.testing.assert_allclose(cf.acceleration, 0.0, atol=1e-13)
 
 
 # ------------------------------------------------------------------ extremes
