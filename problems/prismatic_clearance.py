@@ -8,7 +8,9 @@ is ``L - 2 l``.  ``actuators = 2``: both bodies driven (pre-loading
 only (PD (36) regulation, or the switching strategy of Remark 4).
 
 Controllers (``--controller``): ``pd`` (default with one actuator),
-``preload`` (default with two), ``switching`` (one actuator), ``none``.
+``preload`` (default with two), ``switching`` (one actuator), ``juggling``
+(two actuators: I/O linearization (25) of ``y = f1``, gap driven to a
+quarter of the clearance), ``none``.
 """
 from __future__ import annotations
 

@@ -174,3 +174,13 @@ def test_juggling_law_linear_gap_dynamics():
     c = np.linalg.solve([[1.0, 1.0], [r[0], r[1]]], [y0 - yd, 0.0])
     y_exact = yd + (c[0] * np.exp(r[0] * tr.t) + c[1] * np.exp(r[1] * tr.t)).real
     np.testing.assert_allclose(tr.gaps[:, 0], y_exact, atol=1e-8)  # theta = 1/2: O(h^2)
+
+
+def test_prismatic_juggling_controller_cli(capsys):
+    from invctl.cli import main
+
+    assert main(["simulate", "prismatic_clearance", "--set", "actuators=2", "--controller", "juggling",
+                 "--t-end", "2", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert abs(d["gap_error_final"]) < 1e-6 and d["n_impacts"] >= 1
+    assert main(["simulate", "prismatic_clearance", "--controller", "juggling"]) == 2  # one actuator: refused

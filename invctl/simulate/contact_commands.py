@@ -151,13 +151,24 @@ def prismatic_command(scene, params: dict, **options) -> CommandResult:
             raise SceneError("controller 'switching' (Remark 4) drives body 1 only: use --set actuators=1")
         law = scene.switching_law(model, Kp=full["Kp"], Kv=full["Kv"], amp=full["amp"], period=full["period"])
         q0, v0 = [0.0, l], [0.0, 0.0]
+    elif controller == "juggling":
+        if act != 2:
+            raise SceneError("controller 'juggling' (I/O linearization (25) of y = f1) needs --set actuators=2")
+        from ..control.juggling import io_decoupling_check, juggling_law
+
+        q0, v0 = [0.0, l + 0.5 * (L - 2 * l)], [0.0, full["v20"]]
+        io_decoupling_check(model, q0, [0])
+        y_d = 0.25 * (L - 2 * l)
+        law = juggling_law(model, [0], Ky=full["Kp"], Dy=full["Kv"], y_d=y_d)
+        data["y_d"] = y_d
     elif controller == "none":
         from ..control.pdplus import zero_input
 
         law = zero_input()
         q0, v0 = [0.0, l + 0.5 * (L - 2 * l)], [0.0, full["v20"]]
     else:
-        raise SceneError(f"prismatic_clearance: unknown controller {controller!r}; choose pd, preload, switching, none")
+        raise SceneError(f"prismatic_clearance: unknown controller {controller!r}; "
+                         "choose pd, preload, switching, juggling, none")
     mj = MoreauJean(model, law, projection=bool(full["projection"]))
     tr = mj.run(q0, v0, full["t_end"], full["h"], theta=full["theta"], params=plant.theta_values,
                 ctrl_params=model.theta_values, activation_tol=full["activation_tol"])
@@ -180,6 +191,9 @@ def prismatic_command(scene, params: dict, **options) -> CommandResult:
                  f"{data['contact_kept']}; max |f1| = {data['max_f1']:.2e}\n")
     if controller == "pd":
         data["q1_error_final"] = float(tr.q[-1, 0] - full["qd"])
+    if controller == "juggling":
+        data["gap_error_final"] = float(tr.gaps[-1, 0] - data["y_d"])
+        text += f"gap f1 -> {tr.gaps[-1, 0]:.4e} m (y_d = {data['y_d']:.4e} m), impacts {tr.impact_times.size}\n"
     if controller == "switching":
         w = 2 * np.pi / full["period"]
         xd = l + full["amp"] * np.sin(w * tr.t)
