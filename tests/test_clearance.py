@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 import problems.bouncing_ball as bb
-import problems.gear_backlash as gear
 import problems.prismatic_clearance as prism
 import problems.slider_crank_clearance as sc
 from invctl.contact.mechanics import ContactSystem

@@ -1,7 +1,6 @@
 """Figures of contact simulations: phase portrait, gaps, impulses, energy and V."""
 from __future__ import annotations
 
-import numpy as np
 
 
 def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = None):

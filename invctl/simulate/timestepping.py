@@ -125,6 +125,9 @@ class ContactTrajectory:
 
     @property
     def impact_times(self) -> np.ndarray:
+        """Sorted distinct impact times (event-driven results: the located times)."""
+        if "impact_t" in self.stats:
+            return np.unique(np.asarray(self.stats["impact_t"], float))
         return np.unique(self.impacts()[0])
 
     @property
