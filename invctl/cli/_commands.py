@@ -38,6 +38,9 @@ def _design(p: argparse.ArgumentParser) -> None:
 
 def _study(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out-dir", dest="out_dir", default="invctl-out", help="folder for tables and figures")
+    p.add_argument("--job", default=None, help="which job's trade-off when a scene has several "
+                   "(manipulator: invert (default) or simulate)")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
 def _pipeline(p: argparse.ArgumentParser) -> None:
