@@ -154,11 +154,13 @@ class ServoModel:
         if self.formulation == "baumgarte":
             w = self.omega
             nh, nn = L.l, L.p
-            rows_pos = ca.vertcat(phi_p[:nh], phi_p[nh:])
-            stab_h = 3 * w * phi_a[:nh] + 3 * w**2 * phi_v[:nh] + w**3 * rows_pos[:nh]
-            stab_n = 2 * w * phi_a[nh:nh + nn] + w**2 * phi_v[nh:nh + nn]
-            stab_s = 3 * w * phi_a[nh + nn:] + 3 * w**2 * phi_v[nh + nn:] + w**3 * rows_pos[nh:]
-            rest = rest + ca.vertcat(stab_h, stab_n, stab_s)
+            parts = []
+            if nh:
+                parts.append(3 * w * phi_a[:nh] + 3 * w**2 * phi_v[:nh] + w**3 * phi_p[:nh])
+            if nn:
+                parts.append(2 * w * phi_a[nh:nh + nn] + w**2 * phi_v[nh:nh + nn])
+            parts.append(3 * w * phi_a[nh + nn:] + 3 * w**2 * phi_v[nh + nn:] + w**3 * phi_p[nh:])
+            rest = rest + ca.vertcat(*parts)
         zdot = -ca.solve(Az, rest)
         F = ca.vertcat(v, a, zdot)
         return {"X": X, "Y": Y, "F": F, "a": a, "phi_p": phi_p, "phi_v": phi_v, "phi_a": phi_a, "Az": Az,

@@ -1,0 +1,202 @@
+"""Stable inversion (003 Sect. 4, 6): manipulator, minimum-phase arm, convergence, I/O, bad input."""
+import casadi as ca
+import numpy as np
+import pytest
+
+import problems.manipulator as scene
+import problems.two_link_arm as arm
+from invctl.errors import BoundaryConditionError, InversionFailed, ReferenceSignalError
+from invctl.inversion import Inverse, invert, invert_scene, resolve_selection, servo_model
+from invctl.reference import Reference, poly9_timing_law
+from invctl.testing import assert_inverts
+
+
+@pytest.fixture(scope="module")
+def model():
+    return scene.build()
+
+
+@pytest.fixture(scope="module")
+def ref(model):
+    return scene.reference(model)
+
+
+@pytest.fixture(scope="module")
+def inv160(model, ref):
+    return invert_scene(scene, model=model, reference=ref, N=160, backend="newton")
+
+
+def test_manipulator_inverse_reproduces_reference(model, ref, inv160):
+    # forward simulation (scipy DOP853, independent of the collocation) under u_ff; HS with
+    # h = 3/160 has a local error ~1e-6 on this problem (measured 4.7e-6), tolerance 2e-5
+    rep = assert_inverts(model, inv160, ref, tol=2e-5)
+    assert rep["error"] < 2e-5
+    res = inv160.diagnostics["residuals"]
+    assert res["position"] < 1e-5 and res["velocity_mesh"] < 1e-4
+
+
+def test_pre_actuation_and_causal_feedforward(inv160):
+    t_pre = np.linspace(inv160.T0, inv160.t0, 300, endpoint=False)
+    u_pre = inv160.u(t_pre)
+    # non-minimum phase: the bounded inverse acts before t0 (growing like exp(24 t) towards t0)
+    assert np.max(np.abs(u_pre)) > 0.1
+    assert np.max(np.abs(u_pre[:, :50])) < 1e-3 * np.max(np.abs(u_pre))
+    assert np.all(inv160.u_causal(t_pre) == 0)
+    t_post = np.linspace(inv160.t0, inv160.Tf, 50)
+    np.testing.assert_array_equal(inv160.u_causal(t_post), inv160.u(t_post))
+    assert inv160.u_causal(t_post).shape == (2, 50)
+
+
+def test_equilibria_and_boundary_values(model, ref, inv160):
+    q0 = scene.initial_configuration(model)
+    np.testing.assert_allclose(inv160.q(inv160.T0).ravel(), q0, atol=1e-12)
+    np.testing.assert_allclose(model.evaluate("h", inv160.q(inv160.Tf).ravel()).ravel(), ref(inv160.Tf).ravel(),
+                               atol=1e-6)
+    assert abs(inv160.q(inv160.Tf)[4, 0]) < 1e-12  # gamma(Tf) = 0 is the end condition
+
+
+def test_ipopt_and_newton_agree(model, ref):
+    a = invert_scene(scene, model=model, reference=ref, N=60, backend="ipopt")
+    b = invert_scene(scene, model=model, reference=ref, N=60, backend="newton")
+    assert a.diagnostics["status"] == "Solve_Succeeded"
+    assert a.diagnostics["iterations"] <= 20
+    # the same square system solved two ways: agree to the solvers' tolerances
+    np.testing.assert_allclose(a.X_mesh, b.X_mesh, atol=1e-7)
+
+
+def test_convergence_order_hermite_simpson(model, ref):
+    # error of u_ff against a fine Legendre-4 solution at the common mesh points (t0 and tf are
+    # mesh points of every mesh, so the jumps of the 4th derivative of y_ref lie on interval ends)
+    fine = invert_scene(scene, model=model, reference=ref, N=300, scheme="legendre4", backend="newton")
+    t = np.linspace(-1.0, 2.0, 61)
+    errs = []
+    Ns = [60, 120, 240]
+    inv = None
+    for N in Ns:
+        inv = invert_scene(scene, model=model, reference=ref, N=N, backend="newton", warm_start=inv)
+        errs.append(np.max(np.abs(inv.u(t) - fine.u(t))))
+    order = np.polyfit(np.log(Ns), np.log(errs), 1)[0]
+    # Hermite-Simpson is 4th order for the states; accept 3.5..5 (pre-asymptotic at N = 60)
+    assert -5.0 < order < -3.5, (errs, order)
+
+
+def test_save_load_roundtrip(tmp_path, inv160, ref):
+    path = tmp_path / "inv.npz"
+    inv160.to_npz(str(path), dt=0.01)
+    back = Inverse.from_npz(str(path))
+    t = np.linspace(-1, 2, 77)
+    np.testing.assert_allclose(back.X(t), inv160.X(t), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(back.u_causal(t), inv160.u_causal(t), atol=1e-14)
+    assert back.t0 == inv160.t0 and back.Tf == inv160.Tf
+    with np.load(path) as z:
+        for key in ("t", "q", "v", "lam", "mu", "u", "y_ref"):
+            assert key in z
+        assert z["q"].shape == (5, z["t"].size) and z["lam"].shape == (2, z["t"].size)
+        np.testing.assert_allclose(z["y_ref"], ref(z["t"]), atol=1e-14)
+        assert abs(z["t"][1] - z["t"][0] - 0.01) < 1e-12
+
+
+def _zero_dynamics_reference(md, rf, t):
+    """Minimum-phase arm, y = q1 colocated: integrate the zero dynamics directly
+    (q1 = y_ref, M[1,:] q'' = f_2) and u = M[0,:] q'' - f_1 (no collocation involved)."""
+    from scipy.integrate import solve_ivp
+
+    Mf, ff = md.function("M"), md.function("f")
+    th = md.theta_values
+
+    def state(tt, z):
+        y, yd, ydd = (rf(tt, k).ravel()[0] for k in range(3))
+        q, v = np.array([y, z[0]]), np.array([yd, z[1]])
+        M, f = np.array(Mf(q, th)), np.array(ff(q, v, th)).ravel()
+        q2dd = (f[1] - M[1, 0] * ydd) / M[1, 1]
+        return q, v, np.array([ydd, q2dd]), M, f
+
+    sol = solve_ivp(lambda tt, z: [z[1], state(tt, z)[2][1]], (t[0], t[-1]), [0.0, 0.0], method="DOP853",
+                    rtol=1e-12, atol=1e-12, dense_output=True)
+    u = []
+    for tt in t:
+        q, v, a, M, f = state(tt, sol.sol(tt))
+        u.append(M[0] @ a - f[0])
+    return sol.sol(t)[0], np.array(u)
+
+
+@pytest.mark.parametrize("scheme,N", [("hermite-simpson", 120), ("legendre3", 40), ("radau3", 60)])
+def test_minimum_phase_arm_matches_direct_integration(scheme, N):
+    md = arm.build()
+    rf = arm.reference(md)
+    inv = invert(md, rf, T0=-0.5, Tf=2.0, N=N, scheme=scheme, start={"q": "all", "v": "all", "u": "all"},
+                 end={}, backend="newton")
+    t = np.linspace(-0.5, 2.0, 200)
+    q2, u = _zero_dynamics_reference(md, rf, t)
+    # minimum phase: no pre-actuation, and the BVP solution is the forward one
+    assert np.max(np.abs(inv.u(t[t < 0]) - u[t < 0])) < 1e-9
+    np.testing.assert_allclose(inv.q(t)[1], q2, atol=2e-5)
+    np.testing.assert_allclose(inv.u(t)[0], u, atol=2e-4 * max(1, np.max(np.abs(u))))
+    assert_inverts(md, inv, rf, tol=2e-5)
+
+
+def test_boundary_selection_errors(model):
+    sv = servo_model(model)
+    with pytest.raises(BoundaryConditionError, match=r"needs n0 \+ nf = 2n \+ l \+ p \+ m .* 14"):
+        resolve_selection(sv, {"q": "all"}, {"u": "all"})
+    with pytest.raises(BoundaryConditionError, match="unknown entry 'delta'"):
+        resolve_selection(sv, {"q": ["delta"]}, {})
+    with pytest.raises(BoundaryConditionError, match="unknown block"):
+        resolve_selection(sv, {"w": "all"}, {})
+    sel = resolve_selection(sv, scene.BOUNDARY_PAPER["start"], scene.BOUNDARY_PAPER["end"])
+    assert len(sel.start) == 10 and len(sel.end) == 4
+    with pytest.raises(BoundaryConditionError):
+        invert_scene(scene, model=model, end={"q": ["gamma"], "u": "all"}, N=40, backend="newton")
+
+
+def test_reference_outside_workspace(model):
+    t = ca.SX.sym("t")
+    y0 = scene.reference(model)(0.0).ravel()
+    # s2 pushed 5 m away: the loop L1 cos(alpha) = s2 + d - L2/2 cos(beta) cannot close
+    expr = ca.vertcat(y0[0] + 5.0 * poly9_timing_law(t, 0, 1), y0[1])
+    bad = Reference(t, expr, 0.0, 1.0, smoothness=4)
+    with pytest.raises(ReferenceSignalError, match="reachable workspace"):
+        invert_scene(scene, model=model, reference=bad, N=40, backend="newton")
+
+
+def test_reference_not_smooth_enough(model):
+    t = ca.SX.sym("t")
+    y0 = scene.reference(model)(0.0).ravel()
+    s = ca.if_else(t <= 0, 0, ca.if_else(t >= 1, 1, 3 * t**2 - 2 * t**3))  # C^1 only
+    rough = Reference(t, ca.vertcat(y0[0] - 0.1 * s, y0[1]), 0.0, 1.0, smoothness=1)
+    with pytest.raises(ReferenceSignalError, match="W\\^\\{3,inf\\}"):
+        invert_scene(scene, model=model, reference=rough, N=40)
+
+
+def test_solver_failure_keeps_last_iterate(model, ref):
+    with pytest.raises(InversionFailed) as exc:
+        invert_scene(scene, model=model, reference=ref, N=40, max_iter=1, continuation=False)
+    err = exc.value
+    assert isinstance(err.partial, Inverse)
+    assert err.diagnostics["status"] == "Maximum_Iterations_Exceeded"
+    assert err.partial.X_mesh.shape == (14, 41)
+    with pytest.raises(InversionFailed, match="Newton|newton"):
+        invert_scene(scene, model=model, reference=ref, N=40, max_iter=1, backend="newton", continuation=False)
+
+
+def test_horizon_must_contain_transition(model, ref):
+    with pytest.raises(ReferenceSignalError, match="must contain"):
+        invert_scene(scene, model=model, reference=ref, T0=0.5, N=40)
+
+
+def test_mesh_refinement_reaches_tolerance(model, ref):
+    inv = invert_scene(scene, model=model, reference=ref, N=60, backend="newton", tol=1e-7)
+    meshes = inv.diagnostics["meshes"]
+    assert meshes[-1]["error"] <= 1e-7 and len(meshes) >= 2
+    assert_inverts(model, inv, ref, tol=1e-7)
+
+
+def test_invert_command_json(tmp_path):
+    out = tmp_path / "traj.npz"
+    res = scene.COMMANDS["invert"]({}, N=60, backend="newton", out=str(out), dt=0.005, quiet=True, scheme=None,
+                                   tol=None)
+    for key in ("status", "iterations", "build_s", "solve_s", "max_output_error", "N"):
+        assert key in res.data
+    assert res.data["N"] == 60 and res.data["status"] == "Solve_Succeeded"
+    assert res.data["max_output_error"] < 1e-3
+    assert out.exists()
