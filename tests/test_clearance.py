@@ -183,3 +183,32 @@ def test_prismatic_juggling_controller_cli(capsys):
     d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert abs(d["gap_error_final"]) < 1e-6 and d["n_impacts"] >= 1
     assert main(["simulate", "prismatic_clearance", "--controller", "juggling"]) == 2  # one actuator: refused
+
+
+def test_lemma2_equilibria_and_projector_form():
+    """Lemma 2 on the prismatic clearance under PD (36): the limit (q1 = qd, journal against f1)
+    is an equilibrium, a point with q1 != qd in the same contact is not (its PD force is not a
+    non-negative combination of the normal). The projector form holds with D^{-1}; the printed
+    form with D fails on a generic system (typo, docs/reproduction.md)."""
+    from invctl.stability.lyapunov import equilibrium_check
+
+    model = prism.build(actuators=1)
+    p = prism.PARAMS
+    law = pd_gravity(model, Kp=p["Kp"], Kv=p["Kv"], q_d=p["qd"], idx=[0])
+    tr = MoreauJean(model, law, backend="vm", projection=True).run([0.0, 0.055], [0.0, 0.3], 4.0, 1e-4)
+    cs = ContactSystem(model)
+    qf = tr.q[-1]
+    chk = equilibrium_check(cs, qf, [p["Kp"] * (qf[0] - p["qd"]), 0.0], gap_tol=1e-9, rtol=1e-6)
+    assert chk.is_equilibrium  # interior (Lemma 2 (i)) or against f1 (ii), depending on the last bounce
+    bad = equilibrium_check(cs, [0.1, 0.15], [p["Kp"] * (0.1 - p["qd"]), 0.0])
+    assert not bad.is_equilibrium and bad.closed.tolist() == [0]
+    # projector form of Lemma 2 (ii), random independent contacts: G = W lam
+    rng = np.random.default_rng(2)
+    M = rng.normal(size=(4, 4))
+    M = M @ M.T + np.eye(4)
+    W = rng.normal(size=(4, 2))
+    G = W @ np.array([0.7, 1.3])
+    D = W.T @ np.linalg.solve(M, W)
+    good = (np.eye(4) - W @ np.linalg.solve(D, W.T @ np.linalg.inv(M))) @ G
+    printed = (np.eye(4) - W @ D @ W.T @ np.linalg.inv(M)) @ G
+    assert np.linalg.norm(good) < 1e-12 and np.linalg.norm(printed) > 1e-3

@@ -4,6 +4,7 @@
   jumps at impact steps and its largest increase (000 (39)/(55) say ``V``
   never increases for the PD (36) law and, under (52)/(54), for PD+ (48));
 * :func:`impact_jump_51` -- the predicted jump (51) of ``V`` at an impact;
+* :func:`equilibrium_check` -- Lemma 2: rest points of the closed loop (40)-(41);
 * :func:`desired_velocity_condition` -- conditions (52)/(54): the desired
   velocity must lie in the tangent cone ``T_{T_Phi(q)}(w)``, i.e.
   ``grad f_i^T qd_dot >= 0`` for every contact with ``f_i(q) = 0`` and
@@ -15,7 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LyapunovReport", "lyapunov_report", "impact_jump_51", "desired_velocity_condition"]
+__all__ = ["LyapunovReport", "lyapunov_report", "impact_jump_51", "desired_velocity_condition", "EquilibriumCheck",
+           "equilibrium_check"]
 
 
 @dataclass(frozen=True)
@@ -82,3 +84,54 @@ def desired_velocity_condition(cs, q, w, qd_dot, *, gap_tol: float = 1e-9, vel_t
     K = np.flatnonzero((g <= gap_tol) & (np.abs(W.T @ w) <= vel_tol))
     margins = W[:, K].T @ np.asarray(qd_dot, float).ravel()
     return bool(np.all(margins >= -vel_tol)), margins, K
+
+
+@dataclass(frozen=True)
+class EquilibriumCheck:
+    """Lemma 2 of 000 at one configuration.
+
+    Attributes
+    ----------
+    is_equilibrium : bool
+    residual : float
+        ``min_{lam >= 0} |G(q*) - sum_{i in I} lam_i grad f_i|`` (NNLS).
+    lam : ndarray
+        Multipliers of the closed contacts (NNLS solution).
+    closed : ndarray of int
+        Contacts with ``f_i(q*) <= gap_tol``.
+    projector_residual : float
+        ``|(I - W D^{-1} W^T M^{-1}) G|`` (the equivalent form of Lemma 2 (ii)
+        for independent constraints; printed with ``D`` in place of ``D^{-1}``).
+    """
+
+    is_equilibrium: bool
+    residual: float
+    lam: np.ndarray
+    closed: np.ndarray
+    projector_residual: float
+
+
+def equilibrium_check(cs, q, G, *, gap_tol: float = 1e-9, rtol: float = 1e-8, theta=None) -> EquilibriumCheck:
+    """Is ``q`` a rest point of ``M q'' + G(q) = grad f lam`` (000 (40)-(41), Lemma 2)?
+
+    ``G`` is the closed-loop potential force at ``q`` (e.g. ``(Kp (q1 - q1d), G_4, G_5)``).
+    Interior points (no closed gap) are equilibria iff ``G = 0`` (Lemma 2 (i)); boundary points
+    iff ``G`` is a non-negative combination of the closed contacts' normals (Lemma 2 (ii)).
+    """
+    from scipy.optimize import nnls
+
+    G = np.asarray(G, float).ravel()
+    g = cs.gaps(q, theta)
+    closed = np.flatnonzero(g <= gap_tol)
+    scale = max(1.0, np.linalg.norm(G))
+    if closed.size == 0:
+        res = float(np.linalg.norm(G))
+        return EquilibriumCheck(res <= rtol * scale, res, np.zeros(0), closed, res)
+    W = cs.gradients(q, theta)[:, closed]
+    lam, res = nnls(W, G)
+    M = cs.model.evaluate("M", q) if theta is None else np.array(cs.model.function("M")(q, theta))
+    MiW = np.linalg.solve(M, W)
+    D = W.T @ MiW
+    proj = np.eye(G.size) - W @ np.linalg.solve(D, MiW.T) if np.linalg.matrix_rank(D) == D.shape[0] else None
+    pres = float(np.linalg.norm(proj @ G)) if proj is not None else float("nan")
+    return EquilibriumCheck(bool(res <= rtol * scale), float(res), lam, closed, pres)
