@@ -340,3 +340,18 @@ def test_cli_simulate_json(capsys, tmp_path):
     assert d["multiplier_error"] < 1e-9 and d["contact_kept"]
     assert main(["simulate", "prismatic_clearance", "--controller", "preload", "--set", "actuators=1",
                  "--plant-set", "zz=1", "--json"]) == 2
+
+
+def test_persistent_contact_phase_vs_event_driven():
+    """Pre-loaded persistent contact: the event-driven reference keeps the gap at 0 with no event;
+    Moreau-Jean converges to it (first order, error halves with h)."""
+    from invctl.control.preload import preload_law
+
+    model = prism.build(actuators=2)
+    law = preload_law(model, [0], beta=1.0, Kp=100.0, Kv=20.0, y_d=[0.2, 0.25])
+    ref = simulate_event_driven(model, [0.0, 0.05], [0.0, 0.0], 1.0, law=law)
+    assert not ref.stats["events"] and np.max(np.abs(ref.gaps[:, 0])) < 1e-12
+    mj = MoreauJean(model, law, backend="vm")
+    errs = [np.max(np.abs(mj.run([0.0, 0.05], [0.0, 0.0], 1.0, h).q[-1] - ref.q[-1])) for h in (2e-4, 1e-4, 5e-5)]
+    assert errs[2] < errs[1] < errs[0] < 1e-3
+    assert 0.8 <= _slope(np.array([2e-4, 1e-4, 5e-5]), np.array(errs)) <= 2.2
