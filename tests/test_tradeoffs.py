@@ -1,0 +1,122 @@
+"""``invctl study tradeoff <scene>`` for every scene with a spec, in smoke mode (INVCTL_SMOKE=1).
+
+Each test checks the JSON contract (rows with knob, value, error, time_s; a
+reference) and that the error falls with the knob the way theory says; never
+wall time.
+"""
+import json
+
+import numpy as np
+import pytest
+
+from invctl.cli import main
+from invctl.errors import SceneError
+from invctl.scenes import load_scene
+from invctl.studies.tradeoff_specs import REGISTRY, fitted_order, spec_for
+
+
+def _study(scene, tmp_path, capsys, monkeypatch, *extra):
+    monkeypatch.setenv("INVCTL_SMOKE", "1")
+    out = tmp_path / "out"
+    assert main(["study", "tradeoff", scene, "--out-dir", str(out), "--json", "--quiet", *extra]) == 0
+    data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert data["reference"] and not data["failures"]
+    for row in data["rows"]:
+        assert {"knob", "value", "error", "time_s"} <= set(row)
+        assert np.isfinite(row["error"]) and row["time_s"] > 0
+    for ext in ("csv", "json", "png"):
+        assert (out / f"tradeoff_{data['scene']}.{ext}").stat().st_size > 0
+    return data
+
+
+def _knob_error(data):
+    return np.array([r["value"] for r in data["rows"]], float), np.array([r["error"] for r in data["rows"]])
+
+
+@pytest.mark.parametrize("scene", ["cartpole", "two_link_arm", "knife_edge"])
+def test_analysis_sampling_tradeoff(scene, tmp_path, capsys, monkeypatch):
+    data = _study(scene, tmp_path, capsys, monkeypatch)
+    n, err = _knob_error(data)
+    # the reference is the region's minimum: no sample may undercut it (1e-9: SLSQP tolerance)
+    assert err.min() >= -1e-9
+    assert np.all(np.diff(err) < 0)
+    # random search for a smooth minimum: excess ~ n^(-2/d) (interior) to n^(-1/d) (face of the
+    # box); Gamma depends on one or two coordinates here, so the slope is between -2 and -1
+    assert fitted_order(n, err) < -0.8
+
+
+@pytest.mark.parametrize("scene", ["stiff_wall", "compliant_wrist"])
+def test_switched_sampling_tradeoff(scene, tmp_path, capsys, monkeypatch):
+    data = _study(scene, tmp_path, capsys, monkeypatch)
+    h, err = _knob_error(data)
+    assert np.all(np.diff(err) < 0)
+    # trapezoidal quadrature of a force with kinks at the (exact) events: order 1 to 2 in h
+    assert 0.8 < fitted_order(h, err) < 2.5
+    for row in data["rows"]:
+        # events and the peak force are exact at every sampling step
+        assert row["event_time_error"] < 1e-9
+        assert row["peak_force_error"] < 1e-8
+
+
+def test_closed_loop_tolerance_tradeoff(tmp_path, capsys, monkeypatch):
+    data = _study("manipulator", tmp_path, capsys, monkeypatch, "--job", "simulate")
+    assert data["scene"] == "manipulator_simulate"
+    rtol, err = _knob_error(data)
+    assert np.all(np.diff(err) < 0)
+    # CVODES controls the local error: the global error stays within a modest factor of rtol
+    assert np.all(err <= 100 * rtol)
+    assert fitted_order(rtol, err) > 0.5
+
+
+def test_inversion_mesh_tradeoff(tmp_path, capsys, monkeypatch):
+    data = _study("manipulator", tmp_path, capsys, monkeypatch)
+    rows = data["rows"]
+    hs = sorted((r["value"]["N"], r["error"]) for r in rows if r["value"]["scheme"] == "hermite-simpson")
+    assert [n for n, _ in hs] == [40, 80]
+    # Hermite-Simpson is 4th order in the states (3rd in the collocated derivative): halving the
+    # mesh must cut the forward-check error at least 2^2 = 4 times
+    assert hs[0][1] / hs[1][1] > 4
+    assert all(r["build_s"] + r["solve_s"] == pytest.approx(r["time_s"]) for r in rows)
+    assert {r["value"]["scheme"] for r in rows} == {"hermite-simpson", "radau3"}
+
+
+@pytest.mark.parametrize("scene", ["bouncing_ball", "prismatic_clearance"])
+def test_contact_timestep_tradeoff(scene, tmp_path, capsys, monkeypatch):
+    data = _study(scene, tmp_path, capsys, monkeypatch)
+    h, err = _knob_error(data)
+    assert np.all(np.diff(err) < 0)
+    # Moreau-Jean is first order in h for impact times and post-impact velocities (000 Sect. 4)
+    assert 0.6 < fitted_order(h, err) < 1.6
+
+
+@pytest.mark.parametrize("scene,order", [("gear_backlash", 1.5), ("slider_crank_clearance", 0.5)])
+def test_clearance_fine_step_tradeoff(scene, order, tmp_path, capsys, monkeypatch):
+    data = _study(scene, tmp_path, capsys, monkeypatch)
+    h, err = _knob_error(data)
+    assert np.all(np.diff(err) < 0)
+    # gear train: persistent pre-loaded contact, smooth motion, theta = 1/2 -> second order;
+    # slider-crank: impacts in the journal clearance -> at best first order, the impact
+    # sequence shifts with h, so only a positive order is claimed
+    assert fitted_order(h, err) > order
+
+
+def test_every_shipped_scene_has_a_study():
+    import pkgutil
+
+    import problems
+
+    names = sorted(m.name for m in pkgutil.iter_modules(problems.__path__))
+    missing = [n for n in names if n not in REGISTRY and not hasattr(load_scene(n), "tradeoff_spec")]
+    assert not missing
+
+
+def test_scene_without_spec_is_explained(tmp_path):
+    path = tmp_path / "plain.py"
+    path.write_text("PARAMS = {}\ndef build(**o):\n    return None\nCOMMANDS = {}\n")
+    with pytest.raises(SceneError, match="offers no speed-versus-accuracy study"):
+        spec_for(load_scene(str(path)), "plain", {}, smoke=True)
+
+
+def test_unknown_job_is_explained():
+    with pytest.raises(SceneError, match="choose one of"):
+        spec_for(load_scene("manipulator"), "manipulator", {}, smoke=True, job="pipeline")
