@@ -128,11 +128,15 @@ class NMPFunnelController:
         Horizon of the precomputed reference (``reference_mode="backward"``).
     eta2_ref0 : array_like, optional
         Initial value of (42) (default: (43) by ``lin.eta2_ref0``), used by ``"forward"``.
+    eta2_ref_samples : (t, values), optional
+        Use this signal instead of the solution of (42), e.g. ``Psi(q_ref(t), v_ref(t))`` along the
+        state trajectory of the servo-constraint inverse (then every error level vanishes along
+        the inverse's trajectory, so feedback and feedforward agree; see docs/tracking.md).
     """
 
     def __init__(self, model, lin, reference, *, K, k_i=None, rho=None, funnels, kappa, kappa_bar,
                  phi_bar, eta2_source: str = "psi", reference_mode: str = "backward", t_end: float = 2.0,
-                 eta2_ref0=None, grid_dt: float = 5e-4):
+                 eta2_ref0=None, grid_dt: float = 5e-4, eta2_ref_samples=None):
         if eta2_source not in ("psi", "filter"):
             raise ParameterError(f"eta2_source must be 'psi' or 'filter', got {eta2_source!r}")
         if reference_mode not in ("backward", "forward"):
@@ -177,6 +181,15 @@ class NMPFunnelController:
         self.eta2_ref0 = (np.asarray(eta2_ref0, float).ravel() if eta2_ref0 is not None
                           else np.asarray(lin.eta2_ref0(reference), float).ravel())
         self._grid_dt = float(grid_dt)
+        if eta2_ref_samples is not None:
+            if reference_mode != "backward":
+                raise ParameterError("eta2_ref_samples replaces the backward reference; use reference_mode='backward'")
+            ts, vals = eta2_ref_samples
+            ts, vals = np.asarray(ts, float).ravel(), np.asarray(vals, float).reshape(k, -1)
+            if vals.shape[1] != ts.size or ts.size < 4:
+                raise ParameterError(f"eta2_ref_samples: need times (N,) and values ({k}, N), N >= 4")
+            eta2_ref_samples = (ts, vals)
+        self._given_ref = eta2_ref_samples
         self._build()
 
     # ----------------------------------------------------------------- symbolic
@@ -313,7 +326,7 @@ class NMPFunnelController:
         return tg, vals
 
     def _eta2_ref_function(self):
-        tg, vals = self.eta2_ref_samples()
+        tg, vals = self._given_ref if self._given_ref is not None else self.eta2_ref_samples()
         self.eta2_ref_grid = (tg, vals)
         interp = ca.interpolant("eta2_ref", "bspline", [tg], vals.T.ravel())
         tt = ca.MX.sym("t")

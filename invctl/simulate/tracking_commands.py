@@ -50,7 +50,7 @@ def simulate_command(scene_module, params: dict, controller=None, plant_set=None
         raise SceneError(f"--t-end must be positive, got {t_end}")
     t0 = time.perf_counter()
     inv = _inverse_from(inverse) if inverse else None
-    setup = setup_tracking(scene_module, params, plant_params, inverse=inv, invert=name in ("C1", "C3"),
+    setup = setup_tracking(scene_module, params, plant_params, inverse=inv, invert=name in ("C1", "C3", "C1-42"),
                            t_end=t_end, progress=not quiet)
     res = run_controller(setup, name)
     wall_total = time.perf_counter() - t0
@@ -83,7 +83,7 @@ def pipeline_command(scene_module, params: dict, out_dir="invctl-out", t_end=Non
     _check(options, _PIPE_OPTIONS, "pipeline")
     t0 = time.perf_counter()
     study = run_tracking_study(scene_module, params, t_end=2.0 if t_end is None else float(t_end),
-                               progress=not quiet)
+                               controllers=("C1", "C2", "C3", "C1-42"), progress=not quiet)
     out = Path(out_dir or "invctl-out")
     study.save(out)
     study.plot(out)

@@ -22,7 +22,8 @@ from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 __all__ = ["CONTROLLERS", "TrackingSetup", "TrackingStudy", "a1_along", "setup_tracking", "run_controller",
            "run_tracking_study"]
 
-CONTROLLERS = {"C1": "feedforward + funnel", "C2": "funnel only", "C3": "feedforward only"}
+CONTROLLERS = {"C1": "feedforward + funnel", "C2": "funnel only", "C3": "feedforward only",
+               "C1-42": "ff + funnel, ref. (42)"}
 
 
 @dataclass
@@ -42,6 +43,25 @@ class TrackingSetup:
     endeffector: object
     timings: dict = field(default_factory=dict)
     _loops: dict = field(default_factory=dict)
+    _c1: object = None
+
+    def c1_controller(self):
+        """The funnel controller of C1: new reference ``y^_ref,1 = K_1 Psi(q_ff(t), v_ff(t))`` along the state
+        trajectory of the servo-constraint inverse (the derivative rules (46) applied to that trajectory),
+        so that every error level vanishes when the plant follows the inverse; "C1-42" uses (42) instead."""
+        if self._c1 is None:
+            if self.inverse is None:
+                raise ParameterError("C1 needs the inverse (feedforward and its state trajectory)")
+            t = np.linspace(0.0, self.t_end, int(round(self.t_end / 5e-4)) + 1)
+            q, v = self.inverse.q(t), self.inverse.v(t)
+            psi = self.lin.psi_function().map(t.size)
+            w = np.array(psi(q, v, np.tile(self.model.theta_values[:, None], (1, t.size))))
+            c = self.controller
+            self._c1 = type(c)(self.model, self.lin, self.reference, K=c.K, k_i=c.k_i, rho=c.rho,
+                               funnels=c.levels.phi, kappa=c.levels.kappa, kappa_bar=c.kappa_bar,
+                               phi_bar=c.phi_bar, eta2_source=c.eta2_source, t_end=self.t_end,
+                               eta2_ref_samples=(t, w))
+        return self._c1
 
     def u_ff_samples(self):
         if self.inverse is None:
@@ -58,8 +78,9 @@ class TrackingSetup:
                              f"({', '.join(f'{k}: {v}' for k, v in CONTROLLERS.items())})")
         if name not in self._loops:
             t0 = time.perf_counter()
-            ctrl = self.controller if name in ("C1", "C2") else None
-            uff = self.u_ff_samples() if name in ("C1", "C3") else None
+            ctrl = {"C1": self.c1_controller, "C2": lambda: self.controller, "C1-42": lambda: self.controller,
+                    "C3": lambda: None}[name]()
+            uff = self.u_ff_samples() if name in ("C1", "C3", "C1-42") else None
             self._loops[name] = ClosedLoop(self.plant, self.reference, controller=ctrl, u_ff=uff,
                                            endeffector=self.endeffector, t_end=self.t_end, dt=self.dt, name=name)
             self.timings[f"build_{name}"] = time.perf_counter() - t0
@@ -199,7 +220,7 @@ def run_tracking_study(scene, params=None, plant_params=None, *, controllers=("C
     A run that leaves its funnel is kept (``status == "funnel_violation"``, truncated) and reported.
     """
     setup = setup if setup is not None else setup_tracking(scene, params, plant_params, progress=progress,
-                                                           invert=bool({"C1", "C3"} & set(controllers)),
+                                                           invert=bool({"C1", "C3", "C1-42"} & set(controllers)),
                                                            **setup_options)
     runs = {}
     for name in controllers:
