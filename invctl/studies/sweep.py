@@ -89,37 +89,62 @@ class SweepResult:
             writer.writeheader()
             writer.writerows(rows)
 
-    def plot(self, key: str, ax=None, **kwargs):
-        """A line (1-D sweep) or a heat map (2-D grid) of one output; failed points marked."""
+    @property
+    def failed_mask(self) -> np.ndarray:
+        """True where the point raised (shape of the sweep)."""
+        return np.array([e is not None for e in self.errors]).reshape(self.shape)
+
+    def plot(self, key: str, ax=None, *, log: bool = False, contour: float | None = None, **kwargs):
+        """A line (1-D sweep) or a heat map (2-D grid) of one output.
+
+        Failed points are marked with a red x (their error is in ``failed``); NaN
+        outputs of points that worked stay blank.  ``log`` colours by log10;
+        ``contour`` draws the level line of that value (e.g. Lambda = 1).
+        """
         import matplotlib.pyplot as plt
 
         if ax is None:
-            _, ax = plt.subplots(figsize=(6, 4))
+            _, ax = plt.subplots(figsize=(6, 4.5))
         names = list(self.points[0]) if self.points else []
         data = self.array(key)
+        fail = self.failed_mask
+        label = key
+        if log:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                data = np.where(data > 0, np.log10(np.where(data > 0, data, 1.0)), np.nan)
+            label = f"log10 {key}"
         if len(self.shape) == 2 and len(names) == 2:
             xs = sorted({p[names[1]] for p in self.points}, key=self._order(names[1]))
             ys = sorted({p[names[0]] for p in self.points}, key=self._order(names[0]))
-            mesh = ax.pcolormesh(np.arange(len(xs) + 1), np.arange(len(ys) + 1), data, shading="flat", **kwargs)
+            mesh = ax.pcolormesh(np.arange(len(xs) + 1), np.arange(len(ys) + 1), np.ma.masked_invalid(data),
+                                 shading="flat", **kwargs)
             ax.set_xticks(np.arange(len(xs)) + 0.5, [f"{x:.3g}" for x in xs], rotation=45)
             ax.set_yticks(np.arange(len(ys)) + 0.5, [f"{y:.3g}" for y in ys])
             ax.set_xlabel(names[1])
             ax.set_ylabel(names[0])
-            ax.figure.colorbar(mesh, ax=ax, label=key)
-            bad = np.argwhere(np.isnan(data))
+            ax.figure.colorbar(mesh, ax=ax, label=label)
+            if contour is not None and np.isfinite(data).sum() >= 4:
+                level = np.log10(contour) if log else contour
+                finite = np.isfinite(data)
+                if data[finite].min() < level < data[finite].max():
+                    cx, cy = np.meshgrid(np.arange(len(xs)) + 0.5, np.arange(len(ys)) + 0.5)
+                    ax.contour(cx, cy, np.ma.masked_invalid(data), levels=[level], colors="k", linewidths=1.5)
+            bad = np.argwhere(fail)
             if bad.size:
-                ax.plot(bad[:, 1] + 0.5, bad[:, 0] + 0.5, "rx", label="failed")
-                ax.legend(loc="best")
+                ax.plot(bad[:, 1] + 0.5, bad[:, 0] + 0.5, "rx", ms=10, mew=2, label="failed")
+                ax.legend(loc="best", fontsize=8)
         else:
             x = np.array([list(p.values())[0] for p in self.points], float)
             ax.plot(x, data.ravel(), "o-", **kwargs)
-            fail = np.isnan(data.ravel())
-            if fail.any():
-                ax.plot(x[fail], np.zeros(fail.sum()), "rx", label="failed")
+            f = fail.ravel()
+            if f.any():
+                ax.plot(x[f], np.zeros(f.sum()), "rx", label="failed")
                 ax.legend(loc="best")
+            if contour is not None:
+                ax.axhline(np.log10(contour) if log else contour, color="k", lw=1)
             ax.set_xlabel(names[0] if names else "point")
-            ax.set_ylabel(key)
-        ax.set_title(f"{key} ({self.n_failed} failed of {len(self.points)})")
+            ax.set_ylabel(label)
+        ax.set_title(f"{label} ({self.n_failed} failed of {len(self.points)})")
         return ax
 
     def _order(self, name):
