@@ -136,6 +136,35 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     return np.vstack([Q, V, Z])
 
 
+def _split(N, lengths, weights):
+    """Integers >= 1 (for positive lengths) summing to N, proportional to weights."""
+    idx = [i for i, L in enumerate(lengths) if L > 1e-12]
+    w = np.array([weights[i] for i in idx], float)
+    raw = N * w / w.sum()
+    n = np.maximum(1, np.floor(raw).astype(int))
+    while n.sum() < N:
+        n[np.argmax(raw - n)] += 1
+    while n.sum() > N:
+        n[np.argmax(n)] -= 1
+    out = [0] * len(lengths)
+    for i, k in zip(idx, n):
+        out[i] = int(k)
+    return out
+
+
+def default_mesh(T0, Tf, t0, tf, N, fraction=0.5):
+    """Piecewise-uniform mesh of ``[T0, Tf]`` with ``t0``, ``tf`` as mesh points and
+    ``fraction`` of the ``N`` intervals on ``[t0, tf]`` (the rest by length)."""
+    knots = [T0, max(T0, t0), min(Tf, tf), Tf]
+    lengths = np.diff(knots)
+    side = lengths[0] + lengths[2]
+    weights = [(1 - fraction) * lengths[0] / side if side > 0 else 0, fraction,
+               (1 - fraction) * lengths[2] / side if side > 0 else 0]
+    counts = _split(N, lengths, weights)
+    parts = [np.linspace(a, b, k + 1)[:-1] for a, b, k in zip(knots[:-1], knots[1:], counts) if k > 0]
+    return np.concatenate(parts + [[Tf]])
+
+
 def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label):
     """Newton's method with backtracking on the square collocation system; the
     Jacobian is assembled from the mapped right-hand side Jacobian and factorized
@@ -187,7 +216,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
            warm_start: Inverse | None = None, q_guess=None, objective: float | None = None,
            allow_underdetermined: bool = False, residual_tol: float = 1e-4, tol: float | None = None,
            max_refinements: int = 6, max_N: int = 4000, forward_options: dict | None = None,
-           progress: bool = False, continuation: bool = True) -> Inverse:
+           progress: bool = False, continuation: bool = True, mesh_fraction: float = 0.5) -> Inverse:
     """Stable inversion by servo constraints (003 (35)) with boundary conditions (36).
 
     Parameters
@@ -201,7 +230,10 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
     start, end : dict
         Boundary selection by name (:mod:`invctl.inversion.boundary`).
     N, mesh : int or array
-        Number of intervals of a uniform mesh, or the mesh itself.
+        Number of intervals, or the mesh itself.  The default mesh is piecewise
+        uniform with ``t0`` and ``tf`` as mesh points (the fourth derivative of a C^4
+        reference jumps there; inside an interval it costs an order of magnitude in
+        accuracy) and ``mesh_fraction`` of the intervals on ``[t0, tf]``.
     scheme : str
         ``hermite-simpson`` (default), ``legendre<d>``, ``radau<d>``.
     formulation, omega : str, float
@@ -242,7 +274,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
                        warm_start=warm_start, q_guess=q_guess, objective=objective,
                        allow_underdetermined=allow_underdetermined, residual_tol=residual_tol, tol=tol,
                        max_refinements=max_refinements, max_N=max_N, forward_options=forward_options,
-                       progress=progress, continuation=continuation)
+                       progress=progress, continuation=continuation, mesh_fraction=mesh_fraction)
     reference.require(3, "servo-constraint inversion (jerk-level index reduction of 003 (35))")
     if not (T0 <= reference.t0 and Tf >= reference.tf and Tf > T0):
         raise ReferenceSignalError(f"the horizon [T0, Tf] = [{T0}, {Tf}] must contain [t0, tf] = "
@@ -257,7 +289,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
         if N < 2 or np.any(np.diff(t_mesh) <= 0) or abs(t_mesh[0] - T0) > 1e-12 or abs(t_mesh[-1] - Tf) > 1e-12:
             raise ValueError("mesh must be increasing from T0 to Tf with at least 3 points")
     else:
-        t_mesh = np.linspace(T0, Tf, int(N) + 1)
+        t_mesh = default_mesh(T0, Tf, reference.t0, reference.tf, int(N), mesh_fraction)
     under = len(sel.start) + len(sel.end) < servo.layout.nx
     weight = float(objective) if objective is not None else (1.0 if under else 0.0)
     tr = transcription(servo, sel, sch, N, weight)
@@ -474,7 +506,12 @@ def _refine(model, reference, *, tol, max_refinements, max_N, forward_options, N
         dens = (err / h ** (order + 1)) ** (1.0 / (order + 1))
         dens = np.maximum(dens, 0.05 * dens.max())
         cum = np.concatenate([[0.0], np.cumsum(dens * h)])
-        t_mesh = np.interp(np.linspace(0, cum[-1], N + 1), cum, inv.t_mesh)
+        knots = [inv.T0, reference.t0, reference.tf, inv.Tf]
+        ck = np.interp(knots, inv.t_mesh, cum)
+        counts = _split(N, np.diff(knots), np.diff(ck))
+        parts = [np.interp(np.linspace(ck[i], ck[i + 1], counts[i] + 1)[:-1], cum, inv.t_mesh)
+                 for i in range(3) if counts[i] > 0]
+        t_mesh = np.concatenate(parts + [[inv.Tf]])
         t_mesh[0], t_mesh[-1] = inv.T0, inv.Tf
     tried = ", ".join(f"N={m['N']}: {m['error']:.2g}" for m in meshes)
     raise InversionFailed(
