@@ -162,24 +162,36 @@ def _jsonable_value(v: Any) -> Any:
     return v
 
 
-def run_tradeoff(spec: TradeoffSpec, *, progress: bool = True) -> TradeoffResult:
+def run_tradeoff(spec: TradeoffSpec, *, progress: bool = True, min_time_s: float = 0.5,
+                 max_repeats: int = 5) -> TradeoffResult:
     """Run every setting of ``spec`` in this process, one after another.
 
     Settings run serially on purpose: timings measured under contention for
-    cores would not be comparable.  A setting that raises is reported in
+    cores would not be comparable.  A fast setting is repeated (up to
+    ``max_repeats`` times, until ``min_time_s`` is spent) and its best time
+    kept, so one scheduling hiccup does not decide the trade; ``repeats`` says
+    how many runs there were.  A setting that raises is reported in
     ``failures`` with its message, not dropped.
     """
     rows, failures = [], []
     for k, value in enumerate(spec.values, 1):
         try:
             out = dict(spec.run(value))
+            for key in ("error", "time_s"):
+                if key not in out:
+                    raise KeyError(f"trade-off run for {spec.knob}={value!r} returned no {key!r}")
+            spent, times = float(out["time_s"]), [float(out["time_s"])]
+            while spent < min_time_s and len(times) < max_repeats:
+                t = float(spec.run(value)["time_s"])
+                times.append(t)
+                spent += t
+            out["time_s"], out["repeats"] = min(times), len(times)
+        except KeyError:
+            raise
         except Exception as exc:
             failures.append({"value": value, "message": f"{type(exc).__name__}: {exc}"})
             out = None
         if out is not None:
-            for key in ("error", "time_s"):
-                if key not in out:
-                    raise KeyError(f"trade-off run for {spec.knob}={value!r} returned no {key!r}")
             rows.append({"value": value, **out})
         if progress:
             msg = "failed" if out is None else f"error {out['error']:.3e} in {out['time_s']:.3f} s"
