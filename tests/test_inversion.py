@@ -200,3 +200,10 @@ def test_invert_command_json(tmp_path):
     assert res.data["N"] == 60 and res.data["status"] == "Solve_Succeeded"
     assert res.data["max_output_error"] < 1e-3
     assert out.exists()
+
+
+def test_compiled_evaluation_matches_virtual_machine(model, ref, inv160):
+    # C code generated from the same SX functions, compiled once and cached on disk
+    inv = invert_scene(scene, model=model, reference=ref, N=160, backend="ipopt", compiled=True)
+    assert inv.diagnostics["compiled"] and inv.diagnostics["status"] == "Solve_Succeeded"
+    np.testing.assert_allclose(inv.X_mesh, inv160.X_mesh, atol=1e-8)

@@ -84,8 +84,18 @@ class Transcription:
     ``[h (N); vec(Y at the scheme's sample times); theta; E0 (nx); Ef (nx)]``.
     """
 
-    def __init__(self, servo, selection, scheme: Scheme, N: int, *, objective: float = 0.0):
+    def __init__(self, servo, selection, scheme: Scheme, N: int, *, objective: float = 0.0,
+                 compiled: bool = False):
         t_build = time.perf_counter()
+        if compiled and objective:
+            raise ValueError("compiled evaluation has no derivatives: use it for square systems (no objective)")
+        if compiled:
+            from .compiled import compile_cached
+
+            self._c = compile_cached
+        else:
+            self._c = lambda f: f  # noqa: E731
+        self.compiled = bool(compiled)
         self.servo, self.selection, self.scheme, self.N = servo, selection, scheme, int(N)
         L = servo.layout
         nx, m4 = L.nx, 4 * L.m
@@ -119,7 +129,8 @@ class Transcription:
                                    [ca.vertcat(ca.vec(res), cont), energy],
                                    ["Xk", "Xc", "Xk1", "h", "Yc", "theta"], ["defect", "energy"])
             self.n_col, self.nY = d * N, d * N
-        self.interval = interval
+        self.interval = interval = self._c(interval)
+        rhs = self._c(rhs)
         self.nX = nx * (N + 1) + nx * self.n_col
         self.np = N + m4 * self.nY + ntheta + 2 * nx
         x = ca.MX.sym("x", self.nX)
@@ -184,11 +195,84 @@ class Transcription:
         return Xmesh, Xcol
 
     # ------------------------------------------------------------ solvers
-    def ipopt(self, options: dict) -> ca.Function:
+    def _jacobian_mx(self, x, p):
+        """The Jacobian of ``g`` as a sparse MX built from mapped per-node/per-interval
+        SX functions (the same blocks as :meth:`residual_and_jacobian`)."""
+        nx, N, m4 = self.nx, self.N, self.m4
+        indices, indptr, perm, s0, sf = self._pattern()
+        Xmesh = ca.reshape(x[:nx * (N + 1)], nx, N + 1)
+        o = 0
+        h = p[o:o + N].T
+        o += N
+        Y = ca.reshape(p[o:o + m4 * self.nY], m4, self.nY)
+        o += m4 * self.nY
+        theta = p[o:o + self.ntheta]
+        rj_sx = self.servo.rhs_jac
+        rj = self._c(rj_sx)
+        I = ca.DM.eye(nx)  # noqa: E741
+        vals = []
+        if self.scheme.is_hs:
+            Xa, Xb, Fa, Fb = (ca.SX.sym(s, nx) for s in ("Xa", "Xb", "Fa", "Fb"))
+            Ja, Jb = ca.SX.sym("Ja", nx, nx), ca.SX.sym("Jb", nx, nx)
+            hs, Ym, th = ca.SX.sym("h"), ca.SX.sym("Ym", m4), ca.SX.sym("th", self.ntheta)
+            Xm = 0.5 * (Xa + Xb) + hs / 8 * (Fa - Fb)
+            _Fm, Jm = rj_sx(Xm, Ym, th)
+            Da = -I - hs / 6 * (Ja + 4 * ca.mtimes(Jm, 0.5 * I + hs / 8 * Ja))
+            Db = I - hs / 6 * (Jb + 4 * ca.mtimes(Jm, 0.5 * I - hs / 8 * Jb))
+            blk = self._c(ca.Function("hs_blocks", [Xa, Xb, Fa, Fb, Ja, Jb, hs, Ym, th], [Da.T, Db.T]))
+            F, JF = rj.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
+            DaT, DbT = blk.map(N)(Xmesh[:, :N], Xmesh[:, 1:], F[:, :N], F[:, 1:], JF[:, :nx * N], JF[:, nx:],
+                                  h, Y[:, N + 1:], theta)
+            vals = [ca.vec(DaT), ca.vec(DbT)]
+        else:
+            d = self.scheme.degree
+            C, D = self.scheme.C, self.scheme.D
+            Xcol = ca.reshape(x[nx * (N + 1):], nx, self.n_col)
+            _F, JF = rj.map(d * N)(Xcol, Y, theta)
+            Js, hs, cs = ca.SX.sym("J", nx, nx), ca.SX.sym("h"), ca.SX.sym("c")
+            blk = self._c(ca.Function("coll_block", [Js, hs, cs], [(cs * I - hs * Js).T]))
+            hrep = ca.repmat(h, d, 1)
+            hrep = ca.reshape(hrep, 1, d * N)
+            crep = ca.DM(np.tile([C[i + 1, i] for i in range(d)], N)).T
+            Bt = blk.map(d * N)(JF, hrep, crep)
+            for i in range(d + 1):
+                for j in range(d + 2):
+                    if j == d + 1 and i < d:
+                        continue
+                    if i < d and j - 1 == i:
+                        cols = [c for k in range(N) for c in range((k * d + i) * nx, (k * d + i + 1) * nx)]
+                        vals.append(ca.vec(Bt[:, cols]))
+                        continue
+                    if i < d:
+                        M = C[0, i] * np.eye(nx) if j == 0 else C[j, i] * np.eye(nx)
+                    else:
+                        M = np.eye(nx) if j == d + 1 else -D[j] * np.eye(nx)
+                    vals.append(ca.DM(np.tile(M.ravel(), N)))
+        vals.append(ca.DM.ones(s0.size + sf.size))
+        nz = ca.vertcat(*vals)[[int(i) for i in perm]]
+        spars = ca.Sparsity(self.ng, self.nX, [int(i) for i in indptr], [int(i) for i in indices])
+        return ca.MX(spars, nz)
+
+    def _g_function(self) -> ca.Function:
+        """``(x, p) -> g`` with the assembled Jacobian as its custom Jacobian, so that
+        IPOPT does not differentiate the mapped graph by AD.  The parameter Jacobian
+        of the custom function is not needed by any solver and is declared empty."""
+        if getattr(self, "_gfun", None) is None:
+            x, p = ca.MX.sym("x", self.nX), ca.MX.sym("p", self.np)
+            gexpr = ca.substitute([self.g], [self._x, self._p], [x, p])[0]
+            og = ca.MX.sym("out_g", self.ng)
+            jac = ca.Function("jac_servo_g", [x, p, og], [self._jacobian_mx(x, p), ca.MX(self.ng, self.np)],
+                              ["x", "p", "out_g"], ["jac_g_x", "jac_g_p"])
+            self._gfun = ca.Function("servo_g", [x, p], [gexpr], ["x", "p"], ["g"],
+                                     {"custom_jacobian": jac, "jac_penalty": 0})
+        return self._gfun
+
+    def ipopt(self, options: dict, *, assembled_jacobian: bool = True) -> ca.Function:
         """The IPOPT solver for these options (built once per option set)."""
-        key = repr(sorted(options.items(), key=lambda kv: kv[0]))
+        key = repr((sorted((k, repr(v)) for k, v in options.items()), assembled_jacobian))
         if key not in self._solvers:
-            nlp = {"x": self._x, "p": self._p, "f": self.f, "g": self.g}
+            g = self._g_function()(self._x, self._p) if (assembled_jacobian and self.square) else self.g
+            nlp = {"x": self._x, "p": self._p, "f": self.f, "g": g}
             self._solvers[key] = ca.nlpsol("servo_bvp", "ipopt", nlp, options)
         return self._solvers[key]
 
@@ -305,7 +389,7 @@ class Transcription:
     def _rhs_jac_map(self, k: int) -> ca.Function:
         cache = self.__dict__.setdefault("_rjm", {})
         if k not in cache:
-            cache[k] = self.servo.rhs_jac.map(k)
+            cache[k] = self._c(self.servo.rhs_jac).map(k)
         return cache[k]
 
     def newton_functions(self):

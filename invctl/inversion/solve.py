@@ -45,11 +45,11 @@ def servo_model(model, formulation: str = "baumgarte", omega: float = 10.0) -> S
     return _SERVO_CACHE[key]
 
 
-def transcription(servo, selection, scheme, N: int, objective: float = 0.0) -> Transcription:
+def transcription(servo, selection, scheme, N: int, objective: float = 0.0, compiled: bool = False) -> Transcription:
     """The cached :class:`Transcription` for (servo model, selection, scheme, N)."""
-    key = (id(servo), selection.start, selection.end, scheme.name, int(N), float(objective))
+    key = (id(servo), selection.start, selection.end, scheme.name, int(N), float(objective), bool(compiled))
     if key not in _TRANS_CACHE:
-        _TRANS_CACHE[key] = Transcription(servo, selection, scheme, N, objective=objective)
+        _TRANS_CACHE[key] = Transcription(servo, selection, scheme, N, objective=objective, compiled=compiled)
     return _TRANS_CACHE[key]
 
 
@@ -216,7 +216,8 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
            warm_start: Inverse | None = None, q_guess=None, objective: float | None = None,
            allow_underdetermined: bool = False, residual_tol: float = 1e-4, tol: float | None = None,
            max_refinements: int = 6, max_N: int = 4000, forward_options: dict | None = None,
-           progress: bool = False, continuation: bool = True, mesh_fraction: float = 0.5) -> Inverse:
+           progress: bool = False, continuation: bool = True, mesh_fraction: float = 0.5,
+           compiled: bool = False) -> Inverse:
     """Stable inversion by servo constraints (003 (35)) with boundary conditions (36).
 
     Parameters
@@ -259,6 +260,9 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
         warm-started) until met; meshes tried go to ``diagnostics["meshes"]``.
     progress : bool
         One line per iteration to stderr.
+    compiled : bool
+        Evaluate the per-node/per-interval functions as C code compiled once and
+        cached on disk (:mod:`invctl.inversion.compiled`); square systems only.
     continuation : bool
         When a cold solve fails, solve a slower transition first and continue.
 
@@ -274,7 +278,8 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
                        warm_start=warm_start, q_guess=q_guess, objective=objective,
                        allow_underdetermined=allow_underdetermined, residual_tol=residual_tol, tol=tol,
                        max_refinements=max_refinements, max_N=max_N, forward_options=forward_options,
-                       progress=progress, continuation=continuation, mesh_fraction=mesh_fraction)
+                       progress=progress, continuation=continuation, mesh_fraction=mesh_fraction,
+                       compiled=compiled)
     reference.require(3, "servo-constraint inversion (jerk-level index reduction of 003 (35))")
     if not (T0 <= reference.t0 and Tf >= reference.tf and Tf > T0):
         raise ReferenceSignalError(f"the horizon [T0, Tf] = [{T0}, {Tf}] must contain [t0, tf] = "
@@ -292,7 +297,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
         t_mesh = default_mesh(T0, Tf, reference.t0, reference.tf, int(N), mesh_fraction)
     under = len(sel.start) + len(sel.end) < servo.layout.nx
     weight = float(objective) if objective is not None else (1.0 if under else 0.0)
-    tr = transcription(servo, sel, sch, N, weight)
+    tr = transcription(servo, sel, sch, N, weight, compiled=bool(compiled) and not under)
     build_s = time.perf_counter() - t_build
     # equilibria and initial guess
     t_guess = time.perf_counter()
@@ -337,6 +342,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
         "backend": backend, "scheme": sch.name, "N": int(N), "formulation": formulation, "omega": omega,
         "build_s": build_s, "solve_s": solve_s, "guess_s": guess_s, "unknowns": tr.nX, "equations": tr.ng,
         "selection": sel.describe(), "T0": T0, "Tf": Tf, "residuals": res, "continuation": cont_info,
+        "compiled": tr.compiled,
     })
     if not info["success"]:
         raise InversionFailed(
@@ -355,7 +361,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
 
 
 def _solve(tr, x0, p, *, backend, ipopt_options, max_iter, max_wall_time, newton_tol, progress, label, square,
-           lam_g0=None):
+           lam_g0=None, assembled_jacobian=True):
     t0 = time.perf_counter()
     if backend == "newton":
         if not square:
@@ -377,14 +383,7 @@ def _solve(tr, x0, p, *, backend, ipopt_options, max_iter, max_wall_time, newton
     opts.update(ipopt_options or {})
     if progress:
         opts["iteration_callback"] = _Progress(tr.nX, tr.ng, tr.np, label)
-        key_opts = {k: v for k, v in opts.items() if k != "iteration_callback"}
-        key_opts["progress"] = True
-        solver = tr._solvers.get(repr(sorted(key_opts.items())))
-        if solver is None:
-            solver = ca.nlpsol("servo_bvp", "ipopt", {"x": tr._x, "p": tr._p, "f": tr.f, "g": tr.g}, opts)
-            tr._solvers[repr(sorted(key_opts.items()))] = solver
-    else:
-        solver = tr.ipopt(opts)
+    solver = tr.ipopt(opts, assembled_jacobian=assembled_jacobian)
     build = time.perf_counter() - t0
     t1 = time.perf_counter()
     args = {"x0": x0, "p": p, "lbg": 0, "ubg": 0}
