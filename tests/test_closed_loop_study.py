@@ -101,11 +101,12 @@ def _run_or_violation(s, name):
         return "violation", exc.partial
 
 
-@pytest.mark.parametrize("case", ["m3x1.5", "tight"])
+@pytest.mark.parametrize("case", ["m3x1.5", "tight", "tf=0.5"])
 def test_c1_extremes(setup, case):
     opts = {"m3x1.5": dict(inverse=setup.inverse, plant_factors={"m3": 1.5}),
             "tight": dict(inverse=setup.inverse, feedback={"phi_bar": (1.0, 3.0, 0.002),
-                                                           "funnels": [(1.0, 3.0, 0.005)] * 2})}[case]
+                                                           "funnels": [(1.0, 3.0, 0.005)] * 2}),
+            "tf=0.5": dict(reference=lambda m: scene.reference(m, tf=0.5))}[case]
     s = setup_tracking(scene, **opts)
     kinds = {}
     for name in ("C1", "C2"):

@@ -27,7 +27,7 @@ __all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acce
 #: a level counts as outside the funnel at this ratio (the law clips 1 - phi^2 e^2 at 1e-6)
 VIOLATION_RATIO = 1.0 - 5e-7
 #: an integrator failure with a level this close to its boundary counts as leaving the funnel
-BOUNDARY_RATIO = 0.999
+BOUNDARY_RATIO = 0.99
 
 
 @dataclass
