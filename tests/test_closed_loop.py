@@ -133,7 +133,7 @@ def test_initial_error_close_to_boundary(c2_setup):
 def test_shorter_transition(tf):
     s = setup_tracking(scene, invert=False, reference=lambda m: scene.reference(m, tf=tf))
     kind, r = _outcome(s)
-    print(f"tf = {tf} s: {kind}, max ratio {r.max_funnel_ratio:.3f}, input peaks {r.input_peaks.round(2)}")
+    print(f"tf = {tf} s: {kind} at t = {r.t[-1]:.3f}, max ratio {r.max_funnel_ratio:.3f}, input peaks {r.input_peaks.round(2)}")
     assert kind in ("inside", "violation")
 
 
