@@ -116,3 +116,26 @@ def test_c1_extremes(setup, case):
               f"max ratio {r.max_funnel_ratio:.3f}, input peaks {r.input_peaks.round(2)}")
     # with the feedforward the feedback has less to do: C1 never fails where C2 succeeds
     assert not (kinds["C1"] == "violation" and kinds["C2"] == "inside")
+
+
+def test_cli_set_options_and_bad_controller(capsys):
+    """--set (reference model), --t-end and --plant-set together; an unknown controller is a SceneError (exit 2)."""
+    rc = cli_main(["simulate", "manipulator", "--controller", "C2", "--set", "L3=0.5", "--t-end", "0.3",
+                   "--plant-set", "c=5", "--json"])
+    assert rc == 0
+    bad = cli_main(["simulate", "manipulator", "--controller", "C9", "--json"])
+    assert bad == 2
+    err = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert err["error"] == "SceneError" and "C1" in err["message"]
+
+
+def test_cli_pipeline(tmp_path, capsys):
+    rc = cli_main(["pipeline", "manipulator", "--out-dir", str(tmp_path), "--quiet", "--json"])
+    out = capsys.readouterr().out.strip().splitlines()
+    assert rc == 0
+    data = json.loads(out[-1])
+    assert set(data["runs"]) == {"C1", "C2", "C3", "C1-42"}
+    assert data["reductions"]["output"] >= 0.3
+    assert any("C1 reduces C2" in line for line in out)
+    for f in ("fig5_states", "fig6_endeffector", "fig7_errors", "fig8_inputs", "fig9_funnel"):
+        assert (tmp_path / f"{f}.png").exists()
