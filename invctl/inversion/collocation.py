@@ -87,15 +87,11 @@ class Transcription:
     def __init__(self, servo, selection, scheme: Scheme, N: int, *, objective: float = 0.0,
                  compiled: bool = False):
         t_build = time.perf_counter()
-        if compiled and objective:
+        if compiled is True and objective:
             raise ValueError("compiled evaluation has no derivatives: use it for square systems (no objective)")
-        if compiled:
-            from .compiled import compile_cached
-
-            self._c = compile_cached
-        else:
-            self._c = lambda f: f  # noqa: E731
-        self.compiled = bool(compiled)
+        self._c = lambda f: f  # noqa: E731
+        self.compiled = False
+        self._compile_request = compiled if not objective else False
         self.servo, self.selection, self.scheme, self.N = servo, selection, scheme, int(N)
         L = servo.layout
         nx, m4 = L.nx, 4 * L.m
@@ -129,6 +125,13 @@ class Transcription:
                                    [ca.vertcat(ca.vec(res), cont), energy],
                                    ["Xk", "Xc", "Xk1", "h", "Yc", "theta"], ["defect", "energy"])
             self.n_col, self.nY = d * N, d * N
+        if self._compile_request:
+            from .compiled import compile_cached, is_cached
+
+            wanted = [rhs, interval, servo.rhs_jac, self._block_function()]
+            if self._compile_request is True or (self._compile_request == "auto" and all(map(is_cached, wanted))):
+                self._c = compile_cached
+                self.compiled = True
         self.interval = interval = self._c(interval)
         rhs = self._c(rhs)
         self.nX = nx * (N + 1) + nx * self.n_col
@@ -195,6 +198,25 @@ class Transcription:
         return Xmesh, Xcol
 
     # ------------------------------------------------------------ solvers
+    def _block_function(self) -> ca.Function:
+        """SX function of the Jacobian blocks of one interval (HS) or one collocation point."""
+        if getattr(self, "_blk", None) is None:
+            nx, m4 = self.nx, self.m4
+            I = ca.DM.eye(nx)  # noqa: E741
+            if self.scheme.is_hs:
+                Xa, Xb, Fa, Fb = (ca.SX.sym(s, nx) for s in ("Xa", "Xb", "Fa", "Fb"))
+                Ja, Jb = ca.SX.sym("Ja", nx, nx), ca.SX.sym("Jb", nx, nx)
+                hs, Ym, th = ca.SX.sym("h"), ca.SX.sym("Ym", m4), ca.SX.sym("th", self.ntheta)
+                Xm = 0.5 * (Xa + Xb) + hs / 8 * (Fa - Fb)
+                _Fm, Jm = self.servo.rhs_jac(Xm, Ym, th)
+                Da = -I - hs / 6 * (Ja + 4 * ca.mtimes(Jm, 0.5 * I + hs / 8 * Ja))
+                Db = I - hs / 6 * (Jb + 4 * ca.mtimes(Jm, 0.5 * I - hs / 8 * Jb))
+                self._blk = ca.Function("hs_blocks", [Xa, Xb, Fa, Fb, Ja, Jb, hs, Ym, th], [Da.T, Db.T])
+            else:
+                Js, hs, cs = ca.SX.sym("J", nx, nx), ca.SX.sym("h"), ca.SX.sym("c")
+                self._blk = ca.Function("coll_block", [Js, hs, cs], [(cs * I - hs * Js).T])
+        return self._blk
+
     def _jacobian_mx(self, x, p):
         """The Jacobian of ``g`` as a sparse MX built from mapped per-node/per-interval
         SX functions (the same blocks as :meth:`residual_and_jacobian`)."""
@@ -212,14 +234,7 @@ class Transcription:
         I = ca.DM.eye(nx)  # noqa: E741
         vals = []
         if self.scheme.is_hs:
-            Xa, Xb, Fa, Fb = (ca.SX.sym(s, nx) for s in ("Xa", "Xb", "Fa", "Fb"))
-            Ja, Jb = ca.SX.sym("Ja", nx, nx), ca.SX.sym("Jb", nx, nx)
-            hs, Ym, th = ca.SX.sym("h"), ca.SX.sym("Ym", m4), ca.SX.sym("th", self.ntheta)
-            Xm = 0.5 * (Xa + Xb) + hs / 8 * (Fa - Fb)
-            _Fm, Jm = rj_sx(Xm, Ym, th)
-            Da = -I - hs / 6 * (Ja + 4 * ca.mtimes(Jm, 0.5 * I + hs / 8 * Ja))
-            Db = I - hs / 6 * (Jb + 4 * ca.mtimes(Jm, 0.5 * I - hs / 8 * Jb))
-            blk = self._c(ca.Function("hs_blocks", [Xa, Xb, Fa, Fb, Ja, Jb, hs, Ym, th], [Da.T, Db.T]))
+            blk = self._c(self._block_function())
             F, JF = rj.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
             DaT, DbT = blk.map(N)(Xmesh[:, :N], Xmesh[:, 1:], F[:, :N], F[:, 1:], JF[:, :nx * N], JF[:, nx:],
                                   h, Y[:, N + 1:], theta)
@@ -229,8 +244,7 @@ class Transcription:
             C, D = self.scheme.C, self.scheme.D
             Xcol = ca.reshape(x[nx * (N + 1):], nx, self.n_col)
             _F, JF = rj.map(d * N)(Xcol, Y, theta)
-            Js, hs, cs = ca.SX.sym("J", nx, nx), ca.SX.sym("h"), ca.SX.sym("c")
-            blk = self._c(ca.Function("coll_block", [Js, hs, cs], [(cs * I - hs * Js).T]))
+            blk = self._c(self._block_function())
             hrep = ca.repmat(h, d, 1)
             hrep = ca.reshape(hrep, 1, d * N)
             crep = ca.DM(np.tile([C[i + 1, i] for i in range(d)], N)).T

@@ -30,6 +30,16 @@ def compiler() -> str | None:
     return shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
 
 
+def _name(fn: ca.Function, flags) -> str:
+    key = hashlib.sha1((fn.serialize() + " ".join(flags)).encode()).hexdigest()[:16]
+    return f"{fn.name()}_{key}"
+
+
+def is_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> bool:
+    """Whether the compiled form of ``fn`` is already in the disk cache (and a compiler exists)."""
+    return compiler() is not None and (cache_dir() / f"{_name(fn, flags)}.so").exists()
+
+
 def compile_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> ca.Function:
     """The compiled (and disk-cached) equivalent of the SX function ``fn``.
 
@@ -41,8 +51,7 @@ def compile_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> ca.Fun
     cc = compiler()
     if cc is None:
         raise RuntimeError("compiled evaluation needs a C compiler (gcc/cc on PATH or $CC)")
-    key = hashlib.sha1((fn.serialize() + " ".join(flags)).encode()).hexdigest()[:16]
-    name = f"{fn.name()}_{key}"
+    name = _name(fn, flags)
     so = cache_dir() / f"{name}.so"
     if not so.exists():
         sx_in = [fn.sx_in(i) for i in range(fn.n_in())]

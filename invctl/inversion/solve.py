@@ -45,9 +45,9 @@ def servo_model(model, formulation: str = "baumgarte", omega: float = 10.0) -> S
     return _SERVO_CACHE[key]
 
 
-def transcription(servo, selection, scheme, N: int, objective: float = 0.0, compiled: bool = False) -> Transcription:
+def transcription(servo, selection, scheme, N: int, objective: float = 0.0, compiled="auto") -> Transcription:
     """The cached :class:`Transcription` for (servo model, selection, scheme, N)."""
-    key = (id(servo), selection.start, selection.end, scheme.name, int(N), float(objective), bool(compiled))
+    key = (id(servo), selection.start, selection.end, scheme.name, int(N), float(objective), compiled)
     if key not in _TRANS_CACHE:
         _TRANS_CACHE[key] = Transcription(servo, selection, scheme, N, objective=objective, compiled=compiled)
     return _TRANS_CACHE[key]
@@ -217,7 +217,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
            allow_underdetermined: bool = False, residual_tol: float = 1e-4, tol: float | None = None,
            max_refinements: int = 6, max_N: int = 4000, forward_options: dict | None = None,
            progress: bool = False, continuation: bool = True, mesh_fraction: float = 0.5,
-           compiled: bool = False) -> Inverse:
+           compiled: bool | str = "auto") -> Inverse:
     """Stable inversion by servo constraints (003 (35)) with boundary conditions (36).
 
     Parameters
@@ -260,9 +260,12 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
         warm-started) until met; meshes tried go to ``diagnostics["meshes"]``.
     progress : bool
         One line per iteration to stderr.
-    compiled : bool
+    compiled : bool or "auto"
         Evaluate the per-node/per-interval functions as C code compiled once and
         cached on disk (:mod:`invctl.inversion.compiled`); square systems only.
+        ``"auto"`` (default) uses the compiled code only when it is already in the
+        cache (compiling costs ~10 s once, which a single solve never recovers);
+        ``True`` compiles when missing, ``False`` never.
     continuation : bool
         When a cold solve fails, solve a slower transition first and continue.
 
@@ -297,7 +300,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
         t_mesh = default_mesh(T0, Tf, reference.t0, reference.tf, int(N), mesh_fraction)
     under = len(sel.start) + len(sel.end) < servo.layout.nx
     weight = float(objective) if objective is not None else (1.0 if under else 0.0)
-    tr = transcription(servo, sel, sch, N, weight, compiled=bool(compiled) and not under)
+    tr = transcription(servo, sel, sch, N, weight, compiled=compiled if not under else False)
     build_s = time.perf_counter() - t_build
     # equilibria and initial guess
     t_guess = time.perf_counter()
