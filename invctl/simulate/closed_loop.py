@@ -332,7 +332,8 @@ class ClosedLoop:
         return res
 
     def _steps(self, x, ts, theta, exc):
-        """Re-run a failed chunk step by step to keep the trajectory up to the failure."""
+        """Re-run a failed chunk step by step (one output step per call) to keep the trajectory up to the
+        failure; returns the failure of the step integrator, or ``None`` if every step succeeded."""
         cols, tg, qf = [], [], np.zeros(2)
         for kstep in range(self.per_chunk):
             t0 = ts + kstep * self.dt
@@ -347,7 +348,7 @@ class ClosedLoop:
             if self.controller is not None:
                 if self._monitor(np.array([t0 + self.dt]), x[:, None], theta)[7].max() >= VIOLATION_RATIO:
                     return np.array(cols).T, np.array(tg), qf[:, None], None
-        return np.array(cols).T, np.array(tg), qf[:, None], exc
+        return np.array(cols).T, np.array(tg), qf[:, None], None
 
     def _result(self, T, X, theta, quad, wall, label):
         n = self.plant.n
