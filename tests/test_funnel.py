@@ -195,3 +195,18 @@ def test_controller_functions_compiled_and_consistent(design):
     expect = lin.Q_tilde @ z0 + lin.P_tilde @ model.evaluate("h", q0).ravel()
     np.testing.assert_allclose(zd, expect, rtol=1e-12)
     assert isinstance(NMPFunnelController, type)
+
+
+def test_user_given_funnel_in_the_closed_loop(design):
+    """A user funnel (CasADi expression of t, phi(0) = 0.5: no pole, smooth widening then narrowing)
+    drives the same compiled loop; its derivatives enter the law through AD."""
+    from invctl.simulate.closed_loop import ClosedLoop
+
+    model, ref, lin = design
+    user = Funnel.from_callable(lambda t: 1.0 / (0.1 + 1.9 * ca.exp(-2 * t) * (1 + ca.sin(3 * t) ** 2) / 2 ),
+                                name="user")
+    assert user.check(2).passed
+    ctrl = scene.funnel_controller(model, ref, lin, phi_bar=user)
+    res = ClosedLoop(model.scaled(**scene.PLANT_FACTORS), ref, controller=ctrl).run(scene.initial_configuration(model))
+    assert res.max_funnel_ratio < 1
+    np.testing.assert_allclose(res.phi_bar, user(res.t), rtol=1e-12)
