@@ -203,10 +203,18 @@ def test_user_given_funnel_in_the_closed_loop(design):
     from invctl.simulate.closed_loop import ClosedLoop
 
     model, ref, lin = design
-    user = Funnel.from_callable(lambda t: 1.0 / (0.1 + 1.9 * ca.exp(-2 * t) * (1 + ca.sin(3 * t) ** 2) / 2 ),
+    user = Funnel.from_callable(lambda t: 1.0 / (0.1 + 1.9 * ca.exp(-2 * t) * (1 + ca.sin(3 * t) ** 2) / 2),
                                 name="user")
     assert user.check(2).passed
     ctrl = scene.funnel_controller(model, ref, lin, phi_bar=user)
     res = ClosedLoop(model.scaled(**scene.PLANT_FACTORS), ref, controller=ctrl).run(scene.initial_configuration(model))
     assert res.max_funnel_ratio < 1
     np.testing.assert_allclose(res.phi_bar, user(res.t), rtol=1e-12)
+
+
+def test_controller_rejects_funnels_outside_phi_k(design):
+    model, ref, lin = design
+    with pytest.raises(ParameterError, match="Phi_3"):
+        scene.funnel_controller(model, ref, lin, funnels=[lambda t: 2 + ca.sin(t**2) / (1 + t), (1, 3, 0.05)])
+    with pytest.raises(ParameterError, match="phi_bar not in Phi_1"):
+        scene.funnel_controller(model, ref, lin, phi_bar=lambda t: 1 / (1 + t))

@@ -178,6 +178,7 @@ class NMPFunnelController:
                               _nested(kappa, r, "kappa", conv_k, _number_leaf))
         self.kappa_bar = _positive(kappa_bar, "kappa_bar")
         self.phi_bar = as_funnel(phi_bar, "phi_bar")
+        self._check_funnel_classes()
         self.eta2_ref0 = (np.asarray(eta2_ref0, float).ravel() if eta2_ref0 is not None
                           else np.asarray(lin.eta2_ref0(reference), float).ravel())
         self._grid_dt = float(grid_dt)
@@ -191,6 +192,24 @@ class NMPFunnelController:
             eta2_ref_samples = (ts, vals)
         self._given_ref = eta2_ref_samples
         self._build()
+
+    def _check_funnel_classes(self):
+        """phi_i,j must lie in Phi_(r_i - j) and phi in Phi_1 (003 Sect. 5, after (48))."""
+        problems = []
+        seen = {}
+        for i, row in enumerate(self.levels.phi):
+            for j, f in enumerate(row):
+                need = self.levels.r[i] - j
+                key = (id(f), need)
+                if key not in seen:
+                    seen[key] = f.check(need)
+                if not seen[key].passed:
+                    problems.append(f"phi_{i + 1},{j} not in Phi_{need}: {'; '.join(seen[key].problems)}")
+        chk = self.phi_bar.check(1)
+        if not chk.passed:
+            problems.append(f"phi_bar not in Phi_1: {'; '.join(chk.problems)}")
+        if problems:
+            raise ParameterError("funnel functions do not satisfy (9):\n  - " + "\n  - ".join(problems))
 
     # ----------------------------------------------------------------- symbolic
     def _build(self):
