@@ -139,3 +139,15 @@ def test_cli_pipeline(tmp_path, capsys):
     assert any("C1 reduces C2" in line for line in out)
     for f in ("fig5_states", "fig6_endeffector", "fig7_errors", "fig8_inputs", "fig9_funnel"):
         assert (tmp_path / f"{f}.png").exists()
+
+
+def test_a1_for_our_gains(setup, study):
+    """(A1) for FEEDBACK: holds at the design point and along every simulated trajectory (it is only local:
+    the whole region U is not covered, as for the paper's own choice)."""
+    fb = scene.FEEDBACK
+    rep = setup.lin.check_A1(fb["K"], rho=fb["rho"], k_i=fb["k_i"], samples=200)
+    assert rep.zero_conditions_residual == 0.0
+    assert rep.min_eig_at_design_point > 0.1
+    assert 0.5 < rep.fraction_satisfied < 1.0
+    for name, a1 in study.info["a1_along_trajectory"].items():
+        assert a1["fraction_positive"] == 1.0 and a1["min_eig"] > 0.3, name
