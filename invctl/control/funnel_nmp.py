@@ -120,8 +120,9 @@ class NMPFunnelController:
         Gain of the last level.
     phi_bar : Funnel or (p, q, r)
         Funnel of ``||e_bar||``.
-    eta2_source : {"psi", "filter"}
-        ``eta2 = Psi(q, v)`` or the linear filter (40) as controller state.
+    eta2_source : {"psi", "filter", "auto"}
+        ``eta2 = Psi(q, v)`` or the linear filter (40) as controller state; ``"auto"`` uses Psi when
+        ``lin.psi_function()`` can be built and the filter otherwise.
     reference_mode : {"backward", "forward"}
         How the new reference (42) is produced (see module docstring).
     t_end : float
@@ -137,8 +138,14 @@ class NMPFunnelController:
     def __init__(self, model, lin, reference, *, K, k_i=None, rho=None, funnels, kappa, kappa_bar,
                  phi_bar, eta2_source: str = "psi", reference_mode: str = "backward", t_end: float = 2.0,
                  eta2_ref0=None, grid_dt: float = 5e-4, eta2_ref_samples=None):
-        if eta2_source not in ("psi", "filter"):
-            raise ParameterError(f"eta2_source must be 'psi' or 'filter', got {eta2_source!r}")
+        if eta2_source not in ("psi", "filter", "auto"):
+            raise ParameterError(f"eta2_source must be 'psi', 'filter' or 'auto', got {eta2_source!r}")
+        if eta2_source == "auto":
+            try:
+                lin.psi_function()
+                eta2_source = "psi"
+            except Exception:  # Psi needs Phi of the internal coordinates; without it run the filter (40)
+                eta2_source = "filter"
         if reference_mode not in ("backward", "forward"):
             raise ParameterError(f"reference_mode must be 'backward' or 'forward', got {reference_mode!r}")
         self.model, self.lin, self.reference = model, lin, reference
