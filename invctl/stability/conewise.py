@@ -243,8 +243,18 @@ def asdict_v(v: VisibleEigenvector) -> dict:
     return {"cone": v.cone, "eigenvalue": v.eigenvalue, "vector": list(v.vector)}
 
 
-def lambda_i_closed_form(sys: SwitchedErrorSystem, i: int) -> float:
-    """``Lambda_i`` by (14) (complex), (15) (critically damped) or (16) (real eigenvalues)."""
+def lambda_i_closed_form(sys: SwitchedErrorSystem, i: int, *, printed_15: bool = False) -> float:
+    """``Lambda_i`` by (14) (complex), (15) (critically damped) or (16) (real eigenvalues).
+
+    Notes
+    -----
+    (15) as printed, ``|B_i L/(2 dK - B_i dB)| exp((-1)^i 2 dK/(2 dK - B_i dB))``, is wrong
+    for ``i = 1``: evaluating (34) with the proof's ``P_i`` and rays (22) gives the
+    prefactor raised to ``(-1)^i`` (as in (14)), i.e. ``|(2 dK - B_1 dB)/(B_1 L)|`` for
+    ``i = 1``.  The corrected form is used; it agrees with (34), with the limits of
+    (14) and (16) at ``B^2 -> 4K`` and with the integrated return map.  ``printed_15=True``
+    evaluates the printed form (see docs/reproduction.md).
+    """
     K, B, dK, dB = sys.K(i), sys.B(i), sys.dK, sys.dB
     L = math.hypot(dK, dB)
     sgn = (-1) ** i
@@ -264,7 +274,8 @@ def lambda_i_closed_form(sys: SwitchedErrorSystem, i: int) -> float:
         if den == 0:
             raise StabilityError("critically damped subsystem with its eigenvector on the switching line "
                                  "(2 dK = B dB): the eigenvector is visible and Lambda is undefined")
-        return abs(B * L / den) * math.exp(sgn * 2 * dK / den)
+        pre = abs(B * L / den)
+        return (pre if printed_15 else pre**sgn) * math.exp(sgn * 2 * dK / den)
     r = math.sqrt(B * B - 4 * K)
     la, lb = (-B - r) / 2, (-B + r) / 2
     f_b = abs((dK * lb + K * dB) / (K * L))
@@ -275,8 +286,9 @@ def lambda_i_closed_form(sys: SwitchedErrorSystem, i: int) -> float:
     return f_b ** (sgn * la / (lb - la)) * f_a ** (sgn * lb / (la - lb))
 
 
-def lambda_closed_form(sys: SwitchedErrorSystem) -> tuple[float, float, float]:
-    """``(Lambda_1, Lambda_2, Lambda = Lambda_1^2 Lambda_2^2)`` by 002 (14)-(16).
+def lambda_closed_form(sys: SwitchedErrorSystem, *, printed_15: bool = False) -> tuple[float, float, float]:
+    """``(Lambda_1, Lambda_2, Lambda = Lambda_1^2 Lambda_2^2)`` by 002 (14)-(16) ((15) corrected, see
+    :func:`lambda_i_closed_form`).
 
     Raises
     ------
@@ -284,7 +296,8 @@ def lambda_closed_form(sys: SwitchedErrorSystem) -> tuple[float, float, float]:
         If Theorem 1 does not apply (``K2 <= K1``) or a visible eigenvector exists.
     """
     _require_rotation(sys)
-    l1, l2 = lambda_i_closed_form(sys, 1), lambda_i_closed_form(sys, 2)
+    l1 = lambda_i_closed_form(sys, 1, printed_15=printed_15)
+    l2 = lambda_i_closed_form(sys, 2, printed_15=printed_15)
     return l1, l2, (l1 * l2) ** 2
 
 
@@ -369,20 +382,20 @@ def lambda_numerical(sys: SwitchedErrorSystem, *, rtol: float = 1e-12, method: s
     """Integrate ``Sigma^w`` with the Lemma 1 rule ``argmax_i z^T A_i z`` through one rotation.
 
     Starting at ``z = (1, 0)``, the mode of each sector is chosen by comparing
-    ``z^T A_1 z`` and ``z^T A_2 z`` just clockwise of the current point, and the
-    sector ends where ``z^T (A_1 - A_2) z`` changes sign (event located by the
-    integrator).  Nothing of the cone geometry or of the closed forms is used.
-    If a sector never ends before ``|z|`` has decayed by ``max_decay``, a visible
-    eigenvector has captured the trajectory and ``visible`` is True.
+    ``z^T A_1 z`` and ``z^T A_2 z`` just clockwise of the current point; the sector
+    ends where ``z^T (A_1 - A_2) z = -z_2 (dK z_1 + dB z_2)`` changes sign, i.e. where
+    one of its two linear factors does (two event functions, located by the
+    integrator; the factor the sector starts on is only watched for a crossing
+    back).  Nothing of the closed forms is used.  If a sector never ends before
+    ``|z|`` has decayed by ``max_decay``, a visible eigenvector has captured the
+    trajectory and ``visible`` is True.
     """
     _require_applicable(sys)
     A = {1: sys.A(1), 2: sys.A(2)}
-    D = A[1] - A[2]
+    dK, dB = sys.dK, sys.dB
+    lines = (np.array([0.0, 1.0]), np.array([dK, dB]) / math.hypot(dK, dB))
 
-    def gap(t, z):
-        return z @ D @ z
-
-    slowest = min(-ev.real for i in (1, 2) for ev in np.atleast_1d(sys.eigenvalues(i)))
+    slowest = min(-complex(ev).real for i in (1, 2) for ev in np.atleast_1d(sys.eigenvalues(i)))
     t_cap = -math.log(max_decay) / slowest
     z = np.array([1.0, 0.0])
     factors, modes, times = [], [], []
@@ -393,26 +406,37 @@ def lambda_numerical(sys: SwitchedErrorSystem, *, rtol: float = 1e-12, method: s
         r = np.linalg.norm(z)
         probe = r * np.array([math.cos(ang - 1e-7), math.sin(ang - 1e-7)])
         mode = sys.worst_case_mode(probe)
-        direction = -1.0 if mode == 1 else 1.0  # leaving S_1 (gap >= 0) or S_2 (gap < 0)
-        gap.terminal = True
-        gap.direction = direction
+        events = []
+        for ln in lines:
+            ev = (lambda n: (lambda t, y: float(n @ y)))(ln)
+            ev.terminal = True
+            on_line = abs(ln @ z) <= 1e-9 * r * np.linalg.norm(ln)
+            # leaving a line we start on: only a crossing back counts
+            ev.direction = -float(np.sign(ln @ (A[mode] @ z))) if on_line else 0.0
+            events.append(ev)
         scale = max(1.0, math.sqrt(sys.K(mode)))
+        w = max(abs(complex(e).imag) for e in np.atleast_1d(sys.eigenvalues(mode)))
         sol = solve_ivp(lambda t, y: A[mode] @ y, (0.0, t_cap), z, method=method, rtol=rtol,
-                        atol=rtol * 1e-3 * np.array([1.0, scale]) * np.linalg.norm(z), events=gap)
+                        atol=rtol * 1e-3 * np.array([1.0, scale]) * r, events=events,
+                        max_step=math.pi / (4 * w) if w > 0 else np.inf)
         nfev += sol.nfev
-        if sol.status != 1 or len(sol.t_events[0]) == 0:
+        hits = [(te[-1], ye[-1]) for te, ye in zip(sol.t_events, sol.y_events) if len(te)]
+        if sol.status != 1 or not hits:
             return RotationResult(float("nan"), tuple(factors), tuple(modes), tuple(times),
                                   float("nan"), True, nfev)
-        z_new = sol.y_events[0][-1]
-        factors.append(float(np.linalg.norm(z_new) / np.linalg.norm(z)))
+        t_hit, z_new = min(hits, key=lambda h: h[0])
+        if np.linalg.norm(z_new) < max_decay * r:
+            # the trajectory sank onto a ray (visible eigenvector) and crossed only by round-off
+            return RotationResult(float("nan"), tuple(factors), tuple(modes), tuple(times),
+                                  float("nan"), True, nfev)
+        factors.append(float(np.linalg.norm(z_new) / r))
         modes.append(mode)
-        times.append(float(sol.t_events[0][-1]))
+        times.append(float(t_hit))
         a0, a1 = math.atan2(z[1], z[0]), math.atan2(z_new[1], z_new[0])
         angle_total += (a0 - a1) % (2 * math.pi)
         z = z_new
         if angle_total > 2 * math.pi - 1e-6:
             break
-    # back on the ray (1, 0): z[1] ~ 0, z[0] > 0
     return RotationResult(float(np.prod(factors)), tuple(factors), tuple(modes), tuple(times),
                           float(sum(times)), False, nfev)
 
