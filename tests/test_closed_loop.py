@@ -142,3 +142,19 @@ def test_unknown_controller_and_plant_parameter(c2_setup):
         c2_setup.loop("C4")
     with pytest.raises(SceneError, match="unknown parameter"):
         setup_tracking(scene, invert=False, plant_params={"m9": 1.0})
+
+
+def test_mismatch_beyond_the_operating_region_is_explained():
+    """m3 = 3 kg (6x): C2 drives alpha out of (0, pi/2), where Gamma is singular (det ~ sin alpha); the run
+    stops with a specific error naming the region exit, never a bare integrator error."""
+    from invctl.errors import SimulationFailed
+
+    s = setup_tracking(scene, invert=False, plant_params={"m3": 3.0})
+    with pytest.raises(SimulationFailed) as info:
+        run_controller(s, "C2")
+    exc = info.value
+    exit_ = exc.diagnostics.get("left_region")
+    if not isinstance(exc, FunnelViolation):
+        assert exit_ is not None and "alpha" in exit_["coordinates"]
+        assert "operating region" in str(exc)
+    assert exc.partial is not None and exc.partial.t[-1] > 0.1

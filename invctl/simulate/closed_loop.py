@@ -99,6 +99,7 @@ class ClosedLoopResult:
                 "max_constraint_drift": self.max_constraint_drift,
                 "input_peaks": self.input_peaks.tolist(),
                 "final_output_error": float(self.output_error[-1]) if self.t.size else None,
+                "left_region": self.stats.get("left_region"),
                 "wall_s": self.wall_s}
 
     def save(self, path) -> None:
@@ -302,7 +303,9 @@ class ClosedLoop:
             cut.status, cut.message = "funnel_violation", f"left the funnel at t = {T[idx]:.4g} s"
             diag = {"t": float(T[idx]), "level": res.ratio_names[level] if res.ratio_names else level,
                     "ratio": float(res.ratios[level, idx]), "margin": float(1 - res.ratios[level, idx]),
-                    "max_ratio_before": float(res.ratios[:, :idx].max()) if idx else float("nan")}
+                    "max_ratio_before": float(res.ratios[:, :idx].max()) if idx else float("nan"),
+                    "left_region": self._region_exit(cut)}
+            cut.stats["left_region"] = diag["left_region"]
             if raise_on_violation:
                 raise FunnelViolation(
                     f"{res.controller or 'closed loop'}: the error left the funnel at t = {T[idx]:.4g} s "
@@ -315,7 +318,8 @@ class ClosedLoop:
             res.message = f"reached the funnel boundary at t = {T[-1]:.4g} s; the integrator stopped"
             diag = {"t": float(T[-1]), "level": res.ratio_names[level] if res.ratio_names else level,
                     "ratio": float(res.ratios[:, -1].max()), "margin": float(1 - res.ratios[:, -1].max()),
-                    "integrator": str(fail).splitlines()[-1][:200]}
+                    "integrator": str(fail).splitlines()[-1][:200], "left_region": self._region_exit(res)}
+            res.stats["left_region"] = diag["left_region"]
             if raise_on_violation:
                 raise FunnelViolation(
                     f"{res.controller or 'closed loop'}: the error reached the funnel boundary at t = {T[-1]:.4g} s "
@@ -323,12 +327,19 @@ class ClosedLoop:
                     "the integrator can follow. Widen the funnel (larger r, p), raise the gains kappa, or add "
                     "feedforward", partial=res, diagnostics=diag)
             return res
+        exit_ = self._region_exit(res)
+        if exit_ is not None:
+            res.stats["left_region"] = exit_
         if fail is not None:
             res.status, res.message = "failed", str(fail).splitlines()[-1][:300]
+            where = (f"; the plant left the operating region at t = {exit_['t']:.4g} s ({exit_['coordinates']}; "
+                     f"{exit_['region']}), where the relative degree and (A1) are not established: the "
+                     "mismatch is too large for this controller" if exit_ is not None else
+                     "; try a smaller dt or looser tolerances")
             raise SimulationFailed(
                 f"{res.controller or 'closed loop'}: the integrator failed at t = {T[-1]:.4g} s inside the funnel "
-                f"(max ratio {res.max_funnel_ratio if res.ratios.size else float('nan'):.4g}): {res.message}; "
-                "try a smaller dt or looser tolerances", partial=res, diagnostics={"t": float(T[-1])})
+                f"(max ratio {res.max_funnel_ratio if res.ratios.size else float('nan'):.4g}): {res.message}{where}",
+                partial=res, diagnostics={"t": float(T[-1]), "left_region": exit_})
         return res
 
     def _steps(self, x, ts, theta, exc):
@@ -349,6 +360,30 @@ class ClosedLoop:
                 if self._monitor(np.array([t0 + self.dt]), x[:, None], theta)[7].max() >= VIOLATION_RATIO:
                     return np.array(cols).T, np.array(tg), qf[:, None], None
         return np.array(cols).T, np.array(tg), qf[:, None], None
+
+    def _region_exit(self, res):
+        """First time the plant leaves the model's operating region (where r_hat, Gamma and (A1) were
+        established), with the coordinates that are out of bounds; ``None`` if it stays inside."""
+        region = getattr(self.plant, "region", None)
+        if region is None or res.t.size == 0:
+            return None
+        lo, hi = np.asarray(region.q_lower, float), np.asarray(region.q_upper, float)
+        q = res.q
+        inside_box = np.all((q > lo[:, None]) & (q < hi[:, None]), axis=0)
+        bad = np.nonzero(~inside_box)[0]
+        k = int(bad[0]) if bad.size else None
+        if k is None:
+            step = max(1, q.shape[1] // 400)
+            for kk in range(0, q.shape[1], step):
+                if not region.contains(q[:, kk]):
+                    k = kk
+                    break
+        if k is None:
+            return None
+        names = self.plant.q_names
+        out = [f"{names[i]} = {q[i, k]:.4g}" for i in range(q.shape[0]) if not lo[i] < q[i, k] < hi[i]]
+        return {"t": float(res.t[k]), "coordinates": ", ".join(out) or "a region constraint",
+                "region": getattr(region, "description", "")}
 
     def _result(self, T, X, theta, quad, wall, label):
         n = self.plant.n
