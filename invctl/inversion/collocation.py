@@ -334,7 +334,11 @@ class Transcription:
         self._pat = (A.indices.copy(), A.indptr.copy(), perm, s0, sf)
         return self._pat
 
-    def residual_and_jacobian(self, x, p):
+    def residual(self, x, p) -> np.ndarray:
+        """The constraint vector ``g`` alone (mapped right-hand side, numpy)."""
+        return self.residual_and_jacobian(x, p, jacobian=False)[0]
+
+    def residual_and_jacobian(self, x, p, jacobian: bool = True):
         """The constraint vector ``g`` and its sparse Jacobian (scipy CSC), assembled from
         the mapped right-hand side and its Jacobian at the nodes (numpy, no loops over nodes)."""
         nx, N, servo = self.nx, self.N, self.servo
@@ -351,6 +355,22 @@ class Transcription:
         o += self.ntheta
         E0, Ef = p[o:o + nx], p[o + nx:o + 2 * nx]
         I = np.eye(nx)  # noqa: E741
+        if not jacobian:
+            rm = self._rhs_map
+            if self.scheme.is_hs:
+                F = np.array(rm(N + 1)(Xmesh, Y[:, :N + 1], theta))
+                Xm = 0.5 * (Xmesh[:, :-1] + Xmesh[:, 1:]) + h / 8 * (F[:, :-1] - F[:, 1:])
+                Fm = np.array(rm(N)(Xm, Y[:, N + 1:], theta))
+                g_int = (Xmesh[:, 1:] - Xmesh[:, :-1] - h / 6 * (F[:, :-1] + 4 * Fm + F[:, 1:])).ravel(order="F")
+            else:
+                d = self.scheme.degree
+                F = np.array(rm(d * N)(Xcol, Y, theta)).reshape(nx, N, d)
+                Xall = np.concatenate([Xmesh[:, :-1, None], Xcol.reshape(nx, N, d)], axis=2)
+                res = np.einsum("rkj,ji->rki", Xall, self.scheme.C) - h[None, :, None] * F
+                cont = Xmesh[:, 1:] - np.einsum("rkj,j->rk", Xall, self.scheme.D)
+                g_int = np.concatenate([res.transpose(0, 2, 1).reshape(nx * d, N, order="F"), cont],
+                                       axis=0).ravel(order="F")
+            return np.concatenate([g_int, Xmesh[s0, 0] - E0[s0], Xmesh[sf, N] - Ef[sf]]), None
         if self.scheme.is_hs:
             F, JF = self._rhs_jac_map(N + 1)(Xmesh, Y[:, :N + 1], theta)
             F = np.array(F)
@@ -399,6 +419,12 @@ class Transcription:
         data = np.concatenate(vals + [np.ones(s0.size + sf.size)])[perm]
         J = sp.csc_matrix((data, indices, indptr), shape=(self.ng, self.nX))
         return g, J
+
+    def _rhs_map(self, k: int) -> ca.Function:
+        cache = self.__dict__.setdefault("_rm", {})
+        if k not in cache:
+            cache[k] = self._c(self.servo.rhs).map(k)
+        return cache[k]
 
     def _rhs_jac_map(self, k: int) -> ca.Function:
         cache = self.__dict__.setdefault("_rjm", {})

@@ -166,14 +166,20 @@ def default_mesh(T0, Tf, t0, tf, N, fraction=0.5):
 
 
 def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label):
-    """Newton's method with backtracking on the square collocation system; the
-    Jacobian is assembled from the mapped right-hand side Jacobian and factorized
-    by SuperLU."""
+    """Newton's method on the square collocation system with Jacobian reuse.
+
+    The sparse Jacobian is assembled from the mapped right-hand-side Jacobian and
+    factorized by SuperLU; the factorization is kept (also across calls on the same
+    transcription, e.g. re-solves after a parameter change) while it contracts the
+    residual by at least a factor 4 per step (simplified Newton), and refreshed
+    otherwise; a refreshed step that does not decrease the residual is damped."""
     x = np.array(x0, float)
     t_start = time.perf_counter()
-    g, J = tr.residual_and_jacobian(x, p)
+    g = tr.residual(x, p)
     nrm = np.linalg.norm(g)
-    status, it = "Maximum_Iterations_Exceeded", 0
+    lu = getattr(tr, "_lu", None)
+    fresh = False
+    status, it, n_fact = "Maximum_Iterations_Exceeded", 0, 0
     for it in range(1, max_iter + 1):
         if np.max(np.abs(g)) < tol:
             status = "Solve_Succeeded"
@@ -182,14 +188,28 @@ def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label):
         if time.perf_counter() - t_start > max_wall_time:
             status = "Maximum_WallTime_Exceeded"
             break
+        if lu is not None and not fresh:
+            dx = -lu.solve(g)
+            g2 = tr.residual(x + dx, p)
+            n2 = np.linalg.norm(g2)
+            if np.isfinite(n2) and (n2 <= 0.25 * nrm or np.max(np.abs(g2)) < tol):
+                x, g, nrm = x + dx, g2, n2
+                if progress:
+                    print(f"  [{label}] newton {it:3d}  max|g| = {np.max(np.abs(g)):.3e}  (reused Jacobian)",
+                          file=sys.stderr)
+                continue
+        _, J = tr.residual_and_jacobian(x, p)
         try:
-            dx = -spl.splu(J, permc_spec="COLAMD").solve(g)
+            lu = spl.splu(J, permc_spec="COLAMD")
+            n_fact += 1
         except RuntimeError:
             status = "Singular_Jacobian"
             break
+        fresh = True
+        dx = -lu.solve(g)
         s = 1.0
         while True:
-            g2, J2 = tr.residual_and_jacobian(x + s * dx, p)
+            g2 = tr.residual(x + s * dx, p)
             n2 = np.linalg.norm(g2)
             if np.isfinite(n2) and (n2 <= (1 - 1e-4 * s) * nrm or np.max(np.abs(g2)) < tol):
                 break
@@ -199,14 +219,17 @@ def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label):
         if s < 1e-6:
             status = "Line_Search_Failed"
             break
-        x, g, J, nrm = x + s * dx, g2, J2, n2
+        x, g, nrm = x + s * dx, g2, n2
+        fresh = s < 1.0  # after a damped step refresh again
         if progress:
             print(f"  [{label}] newton {it:3d}  max|g| = {np.max(np.abs(g)):.3e}  step {s:.3g}", file=sys.stderr)
     else:
         if np.max(np.abs(g)) < tol:
             status = "Solve_Succeeded"
+    if lu is not None and status == "Solve_Succeeded":
+        tr._lu = lu
     return x, {"status": status, "iterations": it, "success": status == "Solve_Succeeded",
-               "max_constraint_violation": float(np.max(np.abs(g)))}
+               "max_constraint_violation": float(np.max(np.abs(g))), "factorizations": n_fact}
 
 
 def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N: int = 200,
