@@ -60,6 +60,10 @@ def test_result_save_load_plot(c2_run, tmp_path):
     np.testing.assert_array_equal(back.q, c2_run.q)
     assert back.cumulative_output_error == c2_run.cumulative_output_error
     assert back.ratio_names == c2_run.ratio_names
+    c2_run.to_csv(tmp_path / "c2.csv")
+    table = np.genfromtxt(tmp_path / "c2.csv", delimiter=",", names=True)
+    np.testing.assert_allclose(table["t"], c2_run.t)
+    np.testing.assert_allclose(table["gamma"], c2_run.q[4])
     fig = back.plot(tmp_path / "c2.png")
     assert (tmp_path / "c2.png").stat().st_size > 1000
     assert fig is not None

@@ -14,6 +14,7 @@ the funnel stops it with :class:`~invctl.errors.FunnelViolation` carrying the tr
 """
 from __future__ import annotations
 
+import re
 import time
 from dataclasses import dataclass, field, fields
 
@@ -109,6 +110,19 @@ class ClosedLoopResult:
             val = getattr(self, f.name)
             data[f.name] = np.asarray(val) if not isinstance(val, dict) else np.asarray(repr(val))
         np.savez(path, **data)
+
+    def to_csv(self, path) -> None:
+        """Time series (t, q, v, u, u_ff, u_fb, y, y_ref, r, r_ref, funnel ratios) as CSV with a header."""
+        cols = [("t", self.t[None, :])]
+        cols += [(f"{n}", self.q[i:i + 1]) for i, n in enumerate(self.q_names or range(self.q.shape[0]))]
+        cols += [(f"d{n}", self.v[i:i + 1]) for i, n in enumerate(self.q_names or range(self.v.shape[0]))]
+        for name in ("u", "u_ff", "u_fb", "y", "y_ref", "r", "r_ref"):
+            arr = getattr(self, name)
+            cols += [(f"{name}{i + 1}", arr[i:i + 1]) for i in range(arr.shape[0])]
+        safe = [re.sub(r"[^A-Za-z0-9_]+", "_", n).strip("_") for n in self.ratio_names]
+        cols += [(f"ratio_{n}", self.ratios[i:i + 1]) for i, n in enumerate(safe)]
+        data = np.vstack([c[1] for c in cols]).T
+        np.savetxt(path, data, delimiter=",", header=",".join(str(c[0]) for c in cols), comments="")
 
     @classmethod
     def load(cls, path) -> "ClosedLoopResult":
