@@ -55,7 +55,7 @@ def simulate_command(scene_module, params: dict, controller=None, plant_set=None
     res = run_controller(setup, name)
     wall_total = time.perf_counter() - t0
     if out:
-        res.save(out)
+        res.to_csv(out) if str(out).lower().endswith(".csv") else res.save(out)
     if plot:
         res.plot(plot)
     s = res.summary()
