@@ -37,6 +37,10 @@ class TradeoffSpec:
         How the reference the errors are measured against was obtained.
     error_name : str
         What ``error`` measures (shown on plots).
+    repeat : bool
+        Whether a fast setting may be re-run for a steadier time; ``False`` when a
+        second run would be cheaper than the first for reasons a user does not
+        get for free (e.g. a cached NLP build): then the first, cold run counts.
     """
 
     knob: str
@@ -45,6 +49,7 @@ class TradeoffSpec:
     reference: str
     error_name: str = "error"
     scene: str = ""
+    repeat: bool = True
 
 
 @dataclass
@@ -135,7 +140,10 @@ class TradeoffResult:
         for name, idx in groups.items():
             ax.loglog(t[idx], e[idx], "o", label=name or None)
         for i, r in enumerate(self.rows):
-            ax.annotate(_fmt(r["value"]), (t[i], e[i]), textcoords="offset points", xytext=(4, 4), fontsize=7)
+            v = r["value"]
+            if isinstance(v, dict) and "group" in r:
+                v = {k: x for k, x in v.items() if str(x) != str(r["group"])}
+            ax.annotate(_fmt(v), (t[i], e[i]), textcoords="offset points", xytext=(4, 4), fontsize=7)
         order = np.argsort(t[mask])
         ax.loglog(t[mask][order], e[mask][order], "k--", lw=1, label="Pareto front")
         ax.set_xlabel("time [s]")
@@ -181,7 +189,7 @@ def run_tradeoff(spec: TradeoffSpec, *, progress: bool = True, min_time_s: float
                 if key not in out:
                     raise KeyError(f"trade-off run for {spec.knob}={value!r} returned no {key!r}")
             spent, times = float(out["time_s"]), [float(out["time_s"])]
-            while spent < min_time_s and len(times) < max_repeats:
+            while spec.repeat and spent < min_time_s and len(times) < max_repeats:
                 t = float(spec.run(value)["time_s"])
                 times.append(t)
                 spent += t

@@ -74,7 +74,7 @@ def manipulator_invert(scene, params: dict, smoke: bool = False) -> TradeoffSpec
         knob="scheme,N", values=values, run=run,
         reference="forward check: the reference model simulated under u_ff with DOP853 (rtol = atol = 1e-12, "
                   "windowed against the unstable internal mode), no code shared with the collocation",
-        error_name="forward-check output error max|y - y_ref| [m, rad]")
+        error_name="forward-check output error max|y - y_ref| [m, rad]", repeat=False)
 
 
 # ---------------------------------------------------------------- closed loop
