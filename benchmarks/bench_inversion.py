@@ -176,6 +176,22 @@ def main():
                   f"{d['solve_s']:.3f} s, {d['iterations']} it), error {err:.2e}, rss {rss_mb():.0f} MB; "
                   f"re-solve m3+1% {inv2.diagnostics['solve_s'] * 1e3:.1f} ms ({inv2.diagnostics['iterations']} it)")
 
+    print("\nNewton backend (simplified Newton, LU reused), HS N = 100 (error <= 1e-6):")
+    clear_caches()
+    inv = invert_scene(scene, model=model, reference=ref, N=100, backend="newton")
+    d = inv.diagnostics
+    err = forward_check(model, inv, ref)["error"]
+    print(f"  first: build {d['build_s']:.3f} s, solve {d['solve_s'] * 1e3:.1f} ms ({d['iterations']} it, "
+          f"{d['factorizations']} factorizations, compiled={d['compiled']}), error {err:.2e}")
+    newton_resolve = []
+    for f in (1.01, 1.02, 0.99):
+        other = model.with_params(m3=f * model.values["m3"])
+        inv2 = invert_scene(scene, model=other, reference=ref, N=100, backend="newton", warm_start=inv)
+        e2 = forward_check(other, inv2, ref)["error"]
+        newton_resolve.append(inv2.diagnostics["solve_s"])
+        print(f"  re-solve m3 x {f}: {inv2.diagnostics['solve_s'] * 1e3:.1f} ms ({inv2.diagnostics['iterations']} it, "
+              f"{inv2.diagnostics['factorizations']} factorizations), error {e2:.2e}")
+
     print("\nfirst solve at the scene default (HS, N = 200, IPOPT), caches cleared, imports excluded:")
     clear_caches()
     t = time.perf_counter()
@@ -184,6 +200,14 @@ def main():
     first_err = forward_check(model, first, ref)["error"]
     print(f"  {first_wall:.3f} s (build {first.diagnostics['build_s']:.3f} s, guess {first.diagnostics['guess_s']:.3f} s, "
           f"solve {first.diagnostics['solve_s']:.3f} s), forward-check error {first_err:.2e}")
+
+    clear_caches()
+    t = time.perf_counter()
+    first_n = invert_scene(scene, model=model, reference=ref, backend="newton")
+    first_n_wall = time.perf_counter() - t
+    first_n_err = forward_check(model, first_n, ref)["error"]
+    print(f"  Newton backend: {first_n_wall:.3f} s (build {first_n.diagnostics['build_s']:.3f} s, solve "
+          f"{first_n.diagnostics['solve_s']:.3f} s), error {first_n_err:.2e}")
 
     # accuracy on request: refinement
     print("\nask for an accuracy (error-driven refinement, IPOPT, caches cleared):")
@@ -218,7 +242,11 @@ def main():
         rr = scipy_bvp(other, ref, best["tol"], guess=best["sol"])
         print(f"  repeated (m3 + 1 %, previous solution as guess): {rr['time_s']:.3f} s")
         print(f"\nratios (ours / scipy {best['time_s']:.3f} s at error {best['error']:.1e}):")
-        print(f"  first solve at the scene default (error {first_err:.1e}): {first_wall / best['time_s']:.2f}")
+        print(f"  first solve at the scene default (error {first_err:.1e}): IPOPT {first_wall / best['time_s']:.2f}, "
+              f"Newton {first_n_wall / best['time_s']:.2f}")
+        print(f"  Newton re-solve after a parameter change (HS N=100, error < 1e-6): median "
+              f"{np.median(newton_resolve) * 1e3:.1f} ms -> {np.median(newton_resolve) / rr['time_s']:.3f} of scipy's "
+              f"repeated solve")
         for tol, o in ours.items():
             print(f"  tol {tol:.0e} by refinement (error {o['error']:.1e}): wall incl. forward checks "
                   f"{o['wall'] / best['time_s']:.2f}, solve-only {o['solve'] / best['time_s']:.2f}, "

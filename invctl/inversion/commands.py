@@ -31,6 +31,15 @@ def invert_command(scene, params: dict, **options) -> CommandResult:
         raise SceneError(f"{name}: --dt must be positive, got {options['dt']}")
     if options.get("N") is not None and options["N"] < 4:
         raise SceneError(f"{name}: --N must be at least 4, got {options['N']}")
+    if options.get("scheme") is not None:
+        from .collocation import get_scheme
+
+        try:
+            get_scheme(options["scheme"])
+        except ValueError as exc:
+            raise SceneError(f"{name}: --scheme: {exc}") from None
+    if options.get("tol") is not None and not options["tol"] > 0:
+        raise SceneError(f"{name}: --tol must be positive, got {options['tol']}")
     quiet = bool(options.get("quiet"))
     opts = {"progress": not quiet}
     for k in ("N", "scheme", "tol", "backend"):
