@@ -140,7 +140,10 @@ def _intervals(t, mask) -> list[tuple[float, float]]:
 
 # ---------------------------------------------------------------------------
 class _Engine:
-    def __init__(self, loop: ClosedLoop, *, h_max, samples_per_period, max_events, slide_tol, progress):
+    def __init__(self, loop: ClosedLoop, *, h_max, samples_per_period, max_events, slide_tol, progress,
+                 state0=None, x_tol=1e-15):
+        self.state0 = state0
+        self.x_tol = x_tol
         self.loop = loop
         self.h_max = h_max
         self.spp = samples_per_period
@@ -172,7 +175,7 @@ class _Engine:
             self._h[key] = h
         return self._h[key]
 
-    # -- constraints of the current mode: list of (row c, surface j, kind) with c.S > 0 required
+    # -- constraints of the current mode: (row c, surface j, kind, offset) with c.S + offset > 0 required
     def constraints(self, bits, phase, sliding):
         out = []
         for j, (_, ip, iv, _, _) in enumerate(self.loop.surfaces):
@@ -181,12 +184,12 @@ class _Engine:
                 b1 = tuple(True if i == j else b for i, b in enumerate(bits))
                 a0 = self.loop.matrix(b0, phase)[iv]
                 a1 = self.loop.matrix(b1, phase)[iv]
-                out.append((a0, j, "slide0"))     # leave to the free side when a0 <= 0
-                out.append((-a1, j, "slide1"))    # leave to the contact side when a1 >= 0
+                out.append((a0, j, "slide0", 0.0))     # leave to the free side when a0 <= 0
+                out.append((-a1, j, "slide1", 0.0))    # leave to the contact side when a1 >= 0
                 continue
             c = np.zeros(self.loop.n)
             c[ip] = 1.0 if bits[j] else -1.0
-            out.append((c, j, "pos"))
+            out.append((c, j, "pos", 0.5 * self.x_tol))
         return out
 
     def decide(self, S, bits, phase, j, h):
@@ -210,8 +213,8 @@ class _Engine:
 
     # -- first root of c . S(tau) on (lo, hi] from S at lo (c . S > 0 required, violated at hi)
     @staticmethod
-    def root(A, S0, c, lo, hi):
-        f = lambda s: float(c @ (expm(A * s) @ S0))  # noqa: E731
+    def root(A, S0, c, lo, hi, offset=0.0):
+        f = lambda s: float(c @ (expm(A * s) @ S0)) + offset  # noqa: E731
         flo, fhi = f(lo), f(hi)
         if fhi > 0:
             return None
@@ -233,7 +236,7 @@ class _Engine:
     def graze(self, A, X, h, cons, k_limit):
         """First grazing double crossing between samples (position stays on its side at samples)."""
         best = None
-        for c, j, kind in cons:
+        for c, j, kind, off in cons:
             if kind != "pos":
                 continue
             _, ip, iv, _, _ = self.loop.surfaces[j]
@@ -248,8 +251,8 @@ class _Engine:
                 if tm is None:
                     continue
                 Sm = expm(A * tm) @ X[k]
-                if c @ Sm <= 0:
-                    tau = self.root(A, X[k], c, 0.0, tm)
+                if c @ Sm + off <= 0:
+                    tau = self.root(A, X[k], c, 0.0, tm, off)
                     if tau is not None and (best is None or k * h + tau < best[0]):
                         best = (k * h + tau, k, tau, c, j, kind)
                     break
@@ -260,6 +263,8 @@ class _Engine:
         ref = loop.reference
         t = t0
         S = loop.initial_state(t0)
+        if self.state0 is not None:
+            S[:loop.np] = self.state0
         phase = bool(ref.phase([t])[0])
         bits = tuple(False for _ in loop.surfaces)
         sliding = -1
@@ -291,15 +296,15 @@ class _Engine:
                                            partial=self._partial(T, X_all, M))
                 mid = self.mode_id((bits, phase, sliding))
                 cons = self.constraints(bits, phase, sliding)
-                G = np.column_stack([X[1:] @ c for c, _, _ in cons])
+                G = np.column_stack([X[1:] @ c + off for c, _, _, off in cons])
                 bad = np.flatnonzero(np.any(G <= 0, axis=1))
                 k_first = int(bad[0]) + 1 if bad.size else K
                 hit = None
                 if bad.size:
                     k = k_first
-                    for ci, (c, j, kind) in enumerate(cons):
+                    for ci, (c, j, kind, off) in enumerate(cons):
                         if G[k - 1, ci] <= 0:
-                            tau = self.root(A, X[k - 1], c, 0.0, h)
+                            tau = self.root(A, X[k - 1], c, 0.0, h, off)
                             tau = 0.0 if tau is None else tau
                             cand = ((k - 1) * h + tau, k - 1, tau, c, j, kind)
                             if hit is None or cand[0] < hit[0]:
@@ -374,7 +379,8 @@ class _Engine:
 
 def simulate_switched(loop: ClosedLoop, t_end: float, *, t0: float = 0.0, h_max: float = 2e-4,
                       samples_per_period: int = 32, max_events: int = 20000, slide_tol: float = 1e-6,
-                      progress: bool = False, label: str = "", meta: dict | None = None) -> SwitchedSimulation:
+                      progress: bool = False, label: str = "", meta: dict | None = None,
+                      state0=None, x_tol: float = 1e-15) -> SwitchedSimulation:
     """Simulate the switched loop exactly from ``t0`` to ``t_end``.
 
     Parameters
@@ -389,14 +395,24 @@ def simulate_switched(loop: ClosedLoop, t_end: float, *, t0: float = 0.0, h_max:
         Abort with :class:`SimulationFailed` (carrying the partial trajectory) after this many switches.
     slide_tol : float
         A touch whose velocity is below ``slide_tol * |a| * h`` is treated as tangential (Filippov rule).
+    x_tol : float
+        Penetration (m) below which a surface counts as not crossed: positions that only
+        reach the wall within round-off (a reference converging onto it) cause no switch.
+        Crossings are located at the level ``x_tol/2`` and then projected onto the surface.
+    state0 : array, optional
+        Initial plant state (default: at rest relative to the reference, ``x = x_d(t0)``, ``x' = x_d'(t0)``).
     """
     if not (t_end > t0):
         raise ParameterError(f"t_end must exceed t0, got t0 = {t0}, t_end = {t_end}")
     if not (h_max > 0 and samples_per_period >= 4):
         raise ParameterError(f"need h_max > 0 and samples_per_period >= 4, got {h_max}, {samples_per_period}")
     w0 = time.perf_counter()
+    if state0 is not None:
+        state0 = np.asarray(state0, float)
+        if state0.shape != (loop.np,) or not np.all(np.isfinite(state0)):
+            raise ParameterError(f"state0 must be {loop.np} finite numbers {loop.plant.names}, got {state0}")
     eng = _Engine(loop, h_max=h_max, samples_per_period=samples_per_period, max_events=max_events,
-                  slide_tol=slide_tol, progress=progress)
+                  slide_tol=slide_tol, progress=progress, state0=state0, x_tol=x_tol)
     T, S, Mi, events = eng.run(t0, t_end)
     out = _outputs(loop, eng, T, S, Mi)
     wall, intended = out["wall"], out["intended"]
