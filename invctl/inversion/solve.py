@@ -463,8 +463,9 @@ def _make_inverse(model, reference, servo, tr, sch, t_mesh, x, theta) -> Inverse
 
 
 def _residuals(inv: Inverse, servo, reference, theta, samples_per_interval: int = 4) -> dict:
-    """Constraint residuals of (35) at the mesh and between mesh points, and the
-    collocation (defect) residual ``|X' - F(X)|`` of the interpolant."""
+    """Constraint residuals of (35) at the mesh and between mesh points: ``position``
+    (``g`` and ``h - y_ref`` together), ``holonomic`` (``g``), ``servo`` (``h - y_ref``),
+    ``velocity`` and ``acceleration`` levels."""
     tm = inv.t_mesh
     s = np.linspace(0, 1, samples_per_interval + 1)[1:-1]
     tt = (tm[:-1, None] + np.diff(tm)[:, None] * s[None, :]).ravel()
@@ -474,6 +475,9 @@ def _residuals(inv: Inverse, servo, reference, theta, samples_per_interval: int 
         Y = servo.reference_samples(reference, t)
         pos, vel, acc = (np.array(r) for r in servo.residuals.map(t.size)(X, Y, theta))
         out[f"position_{name}"] = float(np.max(np.abs(pos))) if pos.size else 0.0
+        nl = servo.layout.l
+        out[f"holonomic_{name}"] = float(np.max(np.abs(pos[:nl]))) if nl else 0.0
+        out[f"servo_{name}"] = float(np.max(np.abs(pos[nl:]))) if pos[nl:].size else 0.0
         out[f"velocity_{name}"] = float(np.max(np.abs(vel))) if vel.size else 0.0
         out[f"acceleration_{name}"] = float(np.max(np.abs(acc))) if acc.size else 0.0
     out["position"] = max(out["position_mesh"], out["position_between"])
