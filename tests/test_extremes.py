@@ -178,6 +178,30 @@ def test_stiff_wall_extreme_stiffness(ke, be):
     assert rep.visible or (np.isfinite(rep.Lambda) and rep.Lambda == pytest.approx(rep.Lambda_numerical, rel=1e-6))
 
 
+@pytest.mark.timeout(60)
+def test_stiff_wrist_tends_to_the_rigid_arm():
+    """kt = 1e8: the wrist locks and the contact behaves like the stiff wall's (the tip mass is
+    5 % of the arm's, so peak forces agree to a few per cent, not exactly)."""
+    wall = load_scene("stiff_wall").build().simulate()
+    wrist = load_scene("compliant_wrist").build(kt=1e8).simulate()
+    assert _finite(wrist.x, wrist.xt, wrist.Fe)
+    assert wrist.peak_force == pytest.approx(wall.peak_force, rel=0.05)
+    assert wrist.bounces == wrist.contact_phases - 1
+
+
+@pytest.mark.timeout(60)
+def test_wrist_on_a_1e9_wall():
+    sim = load_scene("compliant_wrist").build(ke=1e9, be=1.0).simulate()
+    assert _finite(sim.x, sim.v, sim.xt, sim.vt, sim.Fe, [sim.peak_force, sim.force_rms_error])
+    # a bouncing tip on an almost rigid, undamped wall: many contact phases, each one counted
+    assert sim.bounces == sim.contact_phases - 1 >= 1
+    # Kelvin-Voigt wall (2) on the tip: Fe = ke xt + be vt in contact, zero off it; contact ends
+    # exactly at xt = 0 (so at most the damping term pulls, |be vt| ~ 2e-2 N here)
+    w = sim.wall
+    np.testing.assert_allclose(sim.Fe[w], 1e9 * sim.xt[w] + 1.0 * sim.vt[w], rtol=1e-9, atol=1e-9)
+    assert sim.xt[w].min() >= -1e-12 and np.all(sim.Fe[~w] == 0)
+
+
 @given(bf=st.floats(1.0, 2e4), ke=st.floats(2e4, 1e8), be=st.floats(0.0, 200.0))
 @FAST
 @pytest.mark.timeout(60)
