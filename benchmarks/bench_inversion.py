@@ -97,7 +97,8 @@ def scipy_bvp(model, ref, tol, nodes=60, guess=None):
 
 
 def single_shooting(model, ref, inv):
-    """Integrate the 14-state inverse ODE forward from the BVP solution's X(T0), perturbed by 1e-10."""
+    """Integrate the 14-state inverse ODE forward from the BVP solution's X(T0) over growing
+    spans: the deviation from the (bounded) BVP solution grows like exp(24.4 t)."""
     servo = servo_model(model)
     th = model.theta_values
     rf = ref.function(3)
@@ -109,12 +110,10 @@ def single_shooting(model, ref, inv):
 
     X0 = inv.X(inv.T0).ravel()
     out = {}
-    for eps in (0.0, 1e-10):
-        Xs = X0.copy()
-        Xs[9] += eps  # gamma_dot
-        sol = solve_ivp(f, (inv.T0, inv.Tf), Xs, method="DOP853", rtol=1e-12, atol=1e-14, dense_output=True)
+    for span in (0.5, 1.0, 1.5, 2.0):
+        sol = solve_ivp(f, (inv.T0, inv.T0 + span), X0, method="DOP853", rtol=1e-12, atol=1e-14, dense_output=True)
         tt = np.linspace(inv.T0, sol.t[-1], 400)
-        out[eps] = float(np.max(np.abs(sol.sol(tt) - inv.X(tt)))) if sol.success else float("inf")
+        out[span] = float(np.max(np.abs(sol.sol(tt)[:5] - inv.q(tt)))) if sol.success else float("inf")
     return out
 
 
@@ -255,8 +254,10 @@ def main():
     print("\nsingle shooting on the unstable internal dynamics (forward integration of the inverse ODE):")
     inv = ours[1e-7]["inv"]
     sh = single_shooting(model, ref, inv)
-    print(f"  from the BVP's own X(T0): max deviation {sh[0.0]:.2e}; with 1e-10 on gamma_dot(T0): {sh[1e-10]:.2e}")
-    print("  (growth ~exp(24.4 (Tf - T0)) ~ 1e31: a shooting Newton on X(T0) has no usable Jacobian)")
+    for span, dev in sh.items():
+        print(f"  from the BVP's own X(T0), over [T0, T0 + {span}]: max |q - q_bvp| = {dev:.2e}")
+    print("  the deviation grows like exp(24.4 t) (the unstable zero dynamics): over [T0, Tf] = 3 s a shooting "
+          "Newton on X(T0) would need X(T0) to ~1e-31 -- single shooting fails, collocation does not")
 
     try:
         import matplotlib.pyplot as plt
