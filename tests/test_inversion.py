@@ -226,3 +226,14 @@ def test_plot(tmp_path, inv160):
     fig = inv160.plot(str(tmp_path / "inv.png"))
     assert (tmp_path / "inv.png").stat().st_size > 1000
     assert len(fig.axes) == 3
+
+
+def test_rebuilt_model_with_other_parameters_shares_the_nlp(model, ref):
+    # a scene rebuilt with other values shares the (structural) caches but must use its own values
+    heavy = scene.build(m3=0.8)
+    a = invert_scene(scene, model=heavy, N=80, backend="newton")
+    b = invert_scene(scene, model=model.with_params(m3=0.8), reference=ref, N=80, backend="newton")
+    np.testing.assert_allclose(a.X_mesh, b.X_mesh, atol=1e-9)
+    base = invert_scene(scene, model=model, reference=ref, N=80, backend="newton")
+    assert np.max(np.abs(a.u(np.linspace(0, 1, 50)) - base.u(np.linspace(0, 1, 50)))) > 1e-2
+    assert_inverts(heavy, a, scene.reference(heavy), tol=1e-5)

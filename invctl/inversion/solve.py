@@ -37,27 +37,52 @@ IPOPT_DEFAULTS = {
 }
 
 
+_CACHE_SIZE = 16
+
+
+def model_key(model) -> str:
+    """A structural key of a model: the hash of its serialized symbolic functions, so that
+    models built repeatedly by a scene (other parameter values) share servo models,
+    transcriptions and equilibrium solvers."""
+    key = getattr(model, "_inversion_key", None)
+    if key is None:
+        import hashlib
+
+        text = "|".join(model.function(k).serialize() for k in ("M", "f", "B", "g", "J", "j", "h"))
+        key = hashlib.sha1((model.name + text).encode()).hexdigest()
+        try:
+            model._inversion_key = key
+        except AttributeError:
+            pass
+    return key
+
+
+def _remember(cache: dict, key, make):
+    if key not in cache:
+        if len(cache) >= _CACHE_SIZE:
+            cache.pop(next(iter(cache)))
+        cache[key] = make()
+    return cache[key]
+
+
 def servo_model(model, formulation: str = "baumgarte", omega: float = 10.0) -> ServoModel:
-    """The cached :class:`ServoModel` (keyed by the symbolic model, not its parameter values)."""
-    key = (id(model.M), formulation, float(omega))
-    if key not in _SERVO_CACHE:
-        _SERVO_CACHE[key] = ServoModel(model, formulation, omega)
-    return _SERVO_CACHE[key]
+    """The cached :class:`ServoModel` (keyed by the model's structure, not its parameter values)."""
+    return _remember(_SERVO_CACHE, (model_key(model), formulation, float(omega)),
+                     lambda: ServoModel(model, formulation, omega))
 
 
 def transcription(servo, selection, scheme, N: int, objective: float = 0.0, compiled="auto") -> Transcription:
     """The cached :class:`Transcription` for (servo model, selection, scheme, N)."""
     key = (id(servo), selection.start, selection.end, scheme.name, int(N), float(objective), compiled)
-    if key not in _TRANS_CACHE:
-        _TRANS_CACHE[key] = Transcription(servo, selection, scheme, N, objective=objective, compiled=compiled)
-    return _TRANS_CACHE[key]
+    tr = _TRANS_CACHE.get(key)
+    if tr is not None and tr.servo is not servo:  # a servo model evicted and its id reused
+        del _TRANS_CACHE[key]
+    return _remember(_TRANS_CACHE, key,
+                     lambda: Transcription(servo, selection, scheme, N, objective=objective, compiled=compiled))
 
 
 def _equilibrium_solver(model) -> EquilibriumSolver:
-    key = id(model.M)
-    if key not in _EQ_CACHE:
-        _EQ_CACHE[key] = EquilibriumSolver(model)
-    return _EQ_CACHE[key]
+    return _remember(_EQ_CACHE, model_key(model), lambda: EquilibriumSolver(model))
 
 
 class _Progress(ca.Callback):
@@ -117,7 +142,8 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     ys = reference(times)
     W, w = [], None
     for k, t in enumerate(times):
-        X, _ = eq.solve(ys[:, k], guess_q=q0 if w is None else None, guess_w=w, where=f" at t = {t:.4g}{where}")
+        X, _ = eq.solve(ys[:, k], guess_q=q0 if w is None else None, guess_w=w, theta=model.theta_values,
+                        where=f" at t = {t:.4g}{where}")
         w = np.concatenate([X[:n], X[2 * n:]])
         W.append(w)
     W = np.array(W).T
@@ -335,8 +361,10 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
     # exact equilibria (the ends of the quasi-static path are static already, re-solve to be sure)
     eq = _equilibrium_solver(model)
     E0, _ = eq.solve(reference(T0).ravel(), guess_w=np.concatenate([E0[:model.n], E0[2 * model.n:]]),
+                     theta=model.theta_values,
                      where=f" at T0 = {T0}")
     Ef, _ = eq.solve(reference(Tf).ravel(), guess_w=np.concatenate([Ef[:model.n], Ef[2 * model.n:]]),
+                     theta=model.theta_values,
                      where=f" at Tf = {Tf}")
     tc = tr.collocation_times(t_mesh)
     if warm_start is not None:
