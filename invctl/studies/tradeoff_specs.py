@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
@@ -248,13 +248,6 @@ def analysis(scene, params: dict, smoke: bool = False) -> TradeoffSpec:
         error_name="relative excess of the sampled min singular value of Gamma (mean of 5 seeds)")
 
 
-def _own(scene, params, smoke):
-    fn = getattr(scene, "tradeoff_spec", None)
-    if fn is None:
-        raise SceneError("scene has no tradeoff_spec")
-    return fn(params, smoke=smoke)
-
-
 #: scene name -> {job: spec factory(scene_module, params, smoke)}; the first job is the default
 REGISTRY: dict[str, dict[str, Callable[..., TradeoffSpec]]] = {
     "manipulator": {"invert": manipulator_invert, "simulate": manipulator_simulate},
@@ -287,6 +280,3 @@ def spec_for(scene_module, name: str, params: dict, *, smoke: bool = False, job:
     spec.scene = spec.scene or (name if job == next(iter(entry)) else f"{name}_{job}")
     return spec
 
-
-def _describe() -> dict[str, Any]:
-    return {k: list(v) for k, v in REGISTRY.items()}
