@@ -217,6 +217,18 @@ def test_grazing_reference_between_samples_is_found():
     assert fine.peak_force == pytest.approx(coarse.peak_force, rel=1e-6)
 
 
+def test_near_graze_in_lightly_damped_contact_is_not_missed():
+    """ke = 1e8, be = 10: in contact x oscillates (zeta ~ 1e-3) and the last swing only just reaches
+    x = 0 (by ~1e-15 m).  The result must not depend on the sampling density: the crossing is found
+    between samples with 16 as with 128 samples per period (Radau at rtol 1e-10 puts it at 0.2592857 s)."""
+    loop = build_loop(_params(ke=1e8))
+    coarse = simulate_switched(loop, 0.3, samples_per_period=16)
+    fine = simulate_switched(loop, 0.3, samples_per_period=128)
+    assert coarse.event_t.size == fine.event_t.size == 4
+    assert np.allclose(coarse.event_t, fine.event_t, atol=1e-12)
+    assert fine.event_t[-1] == pytest.approx(0.2592857, abs=1e-6)
+
+
 def test_reference_touching_from_below_never_switches():
     ctrl = SwitchedForceController(1.0, 4000, 80, 1, 5)
     # x~_d rises to exactly 0 and stays (asymptotic approach of the filter, no crossing)
