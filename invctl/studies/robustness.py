@@ -81,7 +81,8 @@ def funnel_mismatch(m3: Sequence[float] = (0.8, 1.0, 1.2, 1.5), other: str = "m2
     fn = functools.partial(funnel_point, controller=controller, t_end=t_end)
     res = sweep(fn, grid(m3=list(m3), **{other: list(other_factors)}), executor=executor,
                 max_workers=max_workers, progress=progress, label=f"funnel mismatch {controller}")
-    res.meta.update({"study": "funnel_mismatch", "controller": controller, "axes": "factors on the plant"})
+    res.meta.update({"study": "funnel_mismatch", "controller": controller,
+                     "labels": {"m3": "m3 factor (plant / model)", other: f"{other} factor (plant / model)"}})
     return res
 
 
@@ -114,7 +115,8 @@ def wrist_lambda_map(kt: Sequence[float] = tuple(np.geomspace(1e3, 1e6, 7)),
     fn = functools.partial(wrist_point, **overrides)
     res = sweep(fn, grid(kt=list(kt), bt=list(bt)), executor=executor, max_workers=max_workers,
                 progress=progress, label="wrist Lambda map")
-    res.meta.update({"study": "wrist_lambda_map"})
+    res.meta.update({"study": "wrist_lambda_map", "labels": {"kt": "wrist stiffness kt [N/m]",
+                                                             "bt": "wrist damping bt [Ns/m]"}})
     return res
 
 
@@ -156,7 +158,8 @@ def clearance_grid(e: Sequence[float] = (0.0, 0.25, 0.5, 0.75, 1.0),
     fn = functools.partial(clearance_point, h=h, t_end=t_end)
     res = sweep(fn, grid(e=list(e), c=list(c)), executor=executor, max_workers=max_workers,
                 progress=progress, label="clearance grid")
-    res.meta.update({"study": "clearance_grid", "h": h, "t_end": t_end})
+    res.meta.update({"study": "clearance_grid", "h": h, "t_end": t_end,
+                     "labels": {"e": "restitution e", "c": "clearance c [m]"}})
     return res
 
 

@@ -120,8 +120,8 @@ class SweepResult:
                                  shading="flat", **kwargs)
             ax.set_xticks(np.arange(len(xs)) + 0.5, [f"{x:.3g}" for x in xs], rotation=45)
             ax.set_yticks(np.arange(len(ys)) + 0.5, [f"{y:.3g}" for y in ys])
-            ax.set_xlabel(names[1])
-            ax.set_ylabel(names[0])
+            ax.set_xlabel(self._label(names[1]))
+            ax.set_ylabel(self._label(names[0]))
             ax.figure.colorbar(mesh, ax=ax, label=label)
             if contour is not None and np.isfinite(data).sum() >= 4:
                 level = np.log10(contour) if log else contour
@@ -142,10 +142,14 @@ class SweepResult:
                 ax.legend(loc="best")
             if contour is not None:
                 ax.axhline(np.log10(contour) if log else contour, color="k", lw=1)
-            ax.set_xlabel(names[0] if names else "point")
+            ax.set_xlabel(self._label(names[0]) if names else "point")
             ax.set_ylabel(label)
         ax.set_title(f"{label} ({self.n_failed} failed of {len(self.points)})")
         return ax
+
+    def _label(self, name: str) -> str:
+        """Axis label of a sweep parameter (``meta["labels"]`` may give units or meaning)."""
+        return self.meta.get("labels", {}).get(name, name)
 
     def _order(self, name):
         order = {}
