@@ -120,3 +120,18 @@ def test_scene_without_spec_is_explained(tmp_path):
 def test_unknown_job_is_explained():
     with pytest.raises(SceneError, match="choose one of"):
         spec_for(load_scene("manipulator"), "manipulator", {}, smoke=True, job="pipeline")
+
+
+def test_library_call_returns_the_cli_data(tmp_path, capsys, monkeypatch):
+    from invctl.studies.tradeoff import run_tradeoff
+
+    data = _study("gear_backlash", tmp_path, capsys, monkeypatch)
+    res = run_tradeoff(spec_for(load_scene("gear_backlash"), "gear_backlash", {}, smoke=True), progress=False)
+    lib = res.to_dict()
+    assert lib["reference"] == data["reference"] and lib["knob"] == data["knob"]
+    assert [r["value"] for r in lib["rows"]] == [r["value"] for r in data["rows"]]
+    # errors are deterministic (same compiled loop, same steps); times are not compared
+    np.testing.assert_allclose([r["error"] for r in lib["rows"]], [r["error"] for r in data["rows"]], rtol=1e-12)
+    best = res.recommend(1e-6)
+    assert best is not None and best["error"] <= 1e-6
+    assert best["time_s"] == min(r["time_s"] for r in lib["rows"] if r["error"] <= 1e-6)
