@@ -8,7 +8,7 @@ import pytest
 from invctl.cli import main
 from invctl.errors import ParameterError
 from invctl.simulate.switched import SwitchedSimulation
-from invctl.stability.conewise import lambda_closed_form, lambda_numerical
+from invctl.stability.conewise import lambda_numerical
 from invctl.studies.switched import (design_bt_min, design_kt_max, effective_wall, error_system, lambda_map,
                                      lambda_point, lambda_sweep, visible_region)
 

@@ -15,7 +15,7 @@ from invctl.control.switched import ClosedLoop, CompliantWristPlant, RigidWallPl
 from invctl.errors import ParameterError, ReferenceSignalError, SimulationFailed
 from invctl.reference.gluing import (GluedReference, approach_retract, force_bump, from_callable,
                                      piecewise_polynomial)
-from invctl.simulate.switched import EV_SLIDE, EV_UNSLIDE, SwitchedSimulation, simulate_switched
+from invctl.simulate.switched import EV_UNSLIDE, SwitchedSimulation, simulate_switched
 from invctl.studies.switched import build_loop, simulate_scenario
 
 import problems.compliant_wrist as wrist_scene

@@ -57,23 +57,29 @@ def plot_phase_portrait(report, ax=None, *, n_rot: float = 2.0):
     if ax is None:
         _, ax = plt.subplots(figsize=(5.2, 5))
     s = report.system
-    R = 1.0
     # normalise z2 by sqrt(K1) so both axes are comparable
     sc = math.sqrt(s.K1)
     ax.axhline(0, color="k", lw=0.8)
     if s.dB != 0:
         slope = -s.dK / s.dB
-        z1 = np.linspace(-R, R, 2)
-        ax.plot(z1, slope * z1 / sc, color="k", lw=0.8, label="switching lines")
+        d = np.array([1.0, slope / sc]) / math.hypot(1.0, slope / sc) * 1e3
+        ax.plot([-d[0], d[0]], [-d[1], d[1]], color="k", lw=0.8, label="switching lines")
     else:
         ax.axvline(0, color="k", lw=0.8)
     for i, col in ((1, "tab:blue"), (2, "tab:red")):
         for lam, v in eigenvectors(s, i):
-            v = v / np.hypot(v[0], v[1] / sc)
-            ax.plot([-v[0], v[0]], [-v[1] / sc, v[1] / sc], ":", color=col, label=f"eigvec A{i} (lambda={lam:.3g})")
+            v = np.array([v[0], v[1] / sc]) / np.hypot(v[0], v[1] / sc) * 1e3
+            ax.plot([-v[0], v[0]], [-v[1], v[1]], ":", color=col, label=f"eigvec A{i} (lambda={lam:.3g})")
     T = (report.rotation_period or 0.05) * n_rot
-    ts, zs = worst_case_flow(s, [1.0, 0.0], T, n=2000)
-    ax.plot(zs[:, 0], zs[:, 1] / sc, color="tab:purple", lw=1, label="worst-case trajectory")
+    ts, zs = worst_case_flow(s, [1.0, 0.0], T, n=4000)
+    # angle-preserving radial compression r -> log(1 + r) keeps lines through 0 straight
+    w = np.column_stack([zs[:, 0], zs[:, 1] / sc])
+    r = np.hypot(w[:, 0], w[:, 1])
+    w = w * (np.log1p(r) / np.where(r > 0, r, 1))[:, None] / math.log(2.0)
+    ax.plot(w[:, 0], w[:, 1], color="tab:purple", lw=1, label="worst-case trajectory (radius log-compressed)")
+    lim = 1.05 * max(1.0, np.max(np.abs(w)))
+    ax.set_xlim(-lim, lim)
+    ax.set_ylim(-lim, lim)
     ax.set_xlabel("$z_1$")
     ax.set_ylabel(r"$z_2/\sqrt{K_1}$")
     lam = f"Lambda = {report.Lambda:.4g}" if report.Lambda is not None else "visible eigenvector"
@@ -120,6 +126,7 @@ def plot_lambda_map(kt, bt, lam, visible, ax=None, *, design=None):
         ax.plot(*design, "r*", ms=10, label="design point")
         ax.legend(fontsize=8)
     ax.set_xscale("log")
+    ax.set_yscale("log")
     ax.set_xlabel("kt [N/m]")
     ax.set_ylabel("bt [Ns/m]")
     ax.set_title("Lambda of the reduced wrist model (red: Lambda = 1; hatched: visible eigenvector)", fontsize=9)
