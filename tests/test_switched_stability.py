@@ -237,3 +237,26 @@ def test_statespace_subsystems():
     s = SwitchedErrorSystem.from_params(bf=5.0, **PAPER)
     ss2 = s.statespace(2)
     assert np.allclose(np.sort_complex(ss2.poles()), np.sort_complex(s.eigenvalues(2)))
+
+
+def test_sweep_grid_covers_every_branch_pair():
+    """Deterministic sweep: critical (exact B^2 = 4K), complex and real subsystems in every combination."""
+    import itertools
+
+    seen = set()
+    n = 0
+    for K1, K2f, f1, f2 in itertools.product((4.0, 100.0, 2500.0), (10.0, 1000.0), (1.0, 0.5, 3.0),
+                                             (1.0, 0.3, 1.5, 4.0)):
+        K2 = K1 * K2f
+        B1 = 2 * math.sqrt(K1) * f1
+        B2 = 2 * math.sqrt(K2) * f2
+        s = SwitchedErrorSystem(K1, B1, K2, B2)
+        if visible_eigenvectors(s):
+            assert lambda_numerical(s).visible
+            continue
+        _agree(s)
+        seen.add((s.damping_case(1), s.damping_case(2)))
+        n += 1
+    cases = ("complex", "critical", "real")
+    assert seen == set(itertools.product(cases, cases)), seen
+    assert n >= 20
