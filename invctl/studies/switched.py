@@ -257,13 +257,19 @@ def analyze_command(scene, params: dict, *, samples: int = 200, **options):
     s = error_system(p)
     rep = analyze(s, with_iss=True, n_angles=min(int(samples), 720))
     head = f"scene {scene_name(scene)}: switched motion/force control against a stiff wall (002)"
+    data = rep.to_dict()
     if is_wrist(p):
         ke_bar, be_bar = effective_wall(p["kt"], p["bt"], p["ke"])
         head += (f"\n  compliant wrist analysed by its reduced model (27)-(28): ke_bar = {ke_bar:.6g} N/m, "
                  f"be_bar = {be_bar:.6g} Ns/m")
-    data = rep.to_dict()
-    if is_wrist(p):
-        data.update({"ke_bar": ke_bar, "be_bar": be_bar})
+        # time-scale separation (26) on which the reduction rests
+        ratios = {"Mt/M": p["Mt"] / p["M"], "kt/ke": p["kt"] / p["ke"],
+                  "be/bt": p["be"] / p["bt"] if p["bt"] > 0 else math.inf, "bt/ke [s]": p["bt"] / p["ke"]}
+        weak = [f"{k} = {v:.3g}" for k, v in ratios.items() if v > 0.1]
+        head += "\n  assumptions (26): " + ", ".join(f"{k} = {v:.3g}" for k, v in ratios.items())
+        if weak:
+            head += f"\n  WARNING: (26) is not well satisfied ({', '.join(weak)}): the reduced model may be inaccurate"
+        data.update({"ke_bar": ke_bar, "be_bar": be_bar, "assumptions_26": ratios, "reduction_ok": not weak})
     return CommandResult(head + "\n" + rep.summary(), data)
 
 
@@ -344,15 +350,19 @@ def design_command(scene, params: dict, *, plot=None, **options):
         q = lambda_point(p)
         data.update({"Lambda": None if q.visible else q.Lambda, "visible_eigenvector": q.visible,
                      "guas": q.guas, "kt": p["kt"], "bt": p["bt"], "bf": p["bf"]})
+        bt_txt = (f"GUAS already at the lower end of the search, bt = {bt_min:.6g}" if bt_min <= 1.0 else
+                  f"bt_min = {bt_min:.8g} Ns/m (numerical return map: {data['bt_min_numerical']:.8g})")
+        kt_txt = (f"GUAS up to the end of the search, kt = {data['kt_max']:.6g} N/m" if data["kt_max"] >= 1e9 else
+                  f"kt_max = {data['kt_max']:.8g} N/m (numerical: {data['kt_max_numerical']:.8g})")
         lines += [
             f"  at kt = {p['kt']:.6g} N/m, bf = {p['bf']:.6g} Ns/m: smallest wrist damping bt with Lambda < 1: "
-            f"bt_min = {bt_min:.8g} Ns/m (numerical return map: {data['bt_min_numerical']:.8g})",
-            f"  at bt = {p['bt']:.6g} Ns/m: largest wrist stiffness kt with GUAS: kt_max = {data['kt_max']:.8g} N/m "
-            f"(numerical: {data['kt_max_numerical']:.8g})",
+            + bt_txt,
+            f"  at bt = {p['bt']:.6g} Ns/m: largest wrist stiffness kt with GUAS: " + kt_txt,
             "  bounce-free (visible stable eigenvector) from bt = "
             + (f"{data['bt_visible']:.8g} Ns/m" if data["bt_visible"] is not None else
-               "-- none for bt in [1, 1e6] at this kt (A_1 has complex eigenvalues and the contact "
-               "eigenvectors never enter S_2)"),
+               "-- none for bt in [1, 1e6] at this kt"
+               + (" (A_1 has complex eigenvalues, and no real contact eigenvector enters S_2)"
+                  if error_system(p).damping_case(1) == "complex" else "")),
             f"  design point bt = {p['bt']:.6g}: " + ("visible eigenvector" if q.visible else
                                                       f"Lambda = {q.Lambda:.6g}") + f", GUAS {q.guas}",
         ]
