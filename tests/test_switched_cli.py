@@ -10,7 +10,7 @@ from invctl.errors import ParameterError
 from invctl.simulate.switched import SwitchedSimulation
 from invctl.stability.conewise import lambda_numerical
 from invctl.studies.switched import (design_bt_min, design_kt_max, effective_wall, error_system, lambda_map,
-                                     lambda_point, lambda_sweep, visible_region)
+                                     lambda_point, lambda_sweep, reduction_check, visible_region)
 
 import problems.compliant_wrist as wrist
 import problems.stiff_wall as wall
@@ -141,3 +141,19 @@ def test_design_kt_max_is_border():
     kt = design_kt_max(p)
     assert lambda_point({**p, "kt": kt * 0.999}).guas and not lambda_point({**p, "kt": kt * 1.001}).guas
     assert math.isfinite(design_bt_min(p))
+
+
+def test_reduction_check_poles():
+    # rigid wall: the closed loop is the error system itself
+    rc = reduction_check(wall.build().params)
+    assert rc["free"]["rel_error"] < 1e-12 and rc["contact"]["rel_error"] < 1e-12
+    # wrist at the paper's design: slow poles of the 4-state loop within 5 % of (27)-(28)
+    rc = reduction_check(wrist.build().params)
+    assert rc["free"]["rel_error"] < 0.05 and rc["contact"]["rel_error"] < 0.05
+    # much more wrist damping: mu4 = (bt + be)/(kt + ke) no longer small for the contact pole
+    assert reduction_check(wrist.build(bt=500.0).params)["contact"]["rel_error"] > 0.1
+
+
+def test_analyze_wrist_warns_when_reduction_is_poor(capsys):
+    rc, d, out = _run(capsys, "analyze", "compliant_wrist", "--set", "bt=500", "--json", "--samples", "16")
+    assert rc == 0 and d["reduction_ok"] is False and "WARNING" in out.out
