@@ -325,3 +325,79 @@ def test_result_save_load_and_plot(tmp_path):
     axes = sim.plot()
     assert len(axes) == 2
     assert "peak contact force" in sim.summary()
+
+
+def ivp_wrist(p, ref, t_end, rtol=1e-11):
+    """Independent integration of (24)-(25), (2), (3) with the wall at x_t = 0 and (3) switched at x = 0."""
+    M, b, Mt, kt, bt, ke, be = (p[k] for k in ("M", "b", "Mt", "kt", "bt", "ke", "be"))
+    Ma, kp, kd, kf, bf = (p[k] for k in ("Ma", "kp", "kd", "kf", "bf"))
+    kh, bh, g1, g2 = ref.ke_hat, ref.be_hat, ref.gamma1, ref.gamma2
+    xp, Fp = ref.x_profile, ref.F_profile
+    (tc, tb), = ref.contact_intervals
+
+    def rhs(t, y, phase, tip_in, arm_in):
+        x, v, xt, vt, xd, xdv, y1, y1v = y
+        if phase:
+            xdd = -(kh / bh) * xdv + y1v / bh
+            y1dd = -2 * g1 * y1v - g1 * g1 * (y1 - Fp(t))
+            Fd = y1
+        else:
+            xdd = -2 * g2 * xdv - g2 * g2 * (xd - xp(t))
+            y1dd, y1v = 0.0, 0.0
+            Fd = kh * xd + bh * xdv
+        Fe = ke * xt + be * vt if tip_in else 0.0
+        Ft = kt * (x - xt) + bt * (v - vt)
+        Fc = (1 + kf) * Fd - kf * Fe - bf * v if arm_in else Ma * xdd + kd * (xdv - v) + kp * (xd - x)
+        return [v, (Fc - Ft - b * v) / M, vt, (Ft - Fe) / Mt, xdv, xdd, y1v, y1dd]
+
+    def tip(t, y, *a):
+        return y[2]
+
+    def arm(t, y, *a):
+        return y[0]
+
+    tip.terminal = arm.terminal = True
+    u0 = xp(0.0), xp(0.0, 1)
+    y = np.array([u0[0], u0[1], u0[0], u0[1], u0[0], u0[1], 0.0, 0.0])
+    breaks = sorted({x for x in {0.0, tc, tb, t_end} if x <= t_end}
+                    | {float(k) for k in np.r_[xp.x, Fp.x] if 0 < k < t_end})
+    events = []
+    tip_in = arm_in = False
+    for a, c in zip(breaks[:-1], breaks[1:]):
+        phase = tc <= a < tb
+        if a == tc:
+            xdd = -2 * g2 * y[5] - g2 * g2 * (y[4] - xp(a))
+            y[6], y[7] = kh * y[4] + bh * y[5], kh * y[5] + bh * xdd
+        t = a
+        while t < c:
+            sol = solve_ivp(rhs, (t, c), y, method="DOP853", rtol=rtol, atol=1e-15,
+                            args=(phase, tip_in, arm_in), events=(tip, arm), max_step=(c - t) / 4)
+            y, t = sol.y[:, -1].copy(), sol.t[-1]
+            if sol.status == 1:
+                which = 0 if len(sol.t_events[0]) else 1
+                events.append((t, which))
+                if which == 0:
+                    tip_in, y[2] = not tip_in, 0.0
+                else:
+                    arm_in, y[0] = not arm_in, 0.0
+                sol2 = solve_ivp(rhs, (t, min(c, t + 1e-9)), y, method="DOP853", rtol=rtol, atol=1e-15,
+                                 args=(phase, tip_in, arm_in))
+                y, t = sol2.y[:, -1].copy(), sol2.t[-1]
+    return events, y
+
+
+def test_wrist_simulation_matches_independent_integration():
+    p = wrist_scene.build().params
+    sim = simulate_scenario(p, t_end=0.33)
+    events, y_end = ivp_wrist(p, build_loop(p).reference, 0.33)
+    assert sim.event_t.size == len(events)
+    assert np.allclose(sim.event_t, [e[0] for e in events], atol=1e-8)
+    assert list(sim.event_surface) == [e[1] for e in events]  # surface 0: tip/wall, 1: arm/controller
+    assert sim.x[-1] == pytest.approx(y_end[0], abs=1e-10) and sim.xt[-1] == pytest.approx(y_end[2], abs=1e-10)
+
+
+def test_csv_export(tmp_path):
+    sim = simulate_scenario(_params(), t_end=0.2)
+    sim.to_csv(tmp_path / "sim.csv")
+    data = np.genfromtxt(tmp_path / "sim.csv", delimiter=",", names=True)
+    assert np.allclose(data["t"], sim.t) and np.allclose(data["Fe"], sim.Fe)

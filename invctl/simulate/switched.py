@@ -106,6 +106,13 @@ class SwitchedSimulation:
         data["meta"] = np.asarray(json.dumps(self.meta, default=float))
         np.savez_compressed(path, **data)
 
+    def to_csv(self, path) -> None:
+        """Sampled signals as CSV (one row per sample; events and scores are in :meth:`to_npz`)."""
+        cols = ["t", "x", "v"] + (["xt", "vt"] if self.xt.size else []) + \
+            ["xd", "xd_dot", "Fd", "Fd_desired", "Fe", "Fc", "wall", "ctrl", "intended"]
+        data = np.column_stack([np.asarray(getattr(self, c), float) for c in cols])
+        np.savetxt(path, data, delimiter=",", header=",".join(cols), comments="", fmt="%.17g")
+
     @classmethod
     def from_npz(cls, path) -> "SwitchedSimulation":
         with np.load(path, allow_pickle=False) as f:
