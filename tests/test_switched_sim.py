@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
 from invctl.control.switched import ClosedLoop, CompliantWristPlant, RigidWallPlant, SwitchedForceController
@@ -401,3 +403,16 @@ def test_csv_export(tmp_path):
     sim.to_csv(tmp_path / "sim.csv")
     data = np.genfromtxt(tmp_path / "sim.csv", delimiter=",", names=True)
     assert np.allclose(data["t"], sim.t) and np.allclose(data["Fe"], sim.Fe)
+
+
+@settings(max_examples=5, deadline=None)
+@given(bf=st.floats(1.0, 2e4), ke=st.floats(1e4, 1e6), be=st.floats(0.1, 100.0), v_app=st.floats(0.005, 0.05))
+def test_random_parameters_match_independent_integration(bf, ke, be, v_app):
+    """Property: for random wall, damping and approach speed, the exact simulation finds the same
+    switches as the independent integration (be_hat fixed at 10 keeps the RK reference affordable)."""
+    p = _params(bf=bf, ke=ke, be=be, v_app=v_app, be_hat=10.0)
+    sim = simulate_scenario(p, t_end=0.3)
+    ev, _ = ivp_reference(p, build_loop(p).reference, 0.3)
+    assert sim.event_t.size == ev.size
+    assert np.allclose(sim.event_t, ev, atol=1e-7)
+    assert np.all(np.isfinite(sim.Fe))
