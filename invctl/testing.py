@@ -3,8 +3,9 @@
 ``assert_inverts(model, inverse, reference, tol)`` forward-simulates ``model``
 under the feedforward of ``inverse`` from the inverse's state at ``t0`` and
 checks ``max |y - y_ref| <= tol`` (see :func:`invctl.inversion.forward_check`
-for the integrator -- scipy DOP853 on the index-1 ODE of
-``model.accel_and_multipliers``, no code shared with the collocation -- and for
+for the integrator -- CasADi CVODES (or scipy DOP853 with ``method="DOP853"``)
+on the index-1 ODE of ``model.accel_and_multipliers``, no code shared with the
+collocation -- and for
 the windowed restarts used when the open-loop model is unstable).
 """
 from __future__ import annotations
@@ -29,7 +30,7 @@ def assert_inverts(model, inverse, reference, tol: float = 1e-6, **options) -> d
         Largest accepted ``max_t |y(t) - y_ref(t)|_inf`` on ``[t0, tf + 10 %]``.
     **options
         Passed to :func:`invctl.inversion.forward_check` (``t_start``, ``t_end``,
-        ``window``, ``max_gain``, ``rtol``, ``atol``).
+        ``window``, ``max_gain``, ``rtol``, ``atol``, ``method``).
 
     Returns
     -------
