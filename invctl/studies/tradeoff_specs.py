@@ -7,8 +7,8 @@ measures the error against an independent, finely resolved reference:
 
 * ``manipulator`` (job ``invert``, default): collocation scheme and mesh size of
   the servo-constraint inversion; error = forward-check output error (a tight
-  DOP853 simulation of the model under ``u_ff`` that shares no code with the
-  collocation), time = NLP build + solve.
+  CVODES simulation of the model under ``u_ff`` that shares no code with the
+  collocation equations), time = NLP build + solve.
 * ``manipulator`` (job ``simulate``): CVODES tolerance ``rtol`` (``atol =
   rtol / 100``) of the compiled C1 closed loop (feedforward + funnel, m3 x 1.2
   plant); error = max output deviation from the same loop at ``rtol = 1e-12``.
@@ -72,8 +72,9 @@ def manipulator_invert(scene, params: dict, smoke: bool = False) -> TradeoffSpec
 
     return TradeoffSpec(
         knob="scheme,N", values=values, run=run,
-        reference="forward check: the reference model simulated under u_ff with DOP853 (rtol = atol = 1e-12, "
-                  "windowed against the unstable internal mode), no code shared with the collocation",
+        reference="forward check (invctl.inversion.forward_check): the reference model simulated under u_ff by "
+                  "CVODES (rtol = atol = 1e-12, windowed against the unstable internal mode) from the inverse "
+                  "state at t0, no code shared with the collocation equations",
         error_name="forward-check output error max|y - y_ref| [m, rad]", repeat=False)
 
 
