@@ -74,6 +74,13 @@ def test_ipopt_and_newton_agree(model, ref):
     assert a.diagnostics["iterations"] <= 20
     # the same square system solved two ways: agree to the solvers' tolerances
     np.testing.assert_allclose(a.X_mesh, b.X_mesh, atol=1e-7)
+    # IPOPT's default on square systems (exact zero Hessian, MUMPS without scaling) against the
+    # limited-memory Hessian with IPOPT's own MUMPS defaults: the same Newton iterates
+    c = invert_scene(scene, model=model, reference=ref, N=60, backend="ipopt", ipopt_options={
+        "ipopt.hessian_approximation": "limited-memory", "ipopt.mumps_scaling": 77,
+        "ipopt.mumps_permuting_scaling": 7, "ipopt.mumps_pivot_order": 7, "ipopt.nlp_scaling_method": "gradient-based"})
+    assert c.diagnostics["status"] == "Solve_Succeeded"
+    np.testing.assert_allclose(a.X_mesh, c.X_mesh, atol=1e-7)
 
 
 def test_convergence_order_hermite_simpson(model, ref):

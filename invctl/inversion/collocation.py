@@ -281,13 +281,27 @@ class Transcription:
                                      {"custom_jacobian": jac, "jac_penalty": 0})
         return self._gfun
 
-    def ipopt(self, options: dict, *, assembled_jacobian: bool = True) -> ca.Function:
-        """The IPOPT solver for these options (built once per option set)."""
-        key = repr((sorted((k, repr(v)) for k, v in options.items()), assembled_jacobian))
+    def ipopt(self, options: dict, *, assembled_jacobian: bool = True, zero_hessian: bool = False) -> ca.Function:
+        """The IPOPT solver for these options (built once per option set).
+
+        ``zero_hessian`` (square systems): hand IPOPT an exact, constant, structurally
+        empty Hessian of the Lagrangian.  The primal step of a square system solves
+        ``J dx = -g`` whatever the Hessian, and the KKT matrix ``[0 J^T; J 0]`` has the
+        inertia IPOPT wants when ``J`` is nonsingular, so this is Newton's method with
+        none of the limited-memory machinery (one sparse factorization per iteration).
+        """
+        key = repr((sorted((k, repr(v)) for k, v in options.items()), assembled_jacobian, zero_hessian))
         if key not in self._solvers:
             g = self._g_function()(self._x, self._p) if (assembled_jacobian and self.square) else self.g
             nlp = {"x": self._x, "p": self._p, "f": self.f, "g": g}
-            self._solvers[key] = ca.nlpsol("servo_bvp", "ipopt", nlp, options)
+            opts = dict(options)
+            if zero_hessian:
+                lf, lg = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
+                opts["hess_lag"] = ca.Function("zero_hess_lag", [self._x, self._p, lf, lg],
+                                               [ca.MX(self.nX, self.nX)], ["x", "p", "lam_f", "lam_g"],
+                                               ["triu_hess_gamma_x_x"])
+                opts["ipopt.hessian_constant"] = "yes"
+            self._solvers[key] = ca.nlpsol("servo_bvp", "ipopt", nlp, opts)
         return self._solvers[key]
 
     # ------------------------------------------------ assembled residual and Jacobian
