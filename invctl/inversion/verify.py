@@ -81,10 +81,14 @@ def _integrator(model, alpha: float, degree: int, t0: float, grid: tuple, rtol: 
                           "max_num_steps": 200000})
 
 
-def _poly_degree(inverse) -> int:
+def _poly_degree(inverse) -> int | None:
+    """Degree of the pieces of ``inverse.u`` between its ``t_mesh`` points (``None``: unknown)."""
+    deg = getattr(inverse, "poly_degree", None)
+    if deg is not None:
+        return int(deg)
     sch = getattr(inverse, "_scheme", None)
-    if sch is None:
-        return 5
+    if sch is None or getattr(inverse, "t_mesh", None) is None:
+        return None
     return 3 if sch.is_hs else max(1, int(sch.degree))
 
 
@@ -101,11 +105,11 @@ def _piecewise_controls(inverse, grid: np.ndarray, degree: int) -> np.ndarray:
 
 
 def _simulate_window(model, inverse, a, b, x0, th, *, method, rtol, atol, alpha, samples):
-    tm = np.asarray(getattr(inverse, "t_mesh", []), float)
     tt = np.linspace(a, b, samples)
-    if method == "cvodes":
+    deg = _poly_degree(inverse)
+    if method == "cvodes" and deg is not None:
+        tm = np.asarray(inverse.t_mesh, float)
         grid = np.unique(np.concatenate([tt, tm[(tm > a) & (tm < b)]]))
-        deg = _poly_degree(inverse)
         F = _integrator(model, float(alpha), deg, float(a), tuple(grid[1:]), float(rtol), float(atol))
         try:
             res = F(x0=x0, u=_piecewise_controls(inverse, grid, deg), p=th)
@@ -114,7 +118,7 @@ def _simulate_window(model, inverse, a, b, x0, th, *, method, rtol, atol, alpha,
         X = np.hstack([x0[:, None], np.array(res["xf"])])
         keep = np.isin(grid, tt)
         return grid[keep], X[:, keep], None
-    if method != "DOP853":
+    if method not in ("cvodes", "DOP853"):
         raise ValueError(f"method must be 'cvodes' or 'DOP853', got {method!r}")
     rhs, _jac, _out = _forward_functions(model, float(alpha))
 
@@ -134,6 +138,11 @@ def forward_check(model, inverse, reference, *, t_start: float | None = None, t_
 
     Parameters
     ----------
+    inverse : Inverse or duck-typed object
+        Needs ``q(t)``, ``v(t)``, ``u(t)``, ``t0``, ``Tf``.  CVODES needs the pieces of
+        ``u``: ``t_mesh`` (breakpoints) and the polynomial degree between them (from the
+        :class:`Inverse`'s scheme, or an attribute ``poly_degree``); without them the
+        check falls back to DOP853.
     method : {"cvodes", "DOP853"}
         CasADi CVODES (BDF) with the compiled right-hand side and the feedforward as
         exact piecewise polynomials (default), or scipy's DOP853 with a Python
@@ -174,5 +183,6 @@ def forward_check(model, inverse, reference, *, t_start: float | None = None, t_
         ts.append(tt)
         ys.append(y)
         yrs.append(yr)
+    used = method if _poly_degree(inverse) is not None else "DOP853"
     return {"error": worst, "t_worst": t_worst, "window": float(window), "windows": nwin, "rate": rate,
-            "method": method, "t": np.concatenate(ts), "y": np.hstack(ys), "y_ref": np.hstack(yrs)}
+            "method": used, "t": np.concatenate(ts), "y": np.hstack(ys), "y_ref": np.hstack(yrs)}
