@@ -256,3 +256,43 @@ def test_rebuilt_model_with_other_parameters_shares_the_nlp(model, ref):
     base = invert_scene(scene, model=model, reference=ref, N=80, backend="newton")
     assert np.max(np.abs(a.u(np.linspace(0, 1, 50)) - base.u(np.linspace(0, 1, 50)))) > 1e-2
     assert_inverts(heavy, a, scene.reference(heavy), tol=1e-5)
+
+
+def test_paper_selection_is_rank_deficient_in_the_stabilized_formulation(model, ref):
+    # 003 Sect. 6 fixes lam2 and u at Tf. With every unknown differentiated and the invariants
+    # Baumgarte-stabilized, the linearized inverse model at the equilibria has 12 drift modes (rate
+    # -omega) + the stable internal mode (-19.6/s) decaying forward and one growing mode (+24.4/s):
+    # 13 conditions belong at T0 and 1 at Tf. On the 2-dim tangent space of the invariant manifold at
+    # Tf the paper's 4 end conditions have rank 2 (2 exactly redundant), on the growing mode rank 1.
+    from invctl.inversion import dichotomy
+    from invctl.inversion.collocation import get_scheme
+    from invctl.inversion.solve import transcription
+
+    sv = servo_model(model)
+    inv = invert_scene(scene, model=model, reference=ref, N=40, backend="newton")
+    Y = sv.reference_samples(ref, np.array([inv.T0, inv.Tf]))
+    E0, Ef = inv.X(inv.T0)[:, 0], inv.X(inv.Tf)[:, 0]
+    paper = resolve_selection(sv, scene.BOUNDARY_PAPER["start"], scene.BOUNDARY_PAPER["end"])
+    ours = resolve_selection(sv, scene.BOUNDARY["start"], scene.BOUNDARY["end"])
+    dp = dichotomy(sv, paper, E0, Y[:, :1], Ef, Y[:, 1:], model.theta_values)
+    do = dichotomy(sv, ours, E0, Y[:, :1], Ef, Y[:, 1:], model.theta_values)
+    assert (dp["decaying"], dp["growing"], dp["neutral"], dp["tangent_dim"]) == (13, 1, 0, 2)
+    assert (dp["n_start"], dp["rank_start"], dp["n_end"], dp["rank_end"], dp["rank_end_tangent"]) == (10, 10, 4, 1, 2)
+    assert dp["well_posed"] is False and do["well_posed"] is True
+    # independent of the mode analysis: the collocation Jacobian at the solution with the paper's
+    # boundary rows in place of ours is numerically singular (3 singular values ~exp(-rate*3 s)),
+    # ours is not
+    tr = transcription(sv, ours, get_scheme("hermite-simpson"), 40, 0.0, compiled=False)
+    x = tr.pack(inv.X(inv.t_mesh), None)
+    p = tr.parameters(inv.t_mesh, sv.reference_samples(ref, tr.sample_times(inv.t_mesh)), model.theta_values, E0, Ef)
+    J = tr.residual_and_jacobian(x, p)[1].toarray()
+    nb = sv.layout.nx
+    rows = np.zeros((nb, J.shape[1]))
+    rows[np.arange(10), list(paper.start)] = 1.0
+    rows[10 + np.arange(4), [40 * nb + i for i in paper.end]] = 1.0
+    s_ours = np.linalg.svd(J, compute_uv=False)
+    s_paper = np.linalg.svd(np.vstack([J[:-nb], rows]), compute_uv=False)
+    assert s_ours[-1] / s_ours[0] > 1e-8
+    assert s_paper[-1] / s_paper[0] < 1e-12 and s_paper[-3] / s_paper[0] < 1e-9
+    with pytest.raises(BoundaryConditionError, match="13 modes that decay forward"):
+        invert_scene(scene, model=model, reference=ref, N=40, backend="newton", **scene.BOUNDARY_PAPER)

@@ -102,10 +102,84 @@ def resolve_selection(servo, start, end, *, allow_underdetermined: bool = False)
             f"003 (36) needs n0 + nf = 2n + l + p + m = 2*{L.n} + {L.l} + {L.p} + {L.m} = {need} boundary "
             f"conditions, the selection has {have} ({len(s)} at T0 + {len(e)} at Tf; per block start+end: "
             f"{detail}); {what} {abs(need - have)} condition(s). Each entry of (q, v, lam, mu, u) fixed at T0 "
-            "or at Tf counts once; fix the unstable internal modes at T0 and the stable ones at Tf"
+            "or at Tf counts once; fix the modes that decay forward (constraint drift, stable internal dynamics) at "
+            "T0 and the growing ones (unstable internal dynamics) at Tf"
             + ("" if have > need else " (or pass allow_underdetermined=True with an objective)"),
             diagnostics={"required": need, "given": have, "start": len(s), "end": len(e)})
     return Selection(tuple(s), tuple(e), labels)
+
+
+def dichotomy(servo, selection: Selection, X0, Y0, Xf, Yf, theta, *, neutral: float = 1e-3) -> dict:
+    """Check a boundary selection against the modes of the index-reduced inverse model.
+
+    Before ``t0`` and after ``tf`` the reference is at rest and the inverse model
+    ``X' = F(X, t)`` (all ``2n+l+p+m`` unknowns differentiated) linearized at the
+    equilibria ``X0``, ``Xf`` is time invariant.  A two-point BVP on a long horizon is
+    well conditioned exactly when the conditions at ``T0`` fix every mode that decays
+    forward and those at ``Tf`` every mode that grows (exponential dichotomy): with
+    Baumgarte stabilization the ``2(l+m) + (l+p+m)`` constraint-drift modes decay
+    (rate ``omega``), the internal (zero) dynamics split into stable and unstable modes.
+    Conditions at ``Tf`` on entries that the constraint invariants determine (``lam``,
+    ``u``, the constrained coordinates) act only on the ``2(n-l-m) - p`` dimensional
+    tangent space of the invariant manifold, and on its decaying part only through
+    ``exp(-rate (Tf - T0))``: they are redundant, and the Jacobian is singular up to
+    that exponential.
+
+    Returns
+    -------
+    dict
+        ``decaying``, ``growing``, ``neutral`` (mode counts), ``n_start``, ``n_end``,
+        ``rank_start`` (rank of the ``T0`` conditions on the decaying subspace at
+        ``X0``), ``rank_end`` (of the ``Tf`` conditions on the growing subspace at
+        ``Xf``), ``tangent_dim``, ``rank_end_tangent`` (rank of the ``Tf`` conditions on
+        the tangent space of the invariant manifold at ``Xf``), ``well_posed`` (``None``
+        when neutral modes make the criterion inapplicable, e.g. unstabilized
+        index reduction), ``eigenvalues_start``, ``eigenvalues_end``.
+    """
+    import scipy.linalg as sla
+
+    nx = servo.layout.nx
+    S0 = np.eye(nx)[list(selection.start)]
+    Sf = np.eye(nx)[list(selection.end)]
+    A0 = np.array(servo.rhs_jac(X0, Y0, theta)[1])
+    Af = np.array(servo.rhs_jac(Xf, Yf, theta)[1])
+    ev0, evf = np.linalg.eigvals(A0), np.linalg.eigvals(Af)
+    dec, grow = int(np.sum(ev0.real < -neutral)), int(np.sum(evf.real > neutral))
+    neut = int(max(np.sum(np.abs(ev0.real) <= neutral), np.sum(np.abs(evf.real) <= neutral)))
+    Zs = sla.schur(A0, output="real", sort=lambda re, im: re < -neutral)[1][:, :dec]
+    Zu = sla.schur(Af, output="real", sort=lambda re, im: re > neutral)[1][:, :grow]
+
+    def rank(M):
+        if M.size == 0:
+            return 0
+        sv = np.linalg.svd(M, compute_uv=False)
+        return int(np.sum(sv > 1e-8 * max(1.0, sv[0])))
+
+    Xs = ca.SX.sym("X", nx)
+    pos, vel, acc = servo.residuals(Xs, Yf, theta)
+    C = np.array(ca.Function("inv_jac", [Xs], [ca.jacobian(ca.vertcat(pos, vel, acc), Xs)])(Xf))
+    T = sla.null_space(C) if C.size else np.eye(nx)
+    out = {"decaying": dec, "growing": grow, "neutral": neut, "n_start": S0.shape[0], "n_end": Sf.shape[0],
+           "rank_start": rank(S0 @ Zs), "rank_end": rank(Sf @ Zu), "tangent_dim": T.shape[1],
+           "rank_end_tangent": rank(Sf @ T), "eigenvalues_start": ev0, "eigenvalues_end": evf}
+    out["well_posed"] = None if neut else bool(
+        out["n_start"] == dec and out["n_end"] == grow and out["rank_start"] == dec and out["rank_end"] == grow)
+    return out
+
+
+def explain_dichotomy(d: dict, selection: Selection) -> str:
+    """A readable explanation of a :func:`dichotomy` report for a failed check."""
+    return (f"boundary selection ({selection.describe()}) does not match the modes of the inverse model: "
+            f"linearized at the equilibria it has {d['decaying']} modes that decay forward in time (constraint-drift "
+            f"modes of the stabilized index reduction and the stable internal dynamics; they must be fixed at T0) "
+            f"and {d['growing']} that grow (unstable internal dynamics; fixed at Tf). The selection has {d['n_start']} "
+            f"conditions at T0 (rank {d['rank_start']} on the decaying modes) and {d['n_end']} at Tf (rank "
+            f"{d['rank_end']} on the growing modes; rank {d['rank_end_tangent']} on the {d['tangent_dim']}-dimensional "
+            f"tangent space of the constraint manifold, so {d['n_end'] - d['rank_end_tangent']} of them are redundant "
+            f"there: lam, u and constrained coordinates at Tf are fixed by the invariants). The collocation Jacobian "
+            f"is singular up to exp(-rate (Tf - T0)). Move conditions to T0 until it has {d['decaying']} and Tf has "
+            f"{d['growing']} (e.g. all of q, lam, u and the velocities of the constrained coordinates at T0, the "
+            "unstable internal coordinate at Tf), or use formulation='jerk' (no stabilization, ill-conditioned)")
 
 
 class EquilibriumSolver:

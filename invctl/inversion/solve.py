@@ -17,8 +17,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
-from ..errors import InversionFailed, ReferenceSignalError
-from .boundary import EquilibriumSolver, resolve_selection
+from ..errors import BoundaryConditionError, InversionFailed, ReferenceSignalError
+from .boundary import EquilibriumSolver, dichotomy, explain_dichotomy, resolve_selection
 from .collocation import Transcription, get_scheme
 from .result import Inverse
 from .servo import ServoModel
@@ -376,6 +376,13 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
     Ef, _ = eq.solve(reference(Tf).ravel(), guess_w=np.concatenate([Ef[:model.n], Ef[2 * model.n:]]),
                      theta=model.theta_values,
                      where=f" at Tf = {Tf}")
+    dich = None
+    if not under:
+        Yends = servo.reference_samples(reference, np.array([T0, Tf]))
+        dich = dichotomy(servo, sel, E0, Yends[:, :1], Ef, Yends[:, 1:], model.theta_values)
+        if dich["well_posed"] is False:
+            raise BoundaryConditionError(explain_dichotomy(dich, sel), diagnostics={
+                k: v for k, v in dich.items() if not k.startswith("eigenvalues")})
     tc = tr.collocation_times(t_mesh)
     if warm_start is not None:
         x0 = tr.pack(warm_start.X(t_mesh), warm_start.X(tc) if tc.size else None)
@@ -407,6 +414,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
         "build_s": build_s, "solve_s": solve_s, "guess_s": guess_s, "unknowns": tr.nX, "equations": tr.ng,
         "selection": sel.describe(), "T0": T0, "Tf": Tf, "residuals": res, "continuation": cont_info,
         "compiled": tr.compiled,
+        "dichotomy": None if dich is None else {k: v for k, v in dich.items() if not k.startswith("eigenvalues")},
     })
     if not info["success"]:
         raise InversionFailed(
