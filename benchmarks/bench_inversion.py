@@ -19,6 +19,7 @@ from scipy.integrate import solve_bvp, solve_ivp
 
 import problems.manipulator as scene
 from invctl.inversion import forward_check, invert_scene, quasi_static_guess, resolve_selection, servo_model
+from invctl.inversion import compiled as _compiled_mod
 from invctl.inversion import solve as _solve_mod
 
 QUICK = "--quick" in sys.argv
@@ -32,6 +33,8 @@ def clear_caches():
     _solve_mod._TRANS_CACHE.clear()
     _solve_mod._SERVO_CACHE.clear()
     _solve_mod._EQ_CACHE.clear()
+    _solve_mod._QS_LAST.clear()
+    _compiled_mod._NAMES.clear()
 
 
 class SplineInverse:

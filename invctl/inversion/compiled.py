@@ -30,9 +30,21 @@ def compiler() -> str | None:
     return shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
 
 
+_NAMES: dict = {}
+
+
 def _name(fn: ca.Function, flags) -> str:
+    """Cache name from the serialization (memoized per function object: serializing the
+    right-hand-side Jacobian costs ~10 ms)."""
+    hit = _NAMES.get((id(fn), tuple(flags)))
+    if hit is not None and hit[0] is fn:
+        return hit[1]
     key = hashlib.sha1((fn.serialize() + " ".join(flags)).encode()).hexdigest()[:16]
-    return f"{fn.name()}_{key}"
+    name = f"{fn.name()}_{key}"
+    if len(_NAMES) > 256:
+        _NAMES.clear()
+    _NAMES[(id(fn), tuple(flags))] = (fn, name)
+    return name
 
 
 def is_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> bool:

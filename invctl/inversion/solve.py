@@ -26,6 +26,7 @@ from .servo import ServoModel
 _SERVO_CACHE: dict = {}
 _TRANS_CACHE: dict = {}
 _EQ_CACHE: dict = {}
+_QS_LAST: dict = {}
 
 IPOPT_DEFAULTS = {
     "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
@@ -365,7 +366,13 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
     t_guess = time.perf_counter()
     q0 = q_guess if q_guess is not None else np.zeros(model.n)
     qs_times = np.unique(np.concatenate([np.linspace(T0, Tf, 41), np.linspace(reference.t0, reference.tf, 81)]))
-    G = quasi_static_guess(model, reference, qs_times, q0, servo=servo)
+    last = _QS_LAST.get("entry")
+    if (last is not None and last[0] is model and last[1] is reference and last[2] == (T0, Tf)
+            and np.array_equal(last[3], q0)):
+        G = last[4]  # mesh refinement: same model, reference and horizon
+    else:
+        G = quasi_static_guess(model, reference, qs_times, q0, servo=servo)
+        _QS_LAST["entry"] = (model, reference, (T0, Tf), np.array(q0, float), G)
     E0 = np.concatenate([G[:model.n, 0], np.zeros(model.n), G[2 * model.n:, 0]])
     Ef = np.concatenate([G[:model.n, -1], np.zeros(model.n), G[2 * model.n:, -1]])
     # exact equilibria (the ends of the quasi-static path are static already, re-solve to be sure)
