@@ -263,8 +263,9 @@ class Transcription:
                         M = np.eye(nx) if j == d + 1 else -D[j] * np.eye(nx)
                     vals.append(ca.DM(np.tile(M.ravel(), N)))
         vals.append(ca.DM.ones(s0.size + sf.size))
-        nz = ca.vertcat(*vals)[[int(i) for i in perm]]
-        spars = ca.Sparsity(self.ng, self.nX, [int(i) for i in indptr], [int(i) for i in indices])
+        nz = ca.vertcat(*vals)[np.asarray(perm, np.int64).tolist()]
+        spars = ca.Sparsity(self.ng, self.nX, np.asarray(indptr, np.int64).tolist(),
+                            np.asarray(indices, np.int64).tolist())
         return ca.MX(spars, nz)
 
     def _g_function(self) -> ca.Function:

@@ -365,7 +365,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
     # equilibria and initial guess
     t_guess = time.perf_counter()
     q0 = q_guess if q_guess is not None else np.zeros(model.n)
-    qs_times = np.unique(np.concatenate([np.linspace(T0, Tf, 41), np.linspace(reference.t0, reference.tf, 81)]))
+    qs_times = np.unique(np.concatenate([np.linspace(T0, Tf, 21), np.linspace(reference.t0, reference.tf, 41)]))
     last = _QS_LAST.get("entry")
     if (last is not None and last[0] is model and last[1] is reference and last[2] == (T0, Tf)
             and np.array_equal(last[3], q0)):
