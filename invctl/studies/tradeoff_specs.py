@@ -86,9 +86,10 @@ def manipulator_simulate(scene, params: dict, smoke: bool = False) -> TradeoffSp
     controller = "C2" if smoke else "C1"
     setup = setup_tracking(scene, params, invert=controller == "C1")
     uff = setup.u_ff_samples() if controller == "C1" else None
+    ctrl = setup.c1_controller() if controller == "C1" else setup.controller
 
     def loop(rtol):
-        return ClosedLoop(setup.plant, setup.reference, controller=setup.controller, u_ff=uff,
+        return ClosedLoop(setup.plant, setup.reference, controller=ctrl, u_ff=uff,
                           endeffector=setup.endeffector, t_end=setup.t_end, dt=setup.dt, rtol=rtol,
                           atol=rtol * 1e-2, max_num_steps=10**6, name=controller)
 
