@@ -220,6 +220,13 @@ class Transcription:
     def _jacobian_mx(self, x, p):
         """The Jacobian of ``g`` as a sparse MX built from mapped per-node/per-interval
         SX functions (the same blocks as :meth:`residual_and_jacobian`)."""
+        indices, indptr = self._pattern()[:2]
+        spars = ca.Sparsity(self.ng, self.nX, np.asarray(indptr, np.int64).tolist(),
+                            np.asarray(indices, np.int64).tolist())
+        return ca.MX(spars, self._jacobian_nz(x, p))
+
+    def _jacobian_nz(self, x, p):
+        """The nonzeros of the Jacobian of ``g`` in CSC order of :meth:`_pattern` (MX column)."""
         nx, N, m4 = self.nx, self.N, self.m4
         indices, indptr, perm, s0, sf = self._pattern()
         Xmesh = ca.reshape(x[:nx * (N + 1)], nx, N + 1)
@@ -263,10 +270,7 @@ class Transcription:
                         M = np.eye(nx) if j == d + 1 else -D[j] * np.eye(nx)
                     vals.append(ca.DM(np.tile(M.ravel(), N)))
         vals.append(ca.DM.ones(s0.size + sf.size))
-        nz = ca.vertcat(*vals)[np.asarray(perm, np.int64).tolist()]
-        spars = ca.Sparsity(self.ng, self.nX, np.asarray(indptr, np.int64).tolist(),
-                            np.asarray(indices, np.int64).tolist())
-        return ca.MX(spars, nz)
+        return ca.vertcat(*vals)[np.asarray(perm, np.int64).tolist()]
 
     def _g_function(self) -> ca.Function:
         """``(x, p) -> g`` with the assembled Jacobian as its custom Jacobian, so that
@@ -348,6 +352,74 @@ class Transcription:
         perm = A.data.astype(np.int64) - 1
         self._pat = (A.indices.copy(), A.indptr.copy(), perm, s0, sf)
         return self._pat
+
+    def evaluators(self):
+        """Fast ``(x, p) -> g`` and ``(x, p) -> (g, dg/dx)`` for the Newton backend.
+
+        The same mapped (and, if compiled, C) functions as the IPOPT callbacks, called
+        through CasADi's zero-copy buffers: ~0.15 ms for ``g`` and ~0.7 ms for ``g`` and
+        the Jacobian at HS N = 100, against ~0.8 and ~3.5 ms for the numpy assembly of
+        :meth:`residual_and_jacobian` (which stays as the independent reference in tests).
+        The buffers are shared, so calls are serialized by a lock.
+        """
+        if getattr(self, "_evals", None) is None:
+            import threading
+
+            indices, indptr = self._pattern()[:2]
+            x, p = self._x, self._p
+            fg = ca.Function("servo_g_only", [x, p], [self.g])
+            fgj = ca.Function("servo_g_jac", [x, p], [self.g, self._jacobian_nz(x, p)])
+            xin, pin = np.zeros(self.nX), np.zeros(self.np)
+            g1, g2, jnz = np.zeros(self.ng), np.zeros(self.ng), np.zeros(indices.size)
+            lock = threading.Lock()
+            keep = []
+
+            def bind(f, outs):
+                buf, run = f.buffer()
+                buf.set_arg(0, memoryview(xin))
+                buf.set_arg(1, memoryview(pin))
+                for i, o in enumerate(outs):
+                    buf.set_res(i, memoryview(o))
+                keep.append(buf)
+                return run
+
+            run_g, run_gj = bind(fg, [g1]), bind(fgj, [g2, jnz])
+            shape = (self.ng, self.nX)
+
+            def residual(xv, pv):
+                with lock:
+                    np.copyto(xin, np.ravel(xv))
+                    np.copyto(pin, np.ravel(pv))
+                    run_g()
+                    return g1.copy()
+
+            def residual_and_jacobian(xv, pv):
+                with lock:
+                    np.copyto(xin, np.ravel(xv))
+                    np.copyto(pin, np.ravel(pv))
+                    run_gj()
+                    return g2.copy(), sp.csc_matrix((jnz.copy(), indices, indptr), shape=shape)
+
+            self._evals = (residual, residual_and_jacobian, keep)
+        return self._evals[:2]
+
+    def banded_pattern(self):
+        """The :class:`~invctl.inversion.banded.BandedPattern` of the Jacobian, unknowns in time
+        order (``X_0, X_col(interval 0), X_1, ...``); built once."""
+        if getattr(self, "_band", None) is None:
+            from .banded import BandedPattern
+
+            nx, N, nc = self.nx, self.N, self.n_col
+            if nc:
+                d = nc // N
+                mesh = np.arange(nx * (N + 1)).reshape(N + 1, nx)
+                col = nx * (N + 1) + np.arange(nx * nc).reshape(N, d * nx)
+                order = np.concatenate([np.concatenate([mesh[k], col[k]]) for k in range(N)] + [mesh[N]])
+            else:
+                order = np.arange(self.nX)
+            indices, indptr = self._pattern()[:2]
+            self._band = BandedPattern(indices, indptr, self.nX, order)
+        return self._band
 
     def residual(self, x, p) -> np.ndarray:
         """The constraint vector ``g`` alone (mapped right-hand side, numpy)."""

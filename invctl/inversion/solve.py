@@ -202,17 +202,21 @@ def default_mesh(T0, Tf, t0, tf, N, fraction=0.5):
     return np.concatenate(parts + [[Tf]])
 
 
-def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label):
+def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label, banded=True):
     """Newton's method on the square collocation system with Jacobian reuse.
 
-    The sparse Jacobian is assembled from the mapped right-hand-side Jacobian and
-    factorized by SuperLU; the factorization is kept (also across calls on the same
+    Residual and Jacobian come from the transcription's compiled evaluators; the Jacobian,
+    permuted to time order, is a band matrix factorized by LAPACK's banded LU (SuperLU
+    when the band is too wide or ``banded=False``); the factorization is kept (also across calls on the same
     transcription, e.g. re-solves after a parameter change) while it contracts the
     residual by at least a factor 4 per step (simplified Newton), and refreshed
     otherwise; a refreshed step that does not decrease the residual is damped."""
     x = np.array(x0, float)
     t_start = time.perf_counter()
-    g = tr.residual(x, p)
+    residual, residual_and_jacobian = tr.evaluators()
+    band = tr.banded_pattern() if banded else None
+    band = band if band is not None and band.worthwhile else None
+    g = residual(x, p)
     nrm = np.linalg.norm(g)
     lu = getattr(tr, "_lu", None)
     fresh = False
@@ -227,7 +231,7 @@ def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label):
             break
         if lu is not None and not fresh:
             dx = -lu.solve(g)
-            g2 = tr.residual(x + dx, p)
+            g2 = residual(x + dx, p)
             n2 = np.linalg.norm(g2)
             if np.isfinite(n2) and (n2 <= 0.25 * nrm or np.max(np.abs(g2)) < tol):
                 x, g, nrm = x + dx, g2, n2
@@ -235,9 +239,9 @@ def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label):
                     print(f"  [{label}] newton {it:3d}  max|g| = {np.max(np.abs(g)):.3e}  (reused Jacobian)",
                           file=sys.stderr)
                 continue
-        _, J = tr.residual_and_jacobian(x, p)
+        _, J = residual_and_jacobian(x, p)
         try:
-            lu = spl.splu(J, permc_spec="COLAMD")
+            lu = band.factor(J.data) if band is not None else spl.splu(J, permc_spec="COLAMD")
             n_fact += 1
         except RuntimeError:
             status = "Singular_Jacobian"
@@ -246,7 +250,7 @@ def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label):
         dx = -lu.solve(g)
         s = 1.0
         while True:
-            g2 = tr.residual(x + s * dx, p)
+            g2 = residual(x + s * dx, p)
             n2 = np.linalg.norm(g2)
             if np.isfinite(n2) and (n2 <= (1 - 1e-4 * s) * nrm or np.max(np.abs(g2)) < tol):
                 break
@@ -445,7 +449,7 @@ def _solve(tr, x0, p, *, backend, ipopt_options, max_iter, max_wall_time, newton
     if backend == "newton":
         if not square:
             raise ValueError("backend='newton' needs a square system (2n+l+p+m boundary conditions)")
-        tr._pattern()
+        tr.evaluators()
         build = time.perf_counter() - t0
         t1 = time.perf_counter()
         x, info = _newton(tr, x0, p, max_iter=max_iter, max_wall_time=max_wall_time, tol=newton_tol,
