@@ -130,6 +130,9 @@ def test_cli_set_options_and_bad_controller(capsys):
 
 
 def test_cli_pipeline(tmp_path, capsys):
+    import matplotlib.pyplot as plt
+
+    open_before = set(plt.get_fignums())
     rc = cli_main(["pipeline", "manipulator", "--out-dir", str(tmp_path), "--quiet", "--json"])
     out = capsys.readouterr().out.strip().splitlines()
     assert rc == 0
@@ -139,6 +142,7 @@ def test_cli_pipeline(tmp_path, capsys):
     assert any("C1 reduces C2" in line for line in out)
     for f in ("fig5_states", "fig6_endeffector", "fig7_errors", "fig8_inputs", "fig9_funnel"):
         assert (tmp_path / f"{f}.png").exists()
+    assert set(plt.get_fignums()) == open_before  # written figures are closed
 
 
 def test_a1_for_our_gains(setup, study):

@@ -29,10 +29,9 @@ def _finish(tr, options, text, data, title):
         data["out"] = str(tr.save(options["out"]))
         text += f"\ntrajectory written to {data['out']}"
     if options.get("plot"):
-        import matplotlib
+        from ..plot import close
 
-        matplotlib.use("Agg")
-        tr.plot(options["plot"], title=title)
+        close(tr.plot(options["plot"], title=title))
         data["plot"] = options["plot"]
         text += f"\nfigure written to {options['plot']}"
     return CommandResult(text, data)

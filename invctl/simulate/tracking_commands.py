@@ -57,7 +57,9 @@ def simulate_command(scene_module, params: dict, controller=None, plant_set=None
     if out:
         res.to_csv(out) if str(out).lower().endswith(".csv") else res.save(out)
     if plot:
-        res.plot(plot)
+        from ..plot import close
+
+        close(res.plot(plot))
     s = res.summary()
     lines = [f"invctl simulate {setup.model.name} --controller {name} ({CONTROLLERS[name]}), "
              f"plant: " + (", ".join(f"{k}={v:.6g}" for k, v in setup.plant.values.items()
@@ -86,7 +88,9 @@ def pipeline_command(scene_module, params: dict, out_dir="invctl-out", t_end=Non
                                controllers=("C1", "C2", "C3", "C1-42"), progress=not quiet)
     out = Path(out_dir or "invctl-out")
     study.save(out)
-    study.plot(out)
+    from ..plot import close
+
+    close(study.plot(out))
     wall = time.perf_counter() - t0
     text = "\n".join([study.table(), f"figures and data in {out}/ (fig5..fig9, run_C*.npz, study.json); "
                                      f"total {wall:.1f} s"])
