@@ -366,3 +366,22 @@ def test_newton_banded_and_superlu_agree(model, ref):
         S._newton = orig
     t = np.linspace(a.T0, a.Tf, 301)
     assert np.max(np.abs(a.q(t) - b.q(t))) < 1e-9 and np.max(np.abs(a.u(t) - b.u(t))) < 1e-7
+
+
+def test_batched_equilibria_match_pointwise_continuation(model, ref):
+    # the quasi-static guess solves every 4th point by continuation and the rest in one batched Newton;
+    # the pointwise Gauss-Newton continuation over all points is the reference
+    from invctl.inversion.solve import _equilibrium_solver, quasi_static_guess
+
+    times = np.linspace(-1.0, 2.0, 47)
+    G = quasi_static_guess(model, ref, times, np.zeros(model.n))
+    eq, n = _equilibrium_solver(model), model.n
+    w, W = None, []
+    for k, t in enumerate(times):
+        X, _ = eq.solve(ref(t).ravel(), guess_q=np.zeros(n) if w is None else None, guess_w=w)
+        w = np.concatenate([X[:n], X[2 * n:]])
+        W.append(w)
+    W = np.array(W).T
+    assert np.max(np.abs(G[:n] - W[:n])) < 1e-10 and np.max(np.abs(G[2 * n:] - W[n:])) < 1e-8
+    with pytest.raises(ValueError, match="distinct"):
+        quasi_static_guess(model, ref, np.array([0.0, 0.5, 0.5 + 1e-15, 1.0]), np.zeros(n))

@@ -85,7 +85,7 @@ class Transcription:
     """
 
     def __init__(self, servo, selection, scheme: Scheme, N: int, *, objective: float = 0.0,
-                 compiled: bool = False):
+                 compiled: bool = False, cache_key: str | None = None):
         t_build = time.perf_counter()
         if compiled is True and objective:
             raise ValueError("compiled evaluation has no derivatives: use it for square systems (no objective)")
@@ -129,8 +129,9 @@ class Transcription:
             from .compiled import compile_cached, is_cached
 
             wanted = [rhs, interval, servo.rhs_jac, self._block_function()]
-            if self._compile_request is True or (self._compile_request == "auto" and all(map(is_cached, wanted))):
-                self._c = compile_cached
+            if self._compile_request is True or (self._compile_request == "auto"
+                                                 and all(is_cached(f, key=cache_key) for f in wanted)):
+                self._c = lambda f: compile_cached(f, key=cache_key)  # noqa: E731
                 self.compiled = True
         self.interval = interval = self._c(interval)
         rhs = self._c(rhs)

@@ -33,9 +33,14 @@ def compiler() -> str | None:
 _NAMES: dict = {}
 
 
-def _name(fn: ca.Function, flags) -> str:
-    """Cache name from the serialization (memoized per function object: serializing the
-    right-hand-side Jacobian costs ~10 ms)."""
+def _name(fn: ca.Function, flags, key: str | None = None) -> str:
+    """Cache name: from ``key`` (a structural key of what built ``fn``, e.g. the model's
+    serialized functions and the source of the code that derives ``fn`` from them) when
+    given, else from the serialization of ``fn`` (memoized per function object:
+    serializing the right-hand-side Jacobian costs ~10 ms)."""
+    if key is not None:
+        text = "|".join([key, fn.name(), " ".join(flags), ca.__version__])
+        return f"{fn.name()}_{hashlib.sha1(text.encode()).hexdigest()[:16]}"
     hit = _NAMES.get((id(fn), tuple(flags)))
     if hit is not None and hit[0] is fn:
         return hit[1]
@@ -47,13 +52,14 @@ def _name(fn: ca.Function, flags) -> str:
     return name
 
 
-def is_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> bool:
+def is_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",), key: str | None = None) -> bool:
     """Whether the compiled form of ``fn`` is already in the disk cache (and a compiler exists)."""
-    return compiler() is not None and (cache_dir() / f"{_name(fn, flags)}.so").exists()
+    return compiler() is not None and (cache_dir() / f"{_name(fn, flags, key)}.so").exists()
 
 
-def compile_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> ca.Function:
-    """The compiled (and disk-cached) equivalent of the SX function ``fn``.
+def compile_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",), key: str | None = None) -> ca.Function:
+    """The compiled (and disk-cached) equivalent of the SX function ``fn`` (cache name from
+    ``key`` if given, see :func:`_name`).
 
     Raises
     ------
@@ -63,7 +69,7 @@ def compile_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",)) -> ca.Fun
     cc = compiler()
     if cc is None:
         raise RuntimeError("compiled evaluation needs a C compiler (gcc/cc on PATH or $CC)")
-    name = _name(fn, flags)
+    name = _name(fn, flags, key)
     so = cache_dir() / f"{name}.so"
     if not so.exists():
         sx_in = [fn.sx_in(i) for i in range(fn.n_in())]

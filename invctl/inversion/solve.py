@@ -89,7 +89,26 @@ def transcription(servo, selection, scheme, N: int, objective: float = 0.0, comp
     if tr is not None and tr.servo is not servo:  # a servo model evicted and its id reused
         del _TRANS_CACHE[key]
     return _remember(_TRANS_CACHE, key,
-                     lambda: Transcription(servo, selection, scheme, N, objective=objective, compiled=compiled))
+                     lambda: Transcription(servo, selection, scheme, N, objective=objective, compiled=compiled,
+                                           cache_key=_compiled_key(servo, scheme)))
+
+
+def _compiled_key(servo, scheme) -> str:
+    """Disk-cache key of the compiled transcription functions: the model's structure, the index
+    reduction, the scheme and the source of the modules that derive the functions from them
+    (so that editing them never loads stale code)."""
+    global _SOURCE_KEY
+    if _SOURCE_KEY is None:
+        import hashlib
+        from pathlib import Path
+
+        here = Path(__file__).parent
+        text = "".join((here / f).read_text() for f in ("servo.py", "collocation.py"))
+        _SOURCE_KEY = hashlib.sha1(text.encode()).hexdigest()
+    return "|".join([model_key(servo.model), servo.formulation, repr(servo.omega), scheme.name, _SOURCE_KEY])
+
+
+_SOURCE_KEY: str | None = None
 
 
 def _equilibrium_solver(model) -> EquilibriumSolver:
@@ -148,16 +167,34 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     ReferenceSignalError
         Where no equilibrium exists (reference outside the reachable workspace).
     """
+    times = np.asarray(times, float)
+    if times.size > 1 and np.any(np.diff(times) <= 1e-9 * (times[-1] - times[0])):
+        raise ValueError("quasi_static_guess: times must be strictly increasing and distinct (velocities are "
+                         "difference quotients)")
     eq = _equilibrium_solver(model)
     n, l, p, m = model.n, model.ell, model.p, model.m
     ys = reference(times)
-    W, w = [], None
-    for k, t in enumerate(times):
-        X, _ = eq.solve(ys[:, k], guess_q=q0 if w is None else None, guess_w=w, theta=model.theta_values,
-                        where=f" at t = {t:.4g}{where}")
-        w = np.concatenate([X[:n], X[2 * n:]])
-        W.append(w)
-    W = np.array(W).T
+    th = model.theta_values
+
+    def continuation(idx, w=None):
+        out = []
+        for k in idx:
+            X, _ = eq.solve(ys[:, k], guess_q=q0 if w is None else None, guess_w=w, theta=th,
+                            where=f" at t = {times[k]:.4g}{where}")
+            w = np.concatenate([X[:n], X[2 * n:]])
+            out.append(w)
+        return np.array(out).T
+
+    # continuation (one point after the other) on every 4th point keeps the branch of q0; the
+    # points between start from the interpolated path and are solved together (batched Newton)
+    coarse = np.unique(np.r_[np.arange(0, times.size, 4), times.size - 1])
+    Wc = continuation(coarse)
+    W0 = np.array([np.interp(times, times[coarse], row) for row in Wc])
+    W, res = eq.solve_many(ys, W0, theta=th)
+    W[:, coarse] = Wc
+    for k in np.flatnonzero(res > 1e-9):  # rare: fall back to continuation from the previous point
+        if k not in coarse:
+            W[:, k] = continuation([k], W[:, k - 1])[:, 0]
     Q = W[:n]
     V = np.gradient(Q, times, axis=1) if times.size > 2 else np.zeros_like(Q)
     if servo is None:
@@ -370,6 +407,7 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
     t_guess = time.perf_counter()
     q0 = q_guess if q_guess is not None else np.zeros(model.n)
     qs_times = np.unique(np.concatenate([np.linspace(T0, Tf, 21), np.linspace(reference.t0, reference.tf, 41)]))
+    qs_times = qs_times[np.r_[True, np.diff(qs_times) > 1e-9 * (Tf - T0)]]  # 0.95 from both grids
     last = _QS_LAST.get("entry")
     if (last is not None and last[0] is model and last[1] is reference and last[2] == (T0, Tf)
             and np.array_equal(last[3], q0)):
