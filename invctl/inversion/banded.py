@@ -51,8 +51,10 @@ class BandedPattern:
 
     @property
     def worthwhile(self) -> bool:
-        """Whether the band is narrow enough for the banded LU to beat a general sparse LU."""
-        return self.n >= 64 and (2 * self.kl + self.ku + 1) * 8 <= self.n
+        """Whether the band is narrow enough for the banded LU to beat a general sparse LU in
+        time and memory (band storage is ``(2 kl + ku + 1) n`` doubles: HS on the manipulator
+        has 69 rows, Legendre/Radau of degree 3 have 181, where SuperLU needs less memory)."""
+        return self.n >= 64 and self.ldab <= 100 and self.ldab * self.n * 8 <= 64e6
 
     def factor(self, data) -> "BandedLU":
         """Factorize the matrix with these nonzeros (CSC order of the pattern).

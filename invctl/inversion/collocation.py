@@ -354,15 +354,22 @@ class Transcription:
         self._pat = (A.indices.copy(), A.indptr.copy(), perm, s0, sf)
         return self._pat
 
-    def evaluators(self):
+    def evaluators(self, buffered: bool | None = None):
         """Fast ``(x, p) -> g`` and ``(x, p) -> (g, dg/dx)`` for the Newton backend.
 
-        The same mapped (and, if compiled, C) functions as the IPOPT callbacks, called
-        through CasADi's zero-copy buffers: ~0.15 ms for ``g`` and ~0.7 ms for ``g`` and
-        the Jacobian at HS N = 100, against ~0.8 and ~3.5 ms for the numpy assembly of
-        :meth:`residual_and_jacobian` (which stays as the independent reference in tests).
-        The buffers are shared, so calls are serialized by a lock.
+        ``buffered``: the same mapped (and, if compiled, C) functions as the IPOPT callbacks,
+        called through CasADi's zero-copy buffers: ~0.15 ms for ``g`` and ~0.7 ms for ``g`` and
+        the Jacobian at HS N = 100 compiled, against ~0.8 and ~3.5 ms for the numpy assembly of
+        :meth:`residual` / :meth:`residual_and_jacobian` (which stays as the independent
+        reference in tests).  The buffers are shared, so calls are serialized by a lock.
+        ``None`` (default): buffered for Hermite-Simpson or compiled functions; otherwise the
+        numpy assembly, as fast in CasADi's VM for Legendre/Radau and without the memory of a
+        second expression graph per cached transcription.
         """
+        if buffered is None:
+            buffered = self.compiled or self.scheme.is_hs
+        if not buffered:
+            return self.residual, self.residual_and_jacobian
         if getattr(self, "_evals", None) is None:
             import threading
 
