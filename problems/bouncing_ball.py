@@ -73,13 +73,13 @@ def check_params(p: dict) -> dict:
 
 
 def _simulate(params, **options):
-    from invctl.simulate.contact_commands import bouncing_ball_command
+    from invctl.studies.contact_commands import bouncing_ball_command
 
     return bouncing_ball_command(sys.modules[__name__], params, **options)
 
 
 def tradeoff_spec(params, smoke: bool = False):
-    from invctl.simulate.contact_commands import bouncing_ball_tradeoff
+    from invctl.studies.contact_commands import bouncing_ball_tradeoff
 
     return bouncing_ball_tradeoff(sys.modules[__name__], params, smoke=smoke)
 

@@ -65,13 +65,13 @@ def preloaded_configuration(model: Model, theta1: float = 0.0) -> np.ndarray:
 
 
 def _simulate(params, **options):
-    from invctl.simulate.contact_commands import gear_command
+    from invctl.studies.contact_commands import gear_command
 
     return gear_command(sys.modules[__name__], params, **options)
 
 
 def _analyze(params, **options):
-    from invctl.simulate.contact_commands import gear_analyze
+    from invctl.studies.contact_commands import gear_analyze
 
     return gear_analyze(sys.modules[__name__], params, **options)
 

@@ -286,13 +286,13 @@ def funnel_controller(model: Model, ref: Reference | None = None, lin=None, *, t
 
 
 def _simulate(params, **options):
-    from invctl.simulate.tracking_commands import simulate_command
+    from invctl.studies.tracking_commands import simulate_command
 
     return simulate_command(sys.modules[__name__], params, **options)
 
 
 def _pipeline(params, **options):
-    from invctl.simulate.tracking_commands import pipeline_command
+    from invctl.studies.tracking_commands import pipeline_command
 
     return pipeline_command(sys.modules[__name__], params, **options)
 

@@ -92,7 +92,7 @@ def switching_law(model: Model, *, Kp: float, Kv: float, amp: float, period: flo
 
 
 def _simulate(params, **options):
-    from invctl.simulate.contact_commands import prismatic_command
+    from invctl.studies.contact_commands import prismatic_command
 
     return prismatic_command(sys.modules[__name__], params, **options)
 
@@ -101,6 +101,6 @@ COMMANDS = {"simulate": _simulate}
 
 
 def tradeoff_spec(params, smoke: bool = False):
-    from invctl.simulate.contact_commands import prismatic_tradeoff
+    from invctl.studies.contact_commands import prismatic_tradeoff
 
     return prismatic_tradeoff(sys.modules[__name__], params, smoke=smoke)

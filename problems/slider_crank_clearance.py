@@ -70,7 +70,7 @@ def centered_configuration(model: Model, theta: float) -> np.ndarray:
 
 
 def _simulate(params, **options):
-    from invctl.simulate.contact_commands import slider_crank_command
+    from invctl.studies.contact_commands import slider_crank_command
 
     return slider_crank_command(sys.modules[__name__], params, **options)
 

@@ -134,7 +134,7 @@ def test_gear_preload_cli(capsys):
 
 
 def test_timestep_study_slopes():
-    from invctl.simulate.contact_study import timestep_study
+    from invctl.studies.timestep import timestep_study
 
     m = bb.build()
     mj = MoreauJean(m, potential=bb.potential(m), backend="vm")

@@ -212,7 +212,7 @@ def test_gear_example4_ehat():
     E_hat is reproduced with f4 = theta3 - theta2 + alpha4 (mesh-consistent) and
     NOT with f4 as printed (-theta3 - theta2 + alpha4), whose E_hat is derived by hand."""
     import problems.gear_backlash as scene
-    from invctl.simulate.contact_commands import gear_ehat
+    from invctl.studies.contact_commands import gear_ehat
 
     for c4 in (1.0, -1.0):
         D, E = gear_ehat(scene, c4, J=0.02)

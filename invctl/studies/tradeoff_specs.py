@@ -134,7 +134,7 @@ def switched(scene, params: dict, smoke: bool = False) -> TradeoffSpec:
 # ------------------------------------------------------- clearances (fine step)
 def _clearance_setup(scene, name, params):
     from ..control.pdplus import pd_gravity
-    from ..simulate.contact_commands import _split
+    from .contact_commands import _split
 
     full, mp = _split(params, scene.PARAMS, scene.MODEL_PARAMS)
     if name == "gear_backlash":

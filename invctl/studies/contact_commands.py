@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import ParameterError, SceneError
 from ..model.params import parse_assignments
 from ..scenes import CommandResult
-from .timestepping import MoreauJean
+from ..simulate.timestepping import MoreauJean
 
 _OPTIONS = {"controller", "plant_set", "t_end", "out", "plot"}
 
@@ -90,7 +90,7 @@ def bouncing_ball_command(scene, params: dict, **options) -> CommandResult:
 def bouncing_ball_tradeoff(scene, params: dict, smoke: bool = False):
     """Trade-off spec (for ``invctl study tradeoff bouncing_ball``): error of the
     first impact times against the closed form versus h."""
-    from ..studies.tradeoff import TradeoffSpec
+    from .tradeoff import TradeoffSpec
 
     p = scene.check_params(params)
     model = scene.build(**{k: p[k] for k in scene.MODEL_PARAMS})
@@ -394,8 +394,8 @@ def prismatic_tradeoff(scene, params: dict, smoke: bool = False):
     under PD (36) on body 1; error of the first three impact times and post-impact
     velocities against the event-driven reference versus h."""
     from ..control.pdplus import pd_gravity
-    from ..studies.tradeoff import TradeoffSpec
-    from .event_driven import simulate_event_driven
+    from .tradeoff import TradeoffSpec
+    from ..simulate.event_driven import simulate_event_driven
 
     full, mp = _split(params, scene.PARAMS, scene.MODEL_PARAMS)
     model = scene.build(actuators=1, **mp)

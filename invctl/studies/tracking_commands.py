@@ -37,7 +37,7 @@ def _inverse_from(path):
 def simulate_command(scene_module, params: dict, controller=None, plant_set=None, t_end=None, out=None, plot=None,
                      inverse=None, quiet=False, **options) -> CommandResult:
     """Handler of ``invctl simulate <scene> --controller C1|C2|C3 [--plant-set name=value] ...``."""
-    from ..studies.tracking import CONTROLLERS, run_controller, setup_tracking
+    from .tracking import CONTROLLERS, run_controller, setup_tracking
 
     _check(options, _SIM_OPTIONS, "simulate")
     name = (controller or "C1").upper()
@@ -80,7 +80,7 @@ def simulate_command(scene_module, params: dict, controller=None, plant_set=None
 def pipeline_command(scene_module, params: dict, out_dir="invctl-out", t_end=None, quiet=False,
                      **options) -> CommandResult:
     """Handler of ``invctl pipeline <scene>``: invert, simulate C1/C2/C3, compare, plot."""
-    from ..studies.tracking import run_tracking_study
+    from .tracking import run_tracking_study
 
     _check(options, _PIPE_OPTIONS, "pipeline")
     t0 = time.perf_counter()
