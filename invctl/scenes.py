@@ -10,7 +10,8 @@ A scene module declares what it needs and nothing else:
     returns the scene's model object;
 ``COMMANDS``
     dict command name (``analyze``, ``invert``, ``simulate``, ``design``,
-    ``study``) -> handler ``handler(params: dict, **options) -> CommandResult``.
+    ``study``) -> handler ``handler(params: dict, **options) -> CommandResult``,
+    usually a :class:`lazy_command` so that loading a scene imports nothing heavy.
 """
 from __future__ import annotations
 
@@ -28,10 +29,36 @@ from .errors import SceneError
 
 @dataclass
 class CommandResult:
-    """What a scene command returns: a readable report and JSON-able data."""
+    """What a scene command returns: a readable report and JSON-able data (see :func:`jsonable`)."""
 
     text: str
     data: dict[str, Any] = field(default_factory=dict)
+
+
+def jsonable(obj):
+    """``obj`` with numpy scalars/arrays as Python numbers/lists, complex numbers as ``[re, im]``,
+    non-finite floats as strings (``"inf"``, ``"nan"``: strict JSON has no such numbers) and
+    anything else unknown as its ``str``."""
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if np.isfinite(f) else str(f)
+    if isinstance(obj, (complex, np.complexfloating)):
+        return [jsonable(obj.real), jsonable(obj.imag)]
+    if isinstance(obj, str) or obj is None:
+        return obj
+    return str(obj)
 
 
 def available_scenes() -> list[str]:
@@ -85,3 +112,18 @@ def scene_command(module: ModuleType, command: str):
             f"scene {scene_name(module)!r} does not offer {command!r}; it offers: {offered}"
         )
     return commands[command]
+
+
+@dataclass(frozen=True)
+class lazy_command:  # noqa: N801 - used like a function in scene files
+    """A scene's command handler that imports its implementation on first call, so that loading
+    a scene stays light: ``COMMANDS = {"simulate": lazy_command(__name__, "invctl.studies.x:simulate_command")}``.
+    The implementation is called as ``impl(scene_module, params, **options)``."""
+
+    scene_module: str
+    target: str
+
+    def __call__(self, params: dict, **options):
+        module_name, _, attr = self.target.partition(":")
+        impl = getattr(importlib.import_module(module_name), attr)
+        return impl(sys.modules[self.scene_module], params, **options)

@@ -16,6 +16,7 @@ import casadi as ca
 import numpy as np
 
 from invctl.model import Gap, Model, ParamSet
+from invctl.scenes import lazy_command
 
 PARAMS = {"m": 1.0, "g": 9.81, "H": 1.0, "e": 0.8, "h": 1e-3, "theta": 0.5, "t_end": 3.0, "projection": 0.0}
 MODEL_PARAMS = ("m", "g", "e")
@@ -72,16 +73,12 @@ def check_params(p: dict) -> dict:
     return full
 
 
-def _simulate(params, **options):
-    from invctl.studies.contact_commands import bouncing_ball_command
-
-    return bouncing_ball_command(sys.modules[__name__], params, **options)
-
-
 def tradeoff_spec(params, smoke: bool = False):
     from invctl.studies.contact_commands import bouncing_ball_tradeoff
 
     return bouncing_ball_tradeoff(sys.modules[__name__], params, smoke=smoke)
 
 
-COMMANDS = {"simulate": _simulate}
+COMMANDS = {
+    "simulate": lazy_command(__name__, "invctl.studies.contact_commands:bouncing_ball_command"),
+}

@@ -15,12 +15,12 @@ eta1 = theta, eta2 = p_theta / J (J = I + mp l^2, p_theta = mp l cos(theta) x' +
 from __future__ import annotations
 
 import math
-import sys
 
 import casadi as ca
 
 from invctl.model import Model, OperatingRegion, ParamSet
 from invctl.reference import Reference, poly9_timing_law
+from invctl.scenes import lazy_command
 
 PARAMS = {"mc": 1.0, "mp": 0.2, "l": 0.5, "I": 0.2 * 0.5**2 / 3, "g": 9.81, "D": 0.0}
 #: homogeneous pole of length 2 l (centre of mass at l)
@@ -67,10 +67,6 @@ def analysis_setup(model: Model) -> dict:
     return {"point": [0.0, 0.0], "reference": reference(model)}
 
 
-def _analyze(params, **options):
-    from invctl.analysis.commands import analyze_command
-
-    return analyze_command(sys.modules[__name__], params, **options)
-
-
-COMMANDS = {"analyze": _analyze}
+COMMANDS = {
+    "analyze": lazy_command(__name__, "invctl.analysis.commands:analyze_command"),
+}

@@ -13,9 +13,9 @@ map (29) uses the estimates ke_hat, be_hat of ke_bar, be_bar (default: exact).
 """
 from __future__ import annotations
 
-import sys
 
 from invctl.model.params import resolve_params
+from invctl.scenes import lazy_command
 
 from problems.stiff_wall import PARAMS as _WALL
 from problems.stiff_wall import SwitchedScene
@@ -34,22 +34,8 @@ def build(**overrides: float) -> SwitchedScene:
     return SwitchedScene("compliant_wrist", resolve_params(PARAMS, DERIVED, overrides))
 
 
-def _analyze(params, **options):
-    from invctl.studies.switched import analyze_command
-
-    return analyze_command(sys.modules[__name__], params, **options)
-
-
-def _simulate(params, **options):
-    from invctl.studies.switched import simulate_command
-
-    return simulate_command(sys.modules[__name__], params, **options)
-
-
-def _design(params, **options):
-    from invctl.studies.switched import design_command
-
-    return design_command(sys.modules[__name__], params, **options)
-
-
-COMMANDS = {"analyze": _analyze, "simulate": _simulate, "design": _design}
+COMMANDS = {
+    "analyze": lazy_command(__name__, "invctl.studies.switched:analyze_command"),
+    "simulate": lazy_command(__name__, "invctl.studies.switched:simulate_command"),
+    "design": lazy_command(__name__, "invctl.studies.switched:design_command"),
+}

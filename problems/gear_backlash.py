@@ -14,12 +14,12 @@ Pre-loading keeps ``f1 = f4 = 0`` with multipliers ``beta``.
 """
 from __future__ import annotations
 
-import sys
 
 import casadi as ca
 import numpy as np
 
 from invctl.model import Gap, Model, ParamSet
+from invctl.scenes import lazy_command
 
 PARAMS = {
     "J1": 0.01, "J2": 0.01, "J3": 0.01,
@@ -64,16 +64,7 @@ def preloaded_configuration(model: Model, theta1: float = 0.0) -> np.ndarray:
     return np.array([theta1, th2, th3])
 
 
-def _simulate(params, **options):
-    from invctl.studies.contact_commands import gear_command
-
-    return gear_command(sys.modules[__name__], params, **options)
-
-
-def _analyze(params, **options):
-    from invctl.studies.contact_commands import gear_analyze
-
-    return gear_analyze(sys.modules[__name__], params, **options)
-
-
-COMMANDS = {"simulate": _simulate, "analyze": _analyze}
+COMMANDS = {
+    "simulate": lazy_command(__name__, "invctl.studies.contact_commands:gear_command"),
+    "analyze": lazy_command(__name__, "invctl.studies.contact_commands:gear_analyze"),
+}

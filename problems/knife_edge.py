@@ -13,11 +13,11 @@ classical obstruction for wheeled vehicles): ``build_position_output``.
 from __future__ import annotations
 
 import math
-import sys
 
 import casadi as ca
 
 from invctl.model import Model, OperatingRegion, ParamSet
+from invctl.scenes import lazy_command
 
 PARAMS = {"m": 1.0, "I": 0.1, "Dth": 0.05}
 
@@ -53,10 +53,6 @@ def analysis_setup(model: Model) -> dict:
     return {"point": [0.0, 0.0, 0.3]}
 
 
-def _analyze(params, **options):
-    from invctl.analysis.commands import analyze_command
-
-    return analyze_command(sys.modules[__name__], params, **options)
-
-
-COMMANDS = {"analyze": _analyze}
+COMMANDS = {
+    "analyze": lazy_command(__name__, "invctl.analysis.commands:analyze_command"),
+}

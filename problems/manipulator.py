@@ -26,13 +26,13 @@ m_i and L_i under ``--set`` unless set themselves.
 from __future__ import annotations
 
 import math
-import sys
 
 import casadi as ca
 import numpy as np
 
 from invctl.model import Model, OperatingRegion, ParamSet
 from invctl.reference import Reference, poly9_timing_law
+from invctl.scenes import lazy_command
 
 PARAMS = {
     "m1": 1.0, "m2": 1.0, "m3": 0.5,
@@ -195,12 +195,6 @@ def analysis_setup(model: Model, samples: int = 200) -> dict:
             "reference": ref, "point": initial_configuration(model), "A1": a1}
 
 
-def _analyze(params, **options):
-    from invctl.analysis.commands import analyze_command
-
-    return analyze_command(sys.modules[__name__], params, **options)
-
-
 # --- inversion (003 Sect. 4, 6) --------------------------------------------
 
 #: the selection printed in 003 Sect. 6 (14 = 2n + l + p + m conditions):
@@ -221,12 +215,6 @@ BOUNDARY = {
 #: the post-actuation like exp(-19.6 t) (eigenvalues of Q, invctl analyze), so 1 s on
 #: either side leaves < 1e-8 of either at the horizon ends
 INVERSION = {"T0": -1.0, "Tf": 2.0, "N": 200, "scheme": "hermite-simpson", **BOUNDARY}
-
-
-def _invert(params, **options):
-    from invctl.inversion.commands import invert_command
-
-    return invert_command(sys.modules[__name__], params, **options)
 
 
 # --- feedback and closed loop (003 Sect. 5, 6) -----------------------------
@@ -285,17 +273,10 @@ def funnel_controller(model: Model, ref: Reference | None = None, lin=None, *, t
     return NMPFunnelController(model, lin, ref, t_end=t_end, **cfg)
 
 
-def _simulate(params, **options):
-    from invctl.studies.tracking_commands import simulate_command
-
-    return simulate_command(sys.modules[__name__], params, **options)
-
-
-def _pipeline(params, **options):
-    from invctl.studies.tracking_commands import pipeline_command
-
-    return pipeline_command(sys.modules[__name__], params, **options)
-
-
 # ----------------------------------------------------------------------------
-COMMANDS = {"analyze": _analyze, "invert": _invert, "simulate": _simulate, "pipeline": _pipeline}
+COMMANDS = {
+    "analyze": lazy_command(__name__, "invctl.analysis.commands:analyze_command"),
+    "invert": lazy_command(__name__, "invctl.inversion.commands:invert_command"),
+    "simulate": lazy_command(__name__, "invctl.studies.tracking_commands:simulate_command"),
+    "pipeline": lazy_command(__name__, "invctl.studies.tracking_commands:pipeline_command"),
+}

@@ -20,6 +20,7 @@ import casadi as ca
 import numpy as np
 
 from invctl.model import Gap, Model, ParamSet
+from invctl.scenes import lazy_command
 
 PARAMS = {
     "m1": 1.0, "m2": 0.5, "l": 0.05, "L": 0.11, "e": 0.5,
@@ -91,13 +92,9 @@ def switching_law(model: Model, *, Kp: float, Kv: float, amp: float, period: flo
     return FeedbackLaw("switching", names, (Kp, Kv, amp, period, a_c, d_rel), build_, {"lyapunov": False})
 
 
-def _simulate(params, **options):
-    from invctl.studies.contact_commands import prismatic_command
-
-    return prismatic_command(sys.modules[__name__], params, **options)
-
-
-COMMANDS = {"simulate": _simulate}
+COMMANDS = {
+    "simulate": lazy_command(__name__, "invctl.studies.contact_commands:prismatic_command"),
+}
 
 
 def tradeoff_spec(params, smoke: bool = False):

@@ -22,12 +22,12 @@ the crank tracking ``theta_d(t) = theta_0 + amp sin(2 pi t / period)``
 from __future__ import annotations
 
 import math
-import sys
 
 import casadi as ca
 import numpy as np
 
 from invctl.model import Gap, Model, ParamSet
+from invctl.scenes import lazy_command
 
 PARAMS = {
     "J1": 0.01, "r": 0.1, "Lr": 0.3, "mr": 0.5, "ms": 0.5, "cs": 0.5, "c": 1e-3, "e": 0.5,
@@ -69,10 +69,6 @@ def centered_configuration(model: Model, theta: float) -> np.ndarray:
     return np.array([theta, ax + p["Lr"] * math.cos(ph), ph])
 
 
-def _simulate(params, **options):
-    from invctl.studies.contact_commands import slider_crank_command
-
-    return slider_crank_command(sys.modules[__name__], params, **options)
-
-
-COMMANDS = {"simulate": _simulate}
+COMMANDS = {
+    "simulate": lazy_command(__name__, "invctl.studies.contact_commands:slider_crank_command"),
+}

@@ -16,10 +16,10 @@ default to ke, be.
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 from invctl.model.params import resolve_params
+from invctl.scenes import lazy_command
 
 PARAMS = {
     # plant and wall (002 Sect. 4)
@@ -78,22 +78,8 @@ def build(**overrides: float) -> SwitchedScene:
     return SwitchedScene("stiff_wall", resolve_params(PARAMS, DERIVED, overrides))
 
 
-def _analyze(params, **options):
-    from invctl.studies.switched import analyze_command
-
-    return analyze_command(sys.modules[__name__], params, **options)
-
-
-def _simulate(params, **options):
-    from invctl.studies.switched import simulate_command
-
-    return simulate_command(sys.modules[__name__], params, **options)
-
-
-def _design(params, **options):
-    from invctl.studies.switched import design_command
-
-    return design_command(sys.modules[__name__], params, **options)
-
-
-COMMANDS = {"analyze": _analyze, "simulate": _simulate, "design": _design}
+COMMANDS = {
+    "analyze": lazy_command(__name__, "invctl.studies.switched:analyze_command"),
+    "simulate": lazy_command(__name__, "invctl.studies.switched:simulate_command"),
+    "design": lazy_command(__name__, "invctl.studies.switched:design_command"),
+}

@@ -20,13 +20,13 @@ and damper D2; angles are measured from the hanging (downward) position.
 from __future__ import annotations
 
 import math
-import sys
 
 import casadi as ca
 import numpy as np
 
 from invctl.model import Model, OperatingRegion, ParamSet
 from invctl.reference import Reference, poly9_timing_law
+from invctl.scenes import lazy_command
 
 PARAMS = {
     "m1": 1.0, "m2": 0.5, "L1": 0.5, "L2": 0.4,
@@ -155,10 +155,6 @@ def analysis_setup(model: Model) -> dict:
     return {"point": initial_configuration(model), "reference": reference(model)}
 
 
-def _analyze(params, **options):
-    from invctl.analysis.commands import analyze_command
-
-    return analyze_command(sys.modules[__name__], params, **options)
-
-
-COMMANDS = {"analyze": _analyze}
+COMMANDS = {
+    "analyze": lazy_command(__name__, "invctl.analysis.commands:analyze_command"),
+}

@@ -98,3 +98,17 @@ def test_failed_setting_is_reported_not_dropped():
     # 0.5 is slower-but-worse? time 0.667 vs 0.909: 0.5 is faster, 0.1 more accurate: both Pareto
     assert res.pareto().tolist() == [True, True]
     assert "failed: ValueError" in res.table()
+
+
+def test_jsonable_gives_strict_json():
+    import json
+
+    import numpy as np
+
+    from invctl.scenes import jsonable
+
+    data = {"x": np.array([1.0, np.inf]), 2: np.complex128(1 - 2j), "ok": np.bool_(False), "n": np.int32(4),
+            "t": (np.float32(0.5), None, "s"), "other": object()}
+    out = json.loads(json.dumps(jsonable(data), allow_nan=False))
+    assert out["x"] == [1.0, "inf"] and out["2"] == [1.0, -2.0] and out["ok"] is False and out["n"] == 4
+    assert out["t"] == [0.5, None, "s"] and out["other"].startswith("<object")

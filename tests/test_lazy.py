@@ -102,3 +102,33 @@ def test_analysis_derivations_are_cached_on_first_use(lie_counter):
     other = load_scene("manipulator").build(m3=2.0)
     relative_degree(other, samples=20)
     assert lie_counter["aux"] == first["aux"] + 1
+
+
+@pytest.mark.timeout(60)
+def test_loading_every_scene_imports_no_command_implementation():
+    # scene COMMANDS are lazy_command handlers: the analysis/inversion/studies modules are imported
+    # when a command runs, not when a scene is loaded
+    code = textwrap.dedent("""
+        import json, sys
+        from invctl.scenes import available_scenes, load_scene
+        names = available_scenes()
+        for name in names:
+            load_scene(name)
+        print(json.dumps([names, sorted(m for m in sys.modules if m.startswith(("invctl.analysis.",
+              "invctl.inversion.", "invctl.studies.", "invctl.simulate.")))]))
+    """)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=50,
+                          env={"MPLBACKEND": "Agg", "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 0, proc.stderr
+    names, loaded = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert len(names) >= 10 and loaded == [], loaded
+
+
+def test_lazy_command_calls_its_target_with_the_scene_module(capsys):
+    from invctl.scenes import lazy_command, load_scene
+
+    scene = load_scene("stiff_wall")
+    handler = scene.COMMANDS["analyze"]
+    assert isinstance(handler, lazy_command) and handler.target == "invctl.studies.switched:analyze_command"
+    res = handler(scene.PARAMS)
+    assert "Lambda" in res.text or "Λ" in res.text

@@ -13,29 +13,8 @@ import time
 
 from ..errors import InvctlError
 from ..model.params import parse_assignments
-from ..scenes import load_scene, scene_command
+from ..scenes import jsonable, load_scene, scene_command
 from ._commands import COMMAND_OPTIONS
-
-
-def _jsonable(obj):
-    import numpy as np
-
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        f = float(obj)
-        return f if np.isfinite(f) else str(f)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, complex):
-        return [obj.real, obj.imag]
-    return obj
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -74,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     except InvctlError as exc:
         print(f"invctl {args.command} {args.scene}: {type(exc).__name__}: {exc}", file=sys.stderr)
         if args.json:
-            print(json.dumps(_jsonable({"error": type(exc).__name__, "message": str(exc),
+            print(json.dumps(jsonable({"error": type(exc).__name__, "message": str(exc),
                                         "diagnostics": exc.diagnostics})))
         return 2
     wall = time.perf_counter() - t0
@@ -83,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         data = dict(result.data)
         data.setdefault("command_wall_s", wall)
-        print(json.dumps(_jsonable(data)))
+        print(json.dumps(jsonable(data)))
     return 0
 
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..scenes import jsonable
 from .collocation import get_scheme
 
 _BLOCKS = ("q", "v", "lam", "mu", "u")
@@ -191,7 +192,7 @@ class Inverse:
         X = self.X(t)
         yr = self.y_ref(t)
         meta = {"scheme": self.scheme, "sizes": self.sizes, "t0": self.t0, "tf": self.tf, "names": self.names,
-                "diagnostics": _jsonable(self.diagnostics)}
+                "diagnostics": jsonable(self.diagnostics)}
         np.savez(path, t=t, q=X[self._slice("q")], v=X[self._slice("v")], lam=X[self._slice("lam")],
                  mu=X[self._slice("mu")], u=X[self._slice("u")], u_causal=self.u_causal(t),
                  y_ref=np.zeros((0, t.size)) if yr is None else yr,
@@ -209,22 +210,3 @@ class Inverse:
                 t, yr = z["t"], z["y_ref"]
                 inv.y_ref_fn = lambda tt: np.vstack([np.interp(np.atleast_1d(tt), t, row) for row in yr])
         return inv
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        f = float(obj)
-        return f if np.isfinite(f) else str(f)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.bool_,)):
-        return bool(obj)
-    if isinstance(obj, (str, int, bool)) or obj is None:
-        return obj
-    return str(obj)
