@@ -242,10 +242,10 @@ def default_mesh(T0, Tf, t0, tf, N, fraction=0.5):
 def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label, banded=True):
     """Newton's method on the square collocation system with Jacobian reuse.
 
-    Residual and Jacobian come from the transcription's compiled evaluators; the Jacobian,
-    permuted to time order, is a band matrix factorized by LAPACK's banded LU (SuperLU
-    when the band is too wide or ``banded=False``); the factorization is kept (also across calls on the same
-    transcription, e.g. re-solves after a parameter change) while it contracts the
+    Residual and Jacobian come from :meth:`Transcription.evaluators`; the Jacobian, permuted
+    to time order, is a band matrix factorized by LAPACK's banded LU (SuperLU when the band
+    is too wide or ``banded=False``). The factorization is kept (also across calls on the
+    same transcription, e.g. re-solves after a parameter change) while it contracts the
     residual by at least a factor 4 per step (simplified Newton), and refreshed
     otherwise; a refreshed step that does not decrease the residual is damped."""
     x = np.array(x0, float)
@@ -642,5 +642,6 @@ def _refine(model, reference, *, tol, max_refinements, max_N, forward_options, N
         t_mesh[0], t_mesh[-1] = inv.T0, inv.Tf
     tried = ", ".join(f"N={m['N']}: {m['error']:.2g}" for m in meshes)
     raise InversionFailed(
-        f"mesh refinement did not reach the output error {tol:.2g}; meshes tried (forward-check error): {tried}; raise max_refinements/max_N or use a higher-order "
-        "scheme (legendre3)", partial=inv, diagnostics={"meshes": meshes})
+        f"mesh refinement did not reach the output error {tol:.2g}; meshes tried (forward-check error): {tried}; "
+        "raise max_refinements/max_N or use a higher-order scheme (legendre3)", partial=inv,
+        diagnostics={"meshes": meshes})
