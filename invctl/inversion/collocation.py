@@ -140,14 +140,7 @@ class Transcription:
         x = ca.MX.sym("x", self.nX)
         p = ca.MX.sym("p", self.np)
         Xmesh = ca.reshape(x[:nx * (N + 1)], nx, N + 1)
-        o = 0
-        h = p[o:o + N].T
-        o += N
-        Y = ca.reshape(p[o:o + m4 * self.nY], m4, self.nY)
-        o += m4 * self.nY
-        theta = p[o:o + ntheta]
-        o += ntheta
-        E0, Ef = p[o:o + nx], p[o + nx:o + 2 * nx]
+        h, Y, theta, E0, Ef = self._split_p(p)
         if scheme.is_hs:
             Fn = rhs.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
             defect, energy = interval.map(N)(Xmesh[:, :N], Xmesh[:, 1:], Fn[:, :N], Fn[:, 1:], h, Y[:, N + 1:], theta)
@@ -167,6 +160,13 @@ class Transcription:
         self.build_s = time.perf_counter() - t_build
 
     # ------------------------------------------------------------ layout
+    def _split_p(self, p):
+        """``(h (1 x N), Y (4m x nY), theta, E0, Ef)`` from the symbolic parameter vector ``p``."""
+        N, nx, m4 = self.N, self.nx, self.m4
+        o = N + m4 * self.nY
+        return (p[:N].T, ca.reshape(p[N:o], m4, self.nY), p[o:o + self.ntheta],
+                p[o + self.ntheta:o + self.ntheta + nx], p[o + self.ntheta + nx:o + self.ntheta + 2 * nx])
+
     def sample_times(self, t_mesh: np.ndarray) -> np.ndarray:
         """Times at which the reference is sampled (order of ``Y`` in ``p``)."""
         h = np.diff(t_mesh)
@@ -228,15 +228,10 @@ class Transcription:
 
     def _jacobian_nz(self, x, p):
         """The nonzeros of the Jacobian of ``g`` in CSC order of :meth:`_pattern` (MX column)."""
-        nx, N, m4 = self.nx, self.N, self.m4
+        nx, N = self.nx, self.N
         indices, indptr, perm, s0, sf = self._pattern()
         Xmesh = ca.reshape(x[:nx * (N + 1)], nx, N + 1)
-        o = 0
-        h = p[o:o + N].T
-        o += N
-        Y = ca.reshape(p[o:o + m4 * self.nY], m4, self.nY)
-        o += m4 * self.nY
-        theta = p[o:o + self.ntheta]
+        h, Y, theta, _E0, _Ef = self._split_p(p)
         rj_sx = self.servo.rhs_jac
         rj = self._c(rj_sx)
         I = ca.DM.eye(nx)  # noqa: E741
