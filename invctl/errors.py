@@ -87,9 +87,17 @@ class PreloadInfeasible(ContactError):
     """Persistent-contact (pre-loading) control does not exist (000 Lemma 1)."""
 
 
+class ResultFileError(InvctlError, ValueError):
+    """A result file is missing, truncated, foreign (not written by invctl) or of another version."""
+
+
+class OutputPathError(InvctlError, ValueError):
+    """An output path cannot be written (no such directory, not writable, exists without --force)."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError",
     "RelativeDegreeError", "CoordinateError", "ReferenceSignalError",
     "BoundaryConditionError", "InversionFailed", "SimulationFailed", "FunnelViolation",
-    "StabilityError", "ContactError", "PreloadInfeasible",
+    "StabilityError", "ContactError", "PreloadInfeasible", "ResultFileError", "OutputPathError",
 ]

@@ -1,35 +1,456 @@
-"""Finding scenes (``problems/<name>.py``) by name or by path.
+"""Scenes: what a system declares, and how invctl finds it.
 
-A scene module declares what it needs and nothing else:
+A scene is a Python file that defines ``SCENE = Scene(...)``.  It declares data and the functions
+that build its model (and, where it needs them, its reference, controllers, drawing); it contains no
+command code.  Every ``invctl`` command is written once against :class:`Scene`; which commands a
+scene offers follows from what it declares:
 
-``PARAMS``
-    dict of default parameter values;
-``DERIVED`` (optional)
-    dict name -> rule for derived parameters;
-``build(**overrides)``
-    returns the scene's model object;
-``COMMANDS``
-    dict command name (``analyze``, ``invert``, ``simulate``, ``design``,
-    ``study``) -> handler ``handler(params: dict, **options) -> CommandResult``,
-    usually a :class:`lazy_command` so that loading a scene imports nothing heavy.
+=====================================  =============================================================
+declared                               commands
+=====================================  =============================================================
+``tracking=Tracking(reference=...)``   analyze, invert, design, simulate (C1/C2/C3), pipeline, study
+``tracking=Tracking()`` (no reference) analyze, study
+``contact=Contact(controllers=...)``   simulate, pipeline, study (analyze when it declares reports)
+``switched=Switched()``                analyze, simulate, design, pipeline, study
+=====================================  =============================================================
+
+A scene given by path (``invctl analyze ./my_scene.py``) works exactly like a shipped one
+(``problems/<name>.py``).
 """
 from __future__ import annotations
 
+import hashlib
 import importlib
 import importlib.util
+import math
 import pkgutil
 import sys
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import ModuleType
-from typing import Any
+from types import MappingProxyType, ModuleType
+from typing import Any, Callable, Mapping
 
-from .errors import SceneError
+from .errors import ParameterError, SceneError
+
+__all__ = ["Scene", "Tracking", "Contact", "Switched", "Report", "ReportContext", "CommandResult", "jsonable",
+           "available_scenes", "load_scene", "scene_reference", "SCENE_COMMANDS"]
+
+#: every command of ``invctl`` that acts on a scene
+SCENE_COMMANDS = ("analyze", "invert", "design", "simulate", "pipeline", "study")
 
 
+def _frozen(mapping, what: str, scene: str = "") -> Mapping:
+    if mapping is None:
+        return MappingProxyType({})
+    if not isinstance(mapping, Mapping):
+        raise SceneError(f"scene {scene!r}: {what} must be a dict, got {type(mapping).__name__}")
+    return MappingProxyType(dict(mapping))
+
+
+def _callable(obj, what: str, scene: str = "", optional: bool = True):
+    if obj is None and optional:
+        return None
+    if not callable(obj):
+        raise SceneError(f"scene {scene!r}: {what} must be a function, got {type(obj).__name__} ({obj!r})")
+    return obj
+
+
+@dataclass(frozen=True)
+class Tracking:
+    """What a tracking scene (003) declares beyond its model.
+
+    Parameters
+    ----------
+    reference : callable, optional
+        ``reference(model) -> Reference`` (``y_ref``); without it the scene offers analysis only.
+    point : callable or sequence, optional
+        Design configuration ``q`` for the analysis when there is no reference
+        (``point(model) -> q`` or a fixed ``q``).
+    plant : dict
+        Factors of the simulated plant's parameters (model mismatch), e.g. ``{"m3": 1.2}``.
+    initial_configuration : callable, optional
+        ``initial_configuration(model) -> q``: a guess for the equilibria (the branch to follow).
+    inversion : dict
+        Overrides of the automatic inversion setup: any keyword of :func:`invctl.inversion.invert`
+        (``T0``, ``Tf``, ``start``, ``end``, ``N``, ``scheme``, ...).
+    feedback : dict
+        Overrides of the automatic funnel design (``K``, ``k_i``, ``rho``, ``funnels``, ``kappa``,
+        ``kappa_bar``, ``phi_bar``).
+    expected_error : float, optional
+        Expected output error under the plant mismatch (output units), for the funnel design.
+    internal_coordinates : callable, optional
+        ``internal_coordinates(model) -> SX`` (the ``phi`` of 003 Sect. 3); default: automatic.
+    linearize_at : {"ends", "start"}
+        Where the internal dynamics are linearized: the mean of the Jacobians at the start and end
+        equilibria of the reference (as 003 Sect. 6 does) or at the start only.
+    split : {"schur", "eig"}
+        How ``T`` of 003 (39) is built.
+    signals : dict
+        Extra signals computed from the output, ``name -> (model -> (y -> SX))``, reported with
+        their cumulative tracking error (e.g. the end effector).
+    t_end : float, optional
+        End of the closed-loop runs (default: the transition end plus its length).
+    a1 : dict
+        Further choices of ``K`` to check against (A1) in ``invctl analyze`` (name -> dict with
+        ``K``, ``k_i``, ``rho``), e.g. the paper's printed ones.
+    printed : dict
+        Numbers the paper prints for this scene, compared in reports (e.g.
+        ``{"reduction": {"output": 0.40, "end effector": 0.50}}``).
+    controllers : tuple of str
+        The runs ``invctl pipeline`` compares.
+    """
+
+    reference: Callable | None = None
+    point: Any = None
+    plant: Mapping[str, float] = field(default_factory=dict)
+    initial_configuration: Callable | None = None
+    inversion: Mapping[str, Any] = field(default_factory=dict)
+    feedback: Mapping[str, Any] = field(default_factory=dict)
+    expected_error: float | None = None
+    internal_coordinates: Callable | None = None
+    linearize_at: str = "ends"
+    split: str = "schur"
+    signals: Mapping[str, Callable] = field(default_factory=dict)
+    t_end: float | None = None
+    a1: Mapping[str, Mapping] = field(default_factory=dict)
+    printed: Mapping[str, Any] = field(default_factory=dict)
+    controllers: tuple = ("C1", "C2", "C3")
+
+    def _check(self, scene: str) -> None:
+        for name in ("reference", "initial_configuration", "internal_coordinates"):
+            _callable(getattr(self, name), f"tracking.{name}", scene)
+        for name in ("plant", "inversion", "feedback", "signals", "a1", "printed"):
+            object.__setattr__(self, name, _frozen(getattr(self, name), f"tracking.{name}", scene))
+        for k, v in self.signals.items():
+            _callable(v, f"tracking.signals[{k!r}]", scene, optional=False)
+        if self.linearize_at not in ("ends", "start"):
+            raise SceneError(f"scene {scene!r}: tracking.linearize_at must be 'ends' or 'start', "
+                             f"got {self.linearize_at!r}")
+        if self.split not in ("schur", "eig"):
+            raise SceneError(f"scene {scene!r}: tracking.split must be 'schur' or 'eig', got {self.split!r}")
+        for k, v in self.plant.items():
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise SceneError(f"scene {scene!r}: tracking.plant[{k!r}] must be a positive factor, got {v!r}")
+        if self.t_end is not None and not (isinstance(self.t_end, (int, float)) and self.t_end > 0):
+            raise SceneError(f"scene {scene!r}: tracking.t_end must be a positive number, got {self.t_end!r}")
+        object.__setattr__(self, "controllers", tuple(self.controllers))
+
+
+@dataclass(frozen=True)
+class Contact:
+    """What a contact scene (000) declares beyond its model (whose gaps carry the unilateral constraints).
+
+    Parameters
+    ----------
+    controllers : dict
+        ``name -> law(model, settings) -> FeedbackLaw`` (:mod:`invctl.control.pdplus`,
+        :mod:`invctl.control.preload`, ...); ``{}`` for an unactuated system.
+    initial_state : callable
+        ``initial_state(model, settings, controller) -> (q0, v0)``.
+    default_controller : str or callable, optional
+        The controller of ``invctl simulate`` without ``--controller`` (or
+        ``(model, settings) -> name``); default: the first one.
+    potential : callable, optional
+        ``potential(model) -> SX``, the potential energy reported in the energy balance.
+    exact_impacts : callable, optional
+        ``exact_impacts(model, settings, t_max) -> (times, post-impact normal velocities)`` of the
+        default run in closed form (the reference of ``invctl study tradeoff --job impacts``).
+    """
+
+    controllers: Mapping[str, Callable] = field(default_factory=dict)
+    initial_state: Callable | None = None
+    default_controller: Any = None
+    potential: Callable | None = None
+    exact_impacts: Callable | None = None
+
+    def _check(self, scene: str) -> None:
+        object.__setattr__(self, "controllers", _frozen(self.controllers, "contact.controllers", scene))
+        for k, v in self.controllers.items():
+            _callable(v, f"contact.controllers[{k!r}]", scene, optional=False)
+        _callable(self.initial_state, "contact.initial_state", scene, optional=False)
+        _callable(self.potential, "contact.potential", scene)
+        _callable(self.exact_impacts, "contact.exact_impacts", scene)
+        dc = self.default_controller
+        if isinstance(dc, str) and dc not in self.controllers:
+            raise SceneError(f"scene {scene!r}: contact.default_controller {dc!r} is not one of "
+                             f"{sorted(self.controllers)}")
+        if dc is not None and not isinstance(dc, str):
+            _callable(dc, "contact.default_controller", scene)
+
+    def controller_for(self, model, settings: Mapping, name: str | None) -> str:
+        """The controller to run: ``name``, the declared default, or the first one."""
+        if name is None:
+            dc = self.default_controller
+            name = dc(model, settings) if callable(dc) else dc
+            if name is None:
+                name = next(iter(self.controllers), "none")
+        if name != "none" and name not in self.controllers:
+            raise SceneError(f"unknown controller {name!r}; this scene offers: "
+                             f"{', '.join(sorted(self.controllers)) or 'none'} (and 'none': no input)")
+        return name
+
+
+@dataclass(frozen=True)
+class Switched:
+    """Marks a switched position/force scene (002): ``build`` returns a
+    :class:`invctl.studies.switched.SwitchedProblem`."""
+
+
+@dataclass(frozen=True)
+class ReportContext:
+    """What a :class:`Report` sees: the scene, the parameters and the run (or None in ``analyze``)."""
+
+    scene: "Scene"
+    model: Any
+    params: Mapping[str, float]
+    settings: Mapping[str, float]
+    result: Any = None
+    controller: str | None = None
+
+
+@dataclass(frozen=True)
+class Report:
+    """Numbers a scene wants to see, computed from a run (``command="simulate"``) or the model
+    (``command="analyze"``), optionally beside the values the paper prints.
+
+    ``compute(ctx: ReportContext) -> dict`` returns named values; ``printed`` holds the paper's
+    values for some of those names (compared in the report); ``controllers`` restricts a simulate
+    report to some controllers.
+    """
+
+    title: str
+    compute: Callable
+    command: str = "simulate"
+    printed: Mapping[str, Any] = field(default_factory=dict)
+    controllers: tuple = ()
+
+    def _check(self, scene: str) -> None:
+        _callable(self.compute, f"report {self.title!r}: compute", scene, optional=False)
+        if self.command not in ("analyze", "simulate"):
+            raise SceneError(f"scene {scene!r}: report {self.title!r}: command must be 'analyze' or 'simulate', "
+                             f"got {self.command!r}")
+        object.__setattr__(self, "printed", _frozen(self.printed, f"report {self.title!r}: printed", scene))
+        object.__setattr__(self, "controllers", tuple(self.controllers))
+
+    def applies(self, command: str, controller: str | None = None) -> bool:
+        return self.command == command and (not self.controllers or controller in self.controllers)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A scene: a model, its parameters, and what to do with it (see the module docstring).
+
+    Parameters
+    ----------
+    name : str
+        Short name (used in reports, file names, JSON).
+    build : callable
+        ``build(**params) -> Model`` (or, for ``switched`` scenes, a ``SwitchedProblem``); receives
+        the overridden entries of ``params`` only.
+    params : dict
+        Defaults of the parameters ``build`` accepts (``--set name=value``; a plant in a closed
+        loop may differ from the model in these).
+    settings : dict
+        Defaults of run settings (time step, horizon, gains of declared controllers, ...), also set
+        with ``--set``; never part of the model.
+    integer : tuple of str
+        Names in ``params``/``settings`` that must be integers (e.g. a number of actuators).
+    positive : tuple of str
+        Names that must be > 0 (lengths, masses, time steps ...); every value must be finite.
+    validate : callable, optional
+        ``validate(values) -> None`` raising :class:`~invctl.errors.ParameterError` for
+        further conditions (``values`` = params and settings together).
+    tracking, contact, switched : optional
+        What the scene is for (:class:`Tracking`, :class:`Contact`, :class:`Switched`).
+    drawing : callable, optional
+        ``drawing(model) -> invctl.plot.animate.Drawing`` (points and links of the mechanism).
+    reports : tuple of Report
+        Numbers the scene wants to see in ``analyze``/``simulate``.
+    studies : dict
+        Scene-specific speed-versus-accuracy studies: ``name -> spec(scene, params, settings, smoke)``
+        returning a :class:`~invctl.studies.tradeoff.TradeoffSpec` (``invctl study tradeoff --job name``).
+    description : str
+        One paragraph shown by ``invctl analyze`` and in the gallery.
+    """
+
+    name: str
+    build: Callable
+    params: Mapping[str, float] = field(default_factory=dict)
+    settings: Mapping[str, float] = field(default_factory=dict)
+    integer: tuple = ()
+    positive: tuple = ()
+    validate: Callable | None = None
+    tracking: Tracking | None = None
+    contact: Contact | None = None
+    switched: Switched | None = None
+    drawing: Callable | None = None
+    reports: tuple = ()
+    studies: Mapping[str, Callable] = field(default_factory=dict)
+    description: str = ""
+    source: str = ""
+
+    def __post_init__(self):
+        name = self.name
+        if not isinstance(name, str) or not name.isidentifier():
+            raise SceneError(f"scene name must be an identifier-like string, got {name!r}")
+        _callable(self.build, "build", name, optional=False)
+        _callable(self.validate, "validate", name)
+        _callable(self.drawing, "drawing", name)
+        for what in ("params", "settings"):
+            values = _frozen(getattr(self, what), what, name)
+            bad = {k: v for k, v in values.items()
+                   if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)}
+            if bad:
+                raise SceneError(f"scene {name!r}: {what} must map names to finite numbers, got {bad}")
+            object.__setattr__(self, what, values)
+        both = sorted(set(self.params) & set(self.settings))
+        if both:
+            raise SceneError(f"scene {name!r}: {both} are both parameters and settings; pick one")
+        for what in ("integer", "positive"):
+            names = tuple(getattr(self, what))
+            unknown = sorted(set(names) - set(self.params) - set(self.settings))
+            if unknown:
+                raise SceneError(f"scene {name!r}: {what} names unknown values {unknown}")
+            object.__setattr__(self, what, names)
+        kinds = [k for k in ("tracking", "contact", "switched") if getattr(self, k) is not None]
+        if len(kinds) > 1:
+            raise SceneError(f"scene {name!r} declares {kinds}; a scene is one of tracking, contact, switched")
+        expected = {"tracking": Tracking, "contact": Contact, "switched": Switched}
+        for k in kinds:
+            obj = getattr(self, k)
+            if not isinstance(obj, expected[k]):
+                raise SceneError(f"scene {name!r}: {k}= must be an invctl.scenes.{expected[k].__name__}, "
+                                 f"got {type(obj).__name__}")
+            if hasattr(obj, "_check"):
+                obj._check(name)
+        reports = tuple(self.reports)
+        for r in reports:
+            if not isinstance(r, Report):
+                raise SceneError(f"scene {name!r}: reports must be invctl.scenes.Report objects, got {r!r}")
+            r._check(name)
+        object.__setattr__(self, "reports", reports)
+        object.__setattr__(self, "studies", _frozen(self.studies, "studies", name))
+        for k, v in self.studies.items():
+            _callable(v, f"studies[{k!r}]", name, optional=False)
+
+    # ------------------------------------------------------------------ kinds
+    @property
+    def kind(self) -> str:
+        """``"tracking"``, ``"contact"``, ``"switched"`` or ``"model"`` (nothing declared)."""
+        for k in ("tracking", "contact", "switched"):
+            if getattr(self, k) is not None:
+                return k
+        return "model"
+
+    @property
+    def commands(self) -> tuple[str, ...]:
+        """The commands this scene offers."""
+        kind = self.kind
+        if kind == "tracking":
+            if self.tracking.reference is None:
+                return ("analyze", "study")
+            return ("analyze", "invert", "design", "simulate", "pipeline", "study")
+        if kind == "contact":
+            has_analysis = any(r.command == "analyze" for r in self.reports)
+            return (("analyze",) if has_analysis else ()) + ("simulate", "pipeline", "study")
+        if kind == "switched":
+            return ("analyze", "simulate", "design", "pipeline", "study")
+        return ()
+
+    def require(self, command: str) -> None:
+        """Raise :class:`SceneError` unless the scene offers ``command`` (saying what it would need)."""
+        if command in self.commands:
+            return
+        need = {
+            "invert": "a model with outputs and tracking=Tracking(reference=...)",
+            "design": "tracking=Tracking(reference=...) or switched=Switched()",
+            "simulate": "tracking=Tracking(reference=...), contact=Contact(...) or switched=Switched()",
+            "pipeline": "tracking=Tracking(reference=...), contact=Contact(...) or switched=Switched()",
+            "analyze": "tracking=Tracking(...), switched=Switched() or an analyze Report",
+            "study": "tracking, contact or switched",
+        }.get(command, "a declaration for it")
+        raise SceneError(f"scene {self.name!r} does not offer {command!r}; it offers: "
+                         f"{', '.join(self.commands) or 'none'} ({command} needs {need})")
+
+    # ------------------------------------------------------------- parameters
+    def split(self, values: Mapping[str, float] | None) -> tuple[dict, dict]:
+        """Split ``--set`` values into (parameter overrides, full settings), checked.
+
+        Raises
+        ------
+        ParameterError
+            Unknown names, non-finite values, non-integers where integers are required, values
+            that must be positive and are not, or what ``validate`` rejects.
+        """
+        values = dict(values or {})
+        unknown = sorted(set(values) - set(self.params) - set(self.settings))
+        if unknown:
+            raise ParameterError(
+                f"{self.name}: unknown parameter(s) {unknown}; parameters: {sorted(self.params) or 'none'}; "
+                f"settings: {sorted(self.settings) or 'none'}")
+        for k, v in values.items():
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(float(v)):
+                raise ParameterError(f"{self.name}: {k} = {v!r} is not a finite number")
+        full = {**self.params, **self.settings, **{k: float(v) for k, v in values.items()}}
+        self.check_values(full)
+        params = {k: float(v) for k, v in values.items() if k in self.params}
+        settings = {k: float(full[k]) for k in self.settings}
+        return params, settings
+
+    def check_values(self, full: Mapping[str, float]) -> None:
+        """Apply ``integer``, ``positive`` and ``validate`` to a full set of values."""
+        for k in self.integer:
+            if k in full and float(full[k]) != round(float(full[k])):
+                raise ParameterError(f"{self.name}: {k} must be an integer, got {full[k]!r}")
+        for k in self.positive:
+            if k in full and not float(full[k]) > 0:
+                raise ParameterError(f"{self.name}: {k} must be positive, got {full[k]!r}")
+        if self.validate is not None:
+            self.validate(dict(full))
+
+    def model(self, params: Mapping[str, float] | None = None):
+        """``build(**params)`` (parameter overrides only), with its return type checked."""
+        params = dict(params or {})
+        unknown = sorted(set(params) - set(self.params))
+        if unknown:
+            raise ParameterError(f"{self.name}: unknown model parameter(s) {unknown}; known: {sorted(self.params)}")
+        try:
+            obj = self.build(**params)
+        except (ParameterError, SceneError):
+            raise
+        except Exception as exc:
+            from .errors import InvctlError
+
+            if isinstance(exc, InvctlError):
+                raise
+            raise SceneError(f"scene {self.name!r}: build({', '.join(f'{k}={v!r}' for k, v in params.items())}) "
+                             f"failed: {type(exc).__name__}: {exc}{_where(exc, self.source)}") from exc
+        self._check_model(obj)
+        return obj
+
+    def _check_model(self, obj) -> None:
+        kind = self.kind
+        if kind in ("tracking", "contact", "model"):
+            from .model import Model
+
+            if not isinstance(obj, Model):
+                raise SceneError(f"scene {self.name!r}: build() returned {type(obj).__name__}; a {kind} scene "
+                                 "must return an invctl.model.Model")
+            if kind == "tracking" and self.tracking.reference is not None and obj.ny == 0:
+                raise SceneError(f"scene {self.name!r}: the model has no output h, but the scene declares a "
+                                 "reference; give Model(..., h=...)")
+            if kind == "contact" and not obj.gaps:
+                raise SceneError(f"scene {self.name!r}: a contact scene's model needs gaps (Model(..., gaps=[...]))")
+        elif kind == "switched" and not hasattr(obj, "error_system"):
+            raise SceneError(f"scene {self.name!r}: build() returned {type(obj).__name__}; a switched scene "
+                             "must return an invctl.studies.switched.SwitchedProblem")
+
+
+# ---------------------------------------------------------------- results
 @dataclass
 class CommandResult:
-    """What a scene command returns: a readable report and JSON-able data (see :func:`jsonable`)."""
+    """What a command returns: a readable report and JSON-able data (see :func:`jsonable`)."""
 
     text: str
     data: dict[str, Any] = field(default_factory=dict)
@@ -41,7 +462,7 @@ def jsonable(obj):
     anything else unknown as its ``str``."""
     import numpy as np
 
-    if isinstance(obj, dict):
+    if isinstance(obj, Mapping):
         return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [jsonable(v) for v in obj]
@@ -61,6 +482,7 @@ def jsonable(obj):
     return str(obj)
 
 
+# ---------------------------------------------------------------- loading
 def available_scenes() -> list[str]:
     """Names of the scenes shipped in ``problems/``."""
     import problems
@@ -68,62 +490,99 @@ def available_scenes() -> list[str]:
     return sorted(m.name for m in pkgutil.iter_modules(problems.__path__) if not m.name.startswith("_"))
 
 
-def load_scene(name_or_path: str) -> ModuleType:
-    """Import a scene by name (``manipulator``) or by path (``./my_scene.py``)."""
-    path = Path(name_or_path)
-    if path.suffix == ".py" or path.exists():
+def _where(exc: BaseException, source: str) -> str:
+    """`` (file:line)`` of the innermost frame of ``exc`` in the scene file, if any."""
+    if not source:
+        return ""
+    for fs in reversed(traceback.extract_tb(exc.__traceback__)):
+        if Path(fs.filename).resolve() == Path(source).resolve():
+            return f" ({fs.filename}:{fs.lineno})"
+    return ""
+
+
+def _is_path(text: str) -> bool:
+    return text.endswith(".py") or "/" in text or "\\" in text or text.startswith(".")
+
+
+def load_scene(name_or_path) -> Scene:
+    """The :class:`Scene` of a shipped scene (``"manipulator"``) or of a scene file (``"./mine.py"``).
+
+    Raises
+    ------
+    SceneError
+        No such scene or file; a file that does not import (syntax errors and exceptions are reported
+        with file and line); a file without ``SCENE = Scene(...)``.
+    """
+    text = str(name_or_path)
+    if _is_path(text):
+        path = Path(text)
         if not path.is_file():
-            raise SceneError(f"scene file {str(path)!r} does not exist")
-        modname = f"invctl_scene_{path.stem}"
-        spec = importlib.util.spec_from_file_location(modname, path)
-        if spec is None or spec.loader is None:
-            raise SceneError(f"cannot import scene file {str(path)!r}")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[modname] = module
-        spec.loader.exec_module(module)
+            raise SceneError(f"scene file {text!r} does not exist (a shipped scene is given by its name: "
+                             f"{', '.join(available_scenes())})")
+        module = _import_file(path)
+        source = str(path)
     else:
+        if not text.isidentifier():
+            raise SceneError(f"{text!r} is neither a scene name nor a path to a .py file")
         try:
-            module = importlib.import_module(f"problems.{name_or_path}")
+            module = importlib.import_module(f"problems.{text}")
         except ModuleNotFoundError as exc:
-            if exc.name not in (f"problems.{name_or_path}", "problems"):
-                raise
-            raise SceneError(
-                f"no scene named {name_or_path!r}; shipped scenes: {', '.join(available_scenes())} "
-                "(or give a path to a scene file)"
-            ) from None
-    if not hasattr(module, "SCENE_NAME"):
-        module.SCENE_NAME = path.stem if path.suffix == ".py" else name_or_path
-    if not hasattr(module, "build"):
-        raise SceneError(f"scene {name_or_path!r} has no build(**params) function")
+            if exc.name not in (f"problems.{text}", "problems"):
+                raise SceneError(f"scene {text!r} imports a missing module {exc.name!r}") from None
+            raise SceneError(f"no scene named {text!r}; shipped scenes: {', '.join(available_scenes())} "
+                             "(or give a path to a scene file)") from None
+        source = getattr(module, "__file__", "") or ""
+    return scene_of(module, source)
+
+
+def scene_reference(scene: Scene) -> str:
+    """How to load ``scene`` again: its name when it is shipped in ``problems/``, else its file path."""
+    import problems
+
+    src = Path(scene.source) if scene.source else None
+    if src is None or src.resolve().parent == Path(problems.__file__).resolve().parent:
+        return scene.name
+    return str(src.resolve())
+
+
+def scene_of(module: ModuleType, source: str = "") -> Scene:
+    """The ``SCENE`` a module declares (checked)."""
+    scene = getattr(module, "SCENE", None)
+    where = source or getattr(module, "__name__", "?")
+    if scene is None:
+        raise SceneError(
+            f"{where}: a scene file must define SCENE = invctl.Scene(name=..., build=..., params=...); "
+            "see docs/write_your_own.md")
+    if not isinstance(scene, Scene):
+        raise SceneError(f"{where}: SCENE must be an invctl.Scene, got {type(scene).__name__}")
+    if source and not scene.source:
+        object.__setattr__(scene, "source", str(source))
+    return scene
+
+
+def _import_file(path: Path) -> ModuleType:
+    resolved = path.resolve()
+    # one module per file (not per file name): two scene files called scene.py in different folders
+    # are different scenes
+    modname = f"invctl_scene_{path.stem}_{hashlib.sha1(str(resolved).encode()).hexdigest()[:10]}"
+    spec = importlib.util.spec_from_file_location(modname, resolved)
+    if spec is None or spec.loader is None:
+        raise SceneError(f"cannot import scene file {str(path)!r}")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[modname] = module
+    try:
+        spec.loader.exec_module(module)
+    except SyntaxError as exc:
+        sys.modules.pop(modname, None)
+        raise SceneError(f"scene file {exc.filename}:{exc.lineno}: syntax error: {exc.msg}"
+                         + (f"\n    {exc.text.rstrip()}" if exc.text else "")) from None
+    except SceneError:
+        sys.modules.pop(modname, None)
+        raise
+    except Exception as exc:
+        sys.modules.pop(modname, None)
+        raise SceneError(f"scene file {str(path)!r} failed to import: {type(exc).__name__}: {exc}"
+                         f"{_where(exc, str(resolved))}") from None
     return module
 
 
-def scene_name(module: ModuleType) -> str:
-    """The short name of a scene module (file stem or name in problems/)."""
-    return getattr(module, "SCENE_NAME", module.__name__.split(".")[-1])
-
-
-def scene_command(module: ModuleType, command: str):
-    """The handler of ``command`` in a scene, or a clear error."""
-    commands = getattr(module, "COMMANDS", {})
-    if command not in commands:
-        offered = ", ".join(sorted(commands)) or "none"
-        raise SceneError(
-            f"scene {scene_name(module)!r} does not offer {command!r}; it offers: {offered}"
-        )
-    return commands[command]
-
-
-@dataclass(frozen=True)
-class lazy_command:  # noqa: N801 - used like a function in scene files
-    """A scene's command handler that imports its implementation on first call, so that loading
-    a scene stays light: ``COMMANDS = {"simulate": lazy_command(__name__, "invctl.studies.x:simulate_command")}``.
-    The implementation is called as ``impl(scene_module, params, **options)``."""
-
-    scene_module: str
-    target: str
-
-    def __call__(self, params: dict, **options):
-        module_name, _, attr = self.target.partition(":")
-        impl = getattr(importlib.import_module(module_name), attr)
-        return impl(sys.modules[self.scene_module], params, **options)

@@ -1,1 +1,1 @@
-"""Shipped scenes: one module per scene, each with ``PARAMS``, ``build`` and ``COMMANDS``."""
+"""Shipped scenes: one module per scene, each declaring ``SCENE = invctl.scenes.Scene(...)``."""

@@ -10,13 +10,11 @@ velocity of impact ``k`` is ``e^k v_1``.
 """
 from __future__ import annotations
 
-import sys
-
 import casadi as ca
 import numpy as np
 
 from invctl.model import Gap, Model, ParamSet
-from invctl.scenes import lazy_command
+from invctl.scenes import Contact, Report, Scene
 
 PARAMS = {"m": 1.0, "g": 9.81, "H": 1.0, "e": 0.8, "h": 1e-3, "theta": 0.5, "t_end": 3.0, "projection": 0.0}
 MODEL_PARAMS = ("m", "g", "e")
@@ -58,27 +56,44 @@ def exact_impacts(H: float, g: float, e: float, t_max: float):
     return np.array(times), np.array(pre), np.array(post), rest
 
 
-def check_params(p: dict) -> dict:
-    from invctl.errors import ParameterError
-
-    full = {**PARAMS, **p}
-    unknown = sorted(set(p) - set(PARAMS))
-    if unknown:
-        raise ParameterError(f"bouncing_ball: unknown parameter(s) {unknown}; known: {sorted(PARAMS)}")
-    if not 0 <= full["e"] <= 1:
-        raise ParameterError(f"bouncing_ball: restitution e must lie in [0, 1], got {full['e']}")
-    for k in ("m", "g", "H", "h", "t_end"):
-        if full[k] <= 0:
-            raise ParameterError(f"bouncing_ball: {k} must be positive, got {full[k]}")
-    return full
+def _exact(model: Model, settings: dict, t_max: float):
+    p = model.values
+    times, _, post, _ = exact_impacts(settings["H"], p["g"], p["e"], t_max)
+    return times, post
 
 
-def tradeoff_spec(params, smoke: bool = False):
-    from invctl.studies.contact_commands import bouncing_ball_tradeoff
+def closed_form_report(ctx) -> dict:
+    """Impact times, post-impact velocities and rest time against the closed form."""
+    tr, p, s = ctx.result, ctx.model.values, ctx.settings
+    ti, _, _, post, _ = tr.impacts()
+    ex_t, _, ex_post, rest = exact_impacts(s["H"], p["g"], p["e"], float(tr.t[-1]))
+    k = min(len(ti), len(ex_t), 5)
+    return {"impact times": ti[:k], "closed form": ex_t[:k], "impact time errors": ti[:k] - ex_t[:k],
+            "post-impact velocity errors": post[:k] - ex_post[:k], "rest time": tr.rest_time(),
+            "rest time, closed form": rest}
 
-    return bouncing_ball_tradeoff(sys.modules[__name__], params, smoke=smoke)
+
+def drawing(model: Model):
+    """The ball above the ground line."""
+    from invctl.plot.animate import Drawing
+
+    return Drawing(points={"ball": ca.vertcat(0, model.q[0])}, links=[], fixed=[((-0.5, 0.0), (0.5, 0.0))])
 
 
-COMMANDS = {
-    "simulate": lazy_command(__name__, "invctl.studies.contact_commands:bouncing_ball_command"),
-}
+def _check(v: dict) -> None:
+    if not 0 <= v["e"] <= 1:
+        from invctl.errors import ParameterError
+
+        raise ParameterError(f"bouncing_ball: restitution e must lie in [0, 1], got {v['e']}")
+
+
+SCENE = Scene(
+    "bouncing_ball", build, params={k: PARAMS[k] for k in MODEL_PARAMS},
+    settings={k: v for k, v in PARAMS.items() if k not in MODEL_PARAMS},
+    positive=("m", "g", "H", "h", "t_end"), validate=_check,
+    contact=Contact(initial_state=lambda model, settings, controller: ([settings["H"]], [0.0]),
+                    potential=potential, exact_impacts=_exact),
+    reports=(Report("closed form (Newton's law, free fall)", closed_form_report),),
+    drawing=drawing,
+    description="a ball dropped onto the ground (000 (1) with n = 1); impacts and rest time in closed form",
+)

@@ -20,7 +20,7 @@ import casadi as ca
 
 from invctl.model import Model, OperatingRegion, ParamSet
 from invctl.reference import Reference, poly9_timing_law
-from invctl.scenes import lazy_command
+from invctl.scenes import Scene, Tracking
 
 PARAMS = {"mc": 1.0, "mp": 0.2, "l": 0.5, "I": 0.2 * 0.5**2 / 3, "g": 9.81, "D": 0.0}
 #: homogeneous pole of length 2 l (centre of mass at l)
@@ -63,10 +63,20 @@ def zero_dynamics_eigenvalues(model: Model):
     return (-b / 2 - disc, -b / 2 + disc)
 
 
-def analysis_setup(model: Model) -> dict:
-    return {"point": [0.0, 0.0], "reference": reference(model)}
+def drawing(model: Model):
+    """Cart (a point on the rail) and the pole of length 2 l."""
+    from invctl.plot.animate import Drawing
+
+    x, th = model.q[0], model.q[1]
+    l = model.params["l"]
+    return Drawing(points={"cart": ca.vertcat(x, 0), "tip": ca.vertcat(x + 2 * l * ca.sin(th), 2 * l * ca.cos(th))},
+                   links=[("cart", "tip")], fixed=[((-1.0, 0.0), (1.5, 0.0))])
 
 
-COMMANDS = {
-    "analyze": lazy_command(__name__, "invctl.analysis.commands:analyze_command"),
-}
+SCENE = Scene(
+    "cartpole", build, params=PARAMS, positive=("mc", "mp", "l", "I", "g"),
+    tracking=Tracking(reference=reference, plant={"mp": 1.2}, initial_configuration=lambda model: [0.0, 0.0]),
+    drawing=drawing,
+    description="cart-pole, output = cart position: non-minimum phase (the zero dynamics are the inverted "
+                "pendulum); the simulated plant has a 20 % heavier pole",
+)

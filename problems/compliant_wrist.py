@@ -15,10 +15,9 @@ from __future__ import annotations
 
 
 from invctl.model.params import resolve_params
-from invctl.scenes import lazy_command
+from invctl.scenes import Scene, Switched
 
 from problems.stiff_wall import PARAMS as _WALL
-from problems.stiff_wall import SwitchedScene
 
 PARAMS = {**_WALL, "Mt": 0.05, "kt": 5.0e4, "bt": 171.0, "switch_on_tip": 0.0,
           "ke_hat": 5.0e4 * 1e6 / (5.0e4 + 1e6), "be_hat": 171.0 * 1e6 / (5.0e4 + 1e6)}
@@ -29,13 +28,18 @@ DERIVED = {
 }
 
 
-def build(**overrides: float) -> SwitchedScene:
-    """The scene with parameters resolved (unknown names raise ParameterError)."""
-    return SwitchedScene("compliant_wrist", resolve_params(PARAMS, DERIVED, overrides))
+def build(**overrides: float):
+    """The scenario with parameters resolved (unknown names raise ParameterError)."""
+    from invctl.studies.switched import SwitchedProblem
+
+    return SwitchedProblem("compliant_wrist", resolve_params(PARAMS, DERIVED, overrides))
 
 
-COMMANDS = {
-    "analyze": lazy_command(__name__, "invctl.studies.switched:analyze_command"),
-    "simulate": lazy_command(__name__, "invctl.studies.switched:simulate_command"),
-    "design": lazy_command(__name__, "invctl.studies.switched:design_command"),
-}
+SCENE = Scene(
+    "compliant_wrist", build, params=PARAMS,
+    positive=("M", "ke", "Ma", "ke_hat", "t_b", "gamma1", "gamma2", "t_end", "h_max",
+              "Mt", "kt", "bt"),
+    switched=Switched(),
+    description="manipulator with a compliant wrist against a stiff wall (002 Sect. 5), analysed by its reduced "
+                "model (27)-(28)",
+)

@@ -19,7 +19,7 @@ import casadi as ca
 import numpy as np
 
 from invctl.model import Gap, Model, ParamSet
-from invctl.scenes import lazy_command
+from invctl.scenes import Contact, Report, Scene
 
 PARAMS = {
     "J1": 0.01, "J2": 0.01, "J3": 0.01,
@@ -32,6 +32,15 @@ MODEL_PARAMS = ("J1", "J2", "J3", "alpha1", "alpha2", "alpha3", "alpha4", "e")
 #: 000 Example 4, J1 = J2 = J3 = J
 PRINTED_D_TIMES_J = np.array([[2.0, -1.0], [-1.0, 2.0]])
 PRINTED_E_HAT = np.array([[-2.0, 1.0, 1.0], [-1.0, -1.0, 2.0]]) / 3.0
+
+
+def _check(v: dict) -> None:
+    from invctl.errors import ParameterError
+
+    if v["c4"] not in (-1.0, 1.0):
+        raise ParameterError(f"gear_backlash: c4 selects the f4 variant and must be +1 or -1, got {v['c4']}")
+    if not 0 <= v["e"] <= 1:
+        raise ParameterError(f"gear_backlash: restitution e must lie in [0, 1], got {v['e']}")
 
 
 def build(**overrides: float) -> Model:
@@ -64,7 +73,50 @@ def preloaded_configuration(model: Model, theta1: float = 0.0) -> np.ndarray:
     return np.array([theta1, th2, th3])
 
 
-COMMANDS = {
-    "simulate": lazy_command(__name__, "invctl.studies.contact_commands:gear_command"),
-    "analyze": lazy_command(__name__, "invctl.studies.contact_commands:gear_analyze"),
-}
+def _preload(model, s):
+    from invctl.control.preload import preload_law
+
+    q0 = preloaded_configuration(model)
+    return preload_law(model, [0, 3], beta=np.array([s["beta1"], s["beta2"]]), Kp=s["Kp"], Kv=s["Kv"],
+                       y_d=q0 + s["qd"])
+
+
+def example4_report(ctx) -> dict:
+    """000 Example 4 (J1 = J2 = J3): E_hat and D at f1 = f4 = 0 for both f4 variants, and the printed
+    persistent-contact conditions checked on random torques."""
+    from invctl.contact.mechanics import ContactSystem
+    from invctl.control.preload import preload_check
+    from invctl.errors import SceneError
+
+    p = {**PARAMS, **ctx.params}
+    if not (p["J1"] == p["J2"] == p["J3"]):
+        raise SceneError("the printed matrices of Example 4 assume J1 = J2 = J3; set equal inertias")
+    J = p["J1"]
+    out = {}
+    for label, c4 in (("f4 as printed (c4 = -1)", -1.0), ("f4 = theta3 - theta2 + alpha4 (c4 = +1)", 1.0)):
+        model = build(**{**ctx.params, "c4": c4})
+        q = preloaded_configuration(model)
+        out[f"E_hat, {label}"] = preload_check(model, q, np.zeros(3), [0, 3]).E_hat
+        out[f"D J, {label}"] = ContactSystem(model).delassus(q, [0, 3]) * J
+    n = int(ctx.settings.get("samples", 200))
+    tau = np.random.default_rng(0).normal(size=(n, 3))
+    lhs = np.all(tau @ PRINTED_E_HAT.T < 0, axis=1)
+    rhs = (2 * tau[:, 0] > tau[:, 1] + tau[:, 2]) & (tau[:, 0] > -tau[:, 1] + 2 * tau[:, 2])
+    out[f"printed conditions 2t1 > t2 + t3, t1 > -t2 + 2t3 <=> E_hat t < 0 ({n} samples)"] = bool(np.all(lhs == rhs))
+    return out
+
+
+SCENE = Scene(
+    "gear_backlash", build, params={k: PARAMS[k] for k in (*MODEL_PARAMS, "c4")},
+    settings={k: v for k, v in PARAMS.items() if k not in (*MODEL_PARAMS, "c4")},
+    positive=("J1", "J2", "J3", "alpha1", "alpha2", "alpha3", "alpha4", "h", "t_end", "beta1", "beta2"),
+    validate=_check,
+    contact=Contact(controllers={"preload": _preload},
+                    initial_state=lambda model, s, controller: (preloaded_configuration(model), np.zeros(3))),
+    reports=(Report("000 Example 4 (pre-loading f1 = f4 = 0)", example4_report, command="analyze",
+                    printed={"E_hat, f4 as printed (c4 = -1)": PRINTED_E_HAT,
+                             "E_hat, f4 = theta3 - theta2 + alpha4 (c4 = +1)": PRINTED_E_HAT,
+                             "D J, f4 as printed (c4 = -1)": PRINTED_D_TIMES_J,
+                             "D J, f4 = theta3 - theta2 + alpha4 (c4 = +1)": PRINTED_D_TIMES_J}),),
+    description="three cogwheels with backlash (000 Fig. 2(c), Example 4), pre-loading of f1 and f4",
+)

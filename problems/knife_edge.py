@@ -17,7 +17,7 @@ import math
 import casadi as ca
 
 from invctl.model import Model, OperatingRegion, ParamSet
-from invctl.scenes import lazy_command
+from invctl.scenes import Scene, Tracking
 
 PARAMS = {"m": 1.0, "I": 0.1, "Dth": 0.05}
 
@@ -49,10 +49,8 @@ def build_position_output(**overrides: float) -> Model:
     return _build("knife_edge_xy", "x_y", overrides)
 
 
-def analysis_setup(model: Model) -> dict:
-    return {"point": [0.0, 0.0, 0.3]}
-
-
-COMMANDS = {
-    "analyze": lazy_command(__name__, "invctl.analysis.commands:analyze_command"),
-}
+SCENE = Scene(
+    "knife_edge", build, params=PARAMS, positive=("m", "I"),
+    tracking=Tracking(point=[0.0, 0.0, 0.3]),
+    description="knife edge (skate) with a non-holonomic constraint, outputs (x, theta); analysis only",
+)

@@ -32,7 +32,7 @@ import numpy as np
 
 from invctl.model import Model, OperatingRegion, ParamSet
 from invctl.reference import Reference, poly9_timing_law
-from invctl.scenes import lazy_command
+from invctl.scenes import Scene, Tracking
 
 PARAMS = {
     "m1": 1.0, "m2": 1.0, "m3": 0.5,
@@ -66,6 +66,17 @@ REGION = OperatingRegion(
     v_scale=2.0,
     description="U_q = R^2 x (0, pi/2)^2 x {cos(gamma) > 2/3} (003 Sect. 6)",
 )
+
+
+def _check(values: dict) -> None:
+    from invctl.errors import ParameterError
+
+    if values["D"] < 0:
+        raise ParameterError(f"manipulator: the damper D must be >= 0, got {values['D']}")
+    R = 0.5 * values["L2"] + values["L3"]
+    if R <= 0.6:
+        raise ParameterError(f"manipulator: L2/2 + L3 = {R:.4g} m cannot reach the printed start r_app,0 = "
+                             f"{R_APP_0} (needs > 0.6 m)")
 
 
 def build(**overrides: float) -> Model:
@@ -161,40 +172,6 @@ def paper_internal_coordinates(model: Model):
     return ca.vertcat(model.q[4], ca.mtimes(model.M[4, :], model.v))
 
 
-def manipulator_internal(model: Model, method: str = "sect3", samples: int = 200):
-    """Internal dynamics (55) of the manipulator in the paper's coordinates."""
-    from invctl.analysis import internal_dynamics
-
-    return internal_dynamics(model, method, paper_internal_coordinates, point=initial_configuration(model),
-                             samples=samples)
-
-
-def manipulator_linearization(model: Model, reference: Reference | None = None, *, internal=None,
-                              split: str = "eig", samples: int = 200):
-    """Linearization as in 003 Sect. 6: mean of the Jacobians of (55) at
-    (y_ref(t0), 0, eta = 0) and (y_ref(tf), 0, eta = 0), paper coordinates; T of (39)
-    from eigenvectors scaled to last entry 1 (the paper's T = [mu2/c mu1/c; 1 1]^-1 form)."""
-    from invctl.analysis import linearize_internal
-
-    reference = reference if reference is not None else globals()["reference"](model)
-    internal = internal if internal is not None else manipulator_internal(model, samples=samples)
-    zeros = np.zeros(2)
-    points = [([reference(t).ravel(), zeros], zeros) for t in (reference.t0, reference.tf)]
-    return linearize_internal(model, internal, points, combine="mean", split=split)
-
-
-def analysis_setup(model: Model, samples: int = 200) -> dict:
-    """What ``invctl analyze manipulator`` analyzes: the paper's coordinates and linearization."""
-    ref = reference(model)
-    internal = manipulator_internal(model, samples=samples)
-    a1 = {"K of Sect. 6 (K1 sign adapted)": A1_SCENE}
-    feedback = globals().get("FEEDBACK")
-    if feedback and all(k in feedback for k in ("K", "k_i", "rho")):
-        a1["K of the feedback design (FEEDBACK)"] = {k: feedback[k] for k in ("K", "k_i", "rho")}
-    return {"internal": internal, "linearization": manipulator_linearization(model, ref, internal=internal),
-            "reference": ref, "point": initial_configuration(model), "A1": a1}
-
-
 # --- inversion (003 Sect. 4, 6) --------------------------------------------
 
 #: the selection printed in 003 Sect. 6 (14 = 2n + l + p + m conditions):
@@ -253,7 +230,7 @@ FEEDBACK = {
 
 
 def end_effector_expr(model: Model):
-    """``y -> r_app(y)`` built from CasADi operations (for compiled closed loops)."""
+    """``y -> r_app(y)`` built from CasADi operations (the end effector of 003 Sect. 6)."""
     p = model.values
     R = 0.5 * p["L2"] + p["L3"]
 
@@ -263,20 +240,37 @@ def end_effector_expr(model: Model):
     return r_app
 
 
-def funnel_controller(model: Model, ref: Reference | None = None, lin=None, *, t_end: float = 2.0, **overrides):
-    """The controller (48) for the manipulator with :data:`FEEDBACK` (entries overridable by keyword)."""
-    from invctl.control.funnel_nmp import NMPFunnelController
+def drawing(model: Model):
+    """Body 1 on the vertical actuator s1, body 2 (centre on the horizontal actuator s2, offset d),
+    body 3 on the torsional spring at the end of body 2 (loop closure (49): B = F)."""
+    from invctl.plot.animate import Drawing
 
-    ref = ref if ref is not None else reference(model)
-    lin = lin if lin is not None else manipulator_linearization(model, ref)
-    cfg = {**FEEDBACK, **overrides}
-    return NMPFunnelController(model, lin, ref, t_end=t_end, **cfg)
+    P = model.params
+    s1, s2, al, be, ga = (model.q[i] for i in range(5))
+    L1, L2, L3, d = P["L1"], P["L2"], P["L3"], P["d"]
+    C = ca.vertcat(s2 + d, 0)
+    u = ca.vertcat(ca.cos(be), -ca.sin(be))
+    D = C + 0.5 * L2 * u
+    pts = {"A": ca.vertcat(0, s1), "B": ca.vertcat(L1 * ca.cos(al), s1 + L1 * ca.sin(al)), "C": C,
+           "F": C - 0.5 * L2 * u, "D": D, "E": D + L3 * ca.vertcat(ca.cos(be + ga), -ca.sin(be + ga))}
+    return Drawing(points=pts, links=[("A", "B"), ("F", "D"), ("D", "E")],
+                   fixed=[((0.0, -1.0), (0.0, 1.0)), ((0.0, 0.0), (2.5, 0.0))])
 
 
-# ----------------------------------------------------------------------------
-COMMANDS = {
-    "analyze": lazy_command(__name__, "invctl.analysis.commands:analyze_command"),
-    "invert": lazy_command(__name__, "invctl.inversion.commands:invert_command"),
-    "simulate": lazy_command(__name__, "invctl.studies.tracking_commands:simulate_command"),
-    "pipeline": lazy_command(__name__, "invctl.studies.tracking_commands:pipeline_command"),
-}
+SCENE = Scene(
+    "manipulator", build, params=PARAMS,
+    positive=("m1", "m2", "m3", "L1", "L2", "L3", "I1", "I2", "I3", "X3", "d", "c"),
+    validate=_check,
+    tracking=Tracking(
+        reference=reference, plant=PLANT_FACTORS, initial_configuration=initial_configuration,
+        inversion=INVERSION, feedback=FEEDBACK, internal_coordinates=paper_internal_coordinates,
+        linearize_at="ends", split="eig", signals={"end effector": end_effector_expr}, t_end=2.0,
+        a1={"K of Sect. 6 (K1 sign adapted)": A1_SCENE},
+        printed={"reduction": {"output": 0.40, "end effector": 0.50},
+                 "figures": {"states": "003 Fig. 5", "path_end_effector": "003 Fig. 6", "errors": "003 Fig. 7",
+                             "inputs": "003 Fig. 8", "funnel": "003 Fig. 9"}},
+        controllers=("C1", "C2", "C3", "C1-42")),
+    drawing=drawing,
+    description="manipulator with a kinematic loop (003 Sect. 6): two prismatic actuators, a passive body on a "
+                "torsional spring; non-minimum phase",
+)

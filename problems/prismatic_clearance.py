@@ -14,13 +14,11 @@ quarter of the clearance), ``none``.
 """
 from __future__ import annotations
 
-import sys
-
 import casadi as ca
 import numpy as np
 
 from invctl.model import Gap, Model, ParamSet
-from invctl.scenes import lazy_command
+from invctl.scenes import Contact, Report, Scene
 
 PARAMS = {
     "m1": 1.0, "m2": 0.5, "l": 0.05, "L": 0.11, "e": 0.5,
@@ -89,15 +87,101 @@ def switching_law(model: Model, *, Kp: float, Kv: float, amp: float, period: flo
         V = 0.5 * m1 * v1**2 + 0.5 * m2 * v2**2
         return u, V
 
-    return FeedbackLaw("switching", names, (Kp, Kv, amp, period, a_c, d_rel), build_, {"lyapunov": False})
+    l_value = model.values["l"]
+
+    def x_d(t):
+        return l_value + amp * ca.sin(2 * np.pi * t / period)
+
+    return FeedbackLaw("switching", names, (Kp, Kv, amp, period, a_c, d_rel), build_,
+                       {"lyapunov": False, "tracked": ([1], x_d)})
 
 
-COMMANDS = {
-    "simulate": lazy_command(__name__, "invctl.studies.contact_commands:prismatic_command"),
-}
+def _pd(model, s):
+    from invctl.control.pdplus import pd_gravity
+
+    _need(model, 1, "pd", "PD (36) acts on body 1 only")
+    return pd_gravity(model, Kp=s["Kp"], Kv=s["Kv"], q_d=s["qd"], idx=[0])
 
 
-def tradeoff_spec(params, smoke: bool = False):
-    from invctl.studies.contact_commands import prismatic_tradeoff
+def _preload(model, s):
+    from invctl.control.preload import preload_law
 
-    return prismatic_tradeoff(sys.modules[__name__], params, smoke=smoke)
+    act = model.m
+    l = model.values["l"]
+    return preload_law(model, [0], beta=s["beta"], Kp=s["Kp"] if act == 2 else 0.0, Kv=s["Kv"] if act == 2 else 0.0,
+                       y_d=[s["qd"], s["qd"] + l][:act])
+
+
+def _switching(model, s):
+    _need(model, 1, "switching", "Remark 4 drives body 1 only")
+    return switching_law(model, Kp=s["Kp"], Kv=s["Kv"], amp=s["amp"], period=s["period"])
+
+
+def _juggling(model, s):
+    from invctl.control.juggling import io_decoupling_check, juggling_law
+
+    _need(model, 2, "juggling", "the I/O linearization (25) of y = f1 needs both bodies driven")
+    p = model.values
+    io_decoupling_check(model, _initial(model, s, "juggling")[0], [0])
+    return juggling_law(model, [0], Ky=s["Kp"], Dy=s["Kv"], y_d=0.25 * (p["L"] - 2 * p["l"]))
+
+
+def _need(model, act, name, why):
+    if model.m != act:
+        from invctl.errors import SceneError
+
+        raise SceneError(f"prismatic_clearance: controller {name!r} needs actuators={act} ({why}); "
+                         f"use --set actuators={act}")
+
+
+def _initial(model, s, controller):
+    p = model.values
+    l, L = p["l"], p["L"]
+    if controller in ("preload", "switching"):
+        return [0.0, l], [0.0, 0.0]
+    return [0.0, l + 0.5 * (L - 2 * l)], [0.0, s["v20"]]
+
+
+def modes_report(ctx) -> dict:
+    """Remark 4: which wall carries body 2 (1: f1 closed, 2: f2 closed, 0: crossing) and how often it changes."""
+    tr = ctx.result
+    modes = np.where(tr.gaps[:, 0] <= 1e-9, 1, np.where(tr.gaps[:, 1] <= 1e-9, 2, 0))
+    return {"mode switches": int(np.count_nonzero(np.diff(modes))),
+            "time in contact with f1, f2": [float(np.mean(modes == 1)), float(np.mean(modes == 2))]}
+
+
+def _check(v: dict) -> None:
+    from invctl.errors import ParameterError
+
+    if v["actuators"] not in (1, 2):
+        raise ParameterError(f"prismatic_clearance: actuators must be 1 or 2, got {v['actuators']}")
+    if not 0 <= v["e"] <= 1:
+        raise ParameterError(f"prismatic_clearance: restitution e must lie in [0, 1], got {v['e']}")
+    if not v["L"] > 2 * v["l"]:
+        raise ParameterError(f"prismatic_clearance: the clearance L - 2 l = {v['L'] - 2 * v['l']:.3g} must be "
+                             "positive")
+
+
+def drawing(model: Model):
+    """Body 1 (the slot, drawn as its two walls) and body 2 (a point between them), side by side."""
+    from invctl.plot.animate import Drawing
+
+    q1, q2 = model.q[0], model.q[1]
+    l, L = model.params["l"], model.params["L"]
+    return Drawing(points={"wall1": ca.vertcat(q1 + l, 0), "wall1top": ca.vertcat(q1 + l, 0.05),
+                           "wall2": ca.vertcat(q1 + L - l, 0), "wall2top": ca.vertcat(q1 + L - l, 0.05),
+                           "body1": ca.vertcat(q1, 0.025), "body2": ca.vertcat(q2, 0.025)},
+                   links=[("wall1", "wall1top"), ("wall2", "wall2top"), ("wall1", "wall2")])
+
+
+SCENE = Scene(
+    "prismatic_clearance", build, params={k: PARAMS[k] for k in (*MODEL_PARAMS, "actuators")},
+    settings={k: v for k, v in PARAMS.items() if k not in (*MODEL_PARAMS, "actuators")},
+    integer=("actuators",), positive=("m1", "m2", "l", "L", "h", "t_end", "period"), validate=_check,
+    contact=Contact(controllers={"pd": _pd, "preload": _preload, "switching": _switching, "juggling": _juggling},
+                    initial_state=_initial,
+                    default_controller=lambda model, s: "pd" if model.m == 1 else "preload"),
+    reports=(Report("Remark 4 switching modes", modes_report, controllers=("switching",)),),
+    drawing=drawing,
+    description="one-DoF prismatic joint with clearance (000 Fig. 2(b), Example 3, Remark 4)",
+)

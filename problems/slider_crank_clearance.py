@@ -27,7 +27,7 @@ import casadi as ca
 import numpy as np
 
 from invctl.model import Gap, Model, ParamSet
-from invctl.scenes import lazy_command
+from invctl.scenes import Contact, Scene
 
 PARAMS = {
     "J1": 0.01, "r": 0.1, "Lr": 0.3, "mr": 0.5, "ms": 0.5, "cs": 0.5, "c": 1e-3, "e": 0.5,
@@ -69,6 +69,52 @@ def centered_configuration(model: Model, theta: float) -> np.ndarray:
     return np.array([theta, ax + p["Lr"] * math.cos(ph), ph])
 
 
-COMMANDS = {
-    "simulate": lazy_command(__name__, "invctl.studies.contact_commands:slider_crank_command"),
-}
+def _pd(model, s):
+    from invctl.control.pdplus import pd_gravity
+
+    return pd_gravity(model, Kp=s["Kp"], Kv=s["Kv"], q_d=s["theta_d"], idx=[0])
+
+
+def _pdplus(model, s):
+    from invctl.control.pdplus import pd_plus_tracking
+
+    th0, amp, per = s["theta0"], s["amp"], s["period"]
+    return pd_plus_tracking(model, Kp=s["Kp"], Kv=s["Kv"], q_d=lambda t: th0 + amp * ca.sin(2 * np.pi * t / per),
+                            idx=[0])
+
+
+def _check(v: dict) -> None:
+    from invctl.errors import ParameterError
+
+    if not 0 <= v["e"] <= 1:
+        raise ParameterError(f"slider_crank_clearance: restitution e must lie in [0, 1], got {v['e']}")
+    if v["cs"] < 0:
+        raise ParameterError(f"slider_crank_clearance: slider friction cs must be >= 0, got {v['cs']}")
+    if v["Lr"] <= v["r"]:
+        raise ParameterError(f"slider_crank_clearance: the rod (Lr = {v['Lr']}) must be longer than the crank "
+                             f"(r = {v['r']})")
+
+
+def drawing(model: Model):
+    """Crank, rod (journal B in the bearing at the crank tip A) and slider."""
+    from invctl.plot.animate import Drawing
+
+    th, s, ph = model.q[0], model.q[1], model.q[2]
+    r, Lr = model.params["r"], model.params["Lr"]
+    A = r * ca.vertcat(ca.cos(th), ca.sin(th))
+    B = ca.vertcat(s - Lr * ca.cos(ph), Lr * ca.sin(ph))
+    return Drawing(points={"O": ca.vertcat(0, 0), "A": A, "B": B, "C": ca.vertcat(s, 0)},
+                   links=[("O", "A"), ("B", "C")], fixed=[((-0.15, -0.02), (0.5, -0.02))])
+
+
+SCENE = Scene(
+    "slider_crank_clearance", build, params={k: PARAMS[k] for k in MODEL_PARAMS},
+    settings={k: v for k, v in PARAMS.items() if k not in MODEL_PARAMS},
+    positive=("J1", "r", "Lr", "mr", "ms", "c", "h", "t_end", "period", "Kp", "Kv"), validate=_check,
+    contact=Contact(controllers={"pd": _pd, "pdplus": _pdplus},
+                    initial_state=lambda model, s, controller: (centered_configuration(model, s["theta0"]),
+                                                                np.zeros(3))),
+    drawing=drawing,
+    description="slider-crank with a revolute-joint clearance (000 Fig. 4(a)): PD (36) regulation, PD+ (57) "
+                "tracking",
+)

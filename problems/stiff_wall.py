@@ -16,10 +16,8 @@ default to ke, be.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from invctl.model.params import resolve_params
-from invctl.scenes import lazy_command
+from invctl.scenes import Scene, Switched
 
 PARAMS = {
     # plant and wall (002 Sect. 4)
@@ -41,45 +39,16 @@ DERIVED = {
 }
 
 
-@dataclass(frozen=True)
-class SwitchedScene:
-    """Parameters of a switched-contact scene and the objects built from them."""
+def build(**overrides: float):
+    """The scenario with parameters resolved (unknown names raise ParameterError)."""
+    from invctl.studies.switched import SwitchedProblem
 
-    name: str
-    params: dict
-
-    def error_system(self):
-        from invctl.studies.switched import error_system
-
-        return error_system(self.params)
-
-    def analyze(self, **kw):
-        from invctl.stability.conewise import analyze
-
-        return analyze(self.error_system(), **kw)
-
-    def loop(self, *, reduced: bool = False):
-        from invctl.studies.switched import build_loop
-
-        return build_loop(self.params, reduced=reduced)
-
-    def simulate(self, *, reduced: bool = False, t_end: float | None = None, **options):
-        from invctl.studies.switched import simulate_scenario
-
-        return simulate_scenario(self.params, reduced=reduced, t_end=t_end,
-                                 label=self.name + (" (reduced)" if reduced else ""), **options)
-
-    def with_params(self, **overrides) -> "SwitchedScene":
-        return SwitchedScene(self.name, {**self.params, **{k: float(v) for k, v in overrides.items()}})
+    return SwitchedProblem("stiff_wall", resolve_params(PARAMS, DERIVED, overrides))
 
 
-def build(**overrides: float) -> SwitchedScene:
-    """The scene with parameters resolved (unknown names raise ParameterError)."""
-    return SwitchedScene("stiff_wall", resolve_params(PARAMS, DERIVED, overrides))
-
-
-COMMANDS = {
-    "analyze": lazy_command(__name__, "invctl.studies.switched:analyze_command"),
-    "simulate": lazy_command(__name__, "invctl.studies.switched:simulate_command"),
-    "design": lazy_command(__name__, "invctl.studies.switched:design_command"),
-}
+SCENE = Scene(
+    "stiff_wall", build, params=PARAMS,
+    positive=("M", "ke", "Ma", "ke_hat", "t_b", "gamma1", "gamma2", "t_end", "h_max"),
+    switched=Switched(),
+    description="1-DOF manipulator against a stiff Kelvin-Voigt wall under switched motion/force control (002)",
+)

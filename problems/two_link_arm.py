@@ -26,7 +26,7 @@ import numpy as np
 
 from invctl.model import Model, OperatingRegion, ParamSet
 from invctl.reference import Reference, poly9_timing_law
-from invctl.scenes import lazy_command
+from invctl.scenes import Scene, Tracking
 
 PARAMS = {
     "m1": 1.0, "m2": 0.5, "L1": 0.5, "L2": 0.4,
@@ -151,10 +151,30 @@ def initial_configuration(model: Model) -> np.ndarray:
     return np.zeros(2)
 
 
-def analysis_setup(model: Model) -> dict:
-    return {"point": initial_configuration(model), "reference": reference(model)}
+def drawing(model: Model):
+    """The two links hanging from the shoulder."""
+    from invctl.plot.animate import Drawing
+
+    q1, q2 = model.q[0], model.q[1]
+    L1, L2 = model.params["L1"], model.params["L2"]
+    elbow = ca.vertcat(L1 * ca.sin(q1), -L1 * ca.cos(q1))
+    tip = elbow + ca.vertcat(L2 * ca.sin(q1 + q2), -L2 * ca.cos(q1 + q2))
+    return Drawing(points={"shoulder": ca.vertcat(0, 0), "elbow": elbow, "tip": tip},
+                   links=[("shoulder", "elbow"), ("elbow", "tip")])
 
 
-COMMANDS = {
-    "analyze": lazy_command(__name__, "invctl.analysis.commands:analyze_command"),
-}
+def _check(v: dict) -> None:
+    if v["c2"] < 0 or v["D2"] < 0:
+        from invctl.errors import ParameterError
+
+        raise ParameterError(f"two_link_arm: the elbow spring c2 and damper D2 must be >= 0, got c2 = {v['c2']}, "
+                             f"D2 = {v['D2']}")
+
+
+SCENE = Scene(
+    "two_link_arm", build, params=PARAMS, positive=("m1", "m2", "L1", "L2", "lc1", "lc2", "I1", "I2", "g"),
+    validate=_check,
+    tracking=Tracking(reference=reference, plant={"m2": 1.2}, initial_configuration=initial_configuration),
+    drawing=drawing,
+    description="two-link arm with a passive elastic elbow, output = shoulder angle (colocated): minimum phase",
+)

@@ -13,6 +13,7 @@ from scipy.integrate import solve_ivp
 
 import problems.cartpole as cartpole
 import problems.manipulator as scene
+from invctl.studies.tracking import tracking_linearization
 import problems.two_link_arm as arm
 from invctl.analysis import from_matrices, internal_dynamics
 from invctl.reference import Reference
@@ -76,7 +77,7 @@ def test_eta2_ref0_integral_equals_sylvester_for_exosystem(host):
 
 
 def test_eta2_ref0_manipulator_by_backward_integration(manipulator):
-    lin = scene.manipulator_linearization(manipulator)
+    lin = tracking_linearization(scene.SCENE, manipulator, scene.reference(manipulator))
     ref = scene.reference(manipulator)
     e0 = lin.eta2_ref0(ref)
     Qt, Pt = lin.Q_tilde, lin.P_tilde
@@ -112,7 +113,7 @@ def test_A1_colocated_minimum_phase_holds_with_identity():
 
 
 def test_A1_manipulator_holds_near_the_design_point_only(manipulator):
-    lin = scene.manipulator_linearization(manipulator)
+    lin = tracking_linearization(scene.SCENE, manipulator, scene.reference(manipulator))
     rep = lin.check_A1(**scene.A1_SCENE, samples=200)
     assert rep.min_eig_at_design_point > 0          # holds at q(T0), as the paper says: locally
     assert 0 < rep.fraction_satisfied < 1 and not rep.passed
@@ -122,9 +123,10 @@ def test_A1_manipulator_holds_near_the_design_point_only(manipulator):
 def test_psi_tracks_the_linear_unstable_state_along_the_linearization(manipulator):
     """At the equilibrium gamma = 0, v = 0 with outputs y, Psi = [0 1] T (0 - P2 y); so Psi is affine in y
     with slope -[0 1] T P2 = -P~_2-part: check with two consistent configurations."""
-    lin = scene.manipulator_linearization(manipulator)
+    lin = tracking_linearization(scene.SCENE, manipulator, scene.reference(manipulator))
     psi = lin.psi_function()
-    internal = scene.manipulator_internal(manipulator)
+    internal = internal_dynamics(manipulator, "sect3", scene.paper_internal_coordinates,
+                                 point=scene.initial_configuration(manipulator))
     th = manipulator.theta_values
     for y in ([0.0, 0.6435], [-0.1, 0.8]):
         q = np.array(internal.state(y_0=y, y_1=[0, 0], eta=[0, 0], theta=th)["q"]).ravel()
@@ -138,7 +140,7 @@ def test_results_save_load_and_plot(manipulator, tmp_path):
     matplotlib.use("Agg")
     from invctl.analysis import load_linearization, relative_degree
 
-    lin = scene.manipulator_linearization(manipulator)
+    lin = tracking_linearization(scene.SCENE, manipulator, scene.reference(manipulator))
     lin.to_npz(tmp_path / "lin.npz")
     data = load_linearization(tmp_path / "lin.npz")
     back = from_matrices(manipulator, lin.internal, data["Q"], data["P_list"], split=data["split"])
@@ -154,7 +156,7 @@ def test_results_save_load_and_plot(manipulator, tmp_path):
 def test_A1_design_point_margin_is_evaluated_at_the_design_point(manipulator):
     from invctl.analysis import schur_complement
 
-    lin = scene.manipulator_linearization(manipulator)
+    lin = tracking_linearization(scene.SCENE, manipulator, scene.reference(manipulator))
     K = np.array([[0.1 * lin.P_tilde[0, 0], 0.1 * lin.P_tilde[0, 1]], [1.0, 0.01]])
     S = np.array(schur_complement(manipulator)(lin.internal.point, np.zeros(5), manipulator.theta_values))
     KS = K @ S

@@ -18,7 +18,8 @@ from invctl.analysis import (
     consistent_state, internal_dynamics, linearize_internal, position_output_gamma,
     relative_degree,
 )
-from invctl.analysis.commands import analyze_command
+from invctl.studies import commands
+from invctl.studies.tracking import tracking_linearization
 from invctl.cli import main
 from invctl.errors import CoordinateError, SceneError
 
@@ -81,12 +82,13 @@ def random_internal_points(rng, count, p=scene.PARAMS):
 
 @pytest.fixture(scope="module")
 def paper_internal(manipulator):
-    return scene.manipulator_internal(manipulator, "sect3")
+    return internal_dynamics(manipulator, "sect3", scene.paper_internal_coordinates,
+                             point=scene.initial_configuration(manipulator), samples=200)
 
 
 @pytest.fixture(scope="module")
 def lin(manipulator, paper_internal):
-    return scene.manipulator_linearization(manipulator, internal=paper_internal)
+    return tracking_linearization(scene.SCENE, manipulator, scene.reference(manipulator), internal=paper_internal)
 
 
 def test_relative_degree(manipulator):
@@ -137,7 +139,8 @@ def test_internal_dynamics_agree_with_55(manipulator, paper_internal):
 
 
 def test_sect2_equals_sect3_same_coordinates(manipulator, paper_internal):
-    s2 = scene.manipulator_internal(manipulator, "sect2")
+    s2 = internal_dynamics(manipulator, "sect2", scene.paper_internal_coordinates,
+                           point=scene.initial_configuration(manipulator), samples=200)
     rng = np.random.default_rng(1)
     for y, yd, eta in random_internal_points(rng, 10):
         np.testing.assert_allclose(s2((y, yd), eta), paper_internal((y, yd), eta), rtol=1e-10, atol=1e-10)
@@ -194,7 +197,8 @@ def test_default_coordinates_give_the_same_eigenvalues(manipulator, lin):
     """At an equilibrium, linearizations in different coordinates are similar: same eigenvalues."""
     q0 = scene.initial_configuration(manipulator)
     default = internal_dynamics(manipulator, "sect3", point=q0)
-    paper = scene.manipulator_internal(manipulator)
+    paper = internal_dynamics(manipulator, "sect3", scene.paper_internal_coordinates,
+                              point=scene.initial_configuration(manipulator), samples=200)
     th = manipulator.theta_values
     ref = scene.reference(manipulator)
     for t in (ref.t0, ref.tf):
@@ -253,7 +257,7 @@ def test_analyze_command_json(capsys):
 
 def test_analyze_rejects_unknown_option():
     with pytest.raises(SceneError, match="does not take"):
-        analyze_command(scene, {}, samples=10, controller="C1")
+        commands.analyze("manipulator", samples=10, controller="C1")
 
 
 def test_sect3_velocity_reconstruction_is_28(manipulator):

@@ -233,18 +233,15 @@ def test_analyze_command_on_a_scene_file(tmp_path, capsys):
 
     path = tmp_path / "pendulum_cart.py"
     path.write_text(
-        "import sys\nfrom problems.cartpole import build, PARAMS, analysis_setup\n"
-        "def _analyze(params, **options):\n"
-        "    from invctl.analysis.commands import analyze_command\n"
-        "    return analyze_command(sys.modules[__name__], params, **options)\n"
-        "COMMANDS = {'analyze': _analyze}\n"
+        "from invctl.scenes import Scene, Tracking\nfrom problems.cartpole import build, PARAMS\n"
+        "SCENE = Scene('pendulum_cart', build, params=PARAMS, tracking=Tracking(point=[0.0, 0.0]))\n"
     )
     assert main(["analyze", str(path), "--json", "--samples", "20", "--set", "l=0.8"]) == 0
     data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     model = cartpole.build(l=0.8)
     np.testing.assert_allclose(sorted(data["internal_eigs"]), cartpole.zero_dynamics_eigenvalues(model), rtol=1e-10)
     bad = tmp_path / "not_a_model.py"
-    bad.write_text(path.read_text().replace("from problems.cartpole import build, PARAMS, analysis_setup",
+    bad.write_text(path.read_text().replace("from problems.cartpole import build, PARAMS",
                                             "PARAMS = {}\ndef build(**p):\n    return {}"))
     assert main(["analyze", str(bad)]) == 2
-    assert "needs an invctl.model.Model" in capsys.readouterr().err
+    assert "must return an invctl.model.Model" in capsys.readouterr().err

@@ -212,13 +212,18 @@ def test_gear_example4_ehat():
     E_hat is reproduced with f4 = theta3 - theta2 + alpha4 (mesh-consistent) and
     NOT with f4 as printed (-theta3 - theta2 + alpha4), whose E_hat is derived by hand."""
     import problems.gear_backlash as scene
-    from invctl.studies.contact_commands import gear_ehat
+    from invctl.control.preload import preload_check
+
+    def gear_ehat(c4, J):
+        model = scene.build(c4=c4, J1=J, J2=J, J3=J)
+        q = scene.preloaded_configuration(model)
+        return ContactSystem(model).delassus(q, [0, 3]), preload_check(model, q, np.zeros(3), [0, 3]).E_hat
 
     for c4 in (1.0, -1.0):
-        D, E = gear_ehat(scene, c4, J=0.02)
+        D, E = gear_ehat(c4, J=0.02)
         np.testing.assert_allclose(D * 0.02, scene.PRINTED_D_TIMES_J, atol=1e-13)
-    E_mesh = gear_ehat(scene, 1.0, J=0.02)[1]
-    E_print = gear_ehat(scene, -1.0, J=0.02)[1]
+    E_mesh = gear_ehat(1.0, J=0.02)[1]
+    E_print = gear_ehat(-1.0, J=0.02)[1]
     np.testing.assert_allclose(E_mesh, scene.PRINTED_E_HAT, atol=1e-14)
     # by hand: D^-1 = J/3 [[2,1],[1,2]], grad f'^T M^-1 = 1/J [[-1,1,0],[0,-1,-1]]
     np.testing.assert_allclose(E_print, np.array([[-2, 1, -1], [-1, -1, -2]]) / 3, atol=1e-14)

@@ -75,7 +75,7 @@ def test_simulate_stiff_wall_json_out_plot(capsys, tmp_path):
     for key in ("peak_force", "bounces", "force_rms_error"):
         assert key in d
     assert d["bounces"] >= 1 and d["t_end"] == pytest.approx(0.4)
-    sim = SwitchedSimulation.from_npz(out)
+    sim = SwitchedSimulation.load(out)
     assert sim.peak_force == pytest.approx(d["peak_force"]) and fig.stat().st_size > 1000
 
 

@@ -321,7 +321,7 @@ def test_result_save_load_and_plot(tmp_path):
     sim = simulate_scenario(_params(), t_end=0.3, label="fig3")
     path = tmp_path / "sim.npz"
     sim.to_npz(path)
-    back = SwitchedSimulation.from_npz(path)
+    back = SwitchedSimulation.load(path)
     assert np.array_equal(back.x, sim.x) and back.bounces == sim.bounces and back.label == "fig3"
     assert back.meta["bf"] == 5.0
     axes = sim.plot()

@@ -1,8 +1,9 @@
 """The ``invctl`` command.
 
-``invctl <command> <scene> [--set name=value ...] [--json] [options]``.  Each
-command's options are declared in its own module (``_commands.py``); the
-work is done by the scene's handler, so the CLI and notebooks share one call.
+``invctl <command> <scene> [--set name=value ...] [--json] [options]`` runs one of the commands of
+:mod:`invctl.studies.commands` (the same calls notebooks and scripts use); ``invctl animate RUN.npz``
+draws a saved run.  With ``--json`` the last line of output is one JSON object: the command's data,
+or ``{"error": <class>, "message": ..., "diagnostics": ...}`` with exit code 2.
 """
 from __future__ import annotations
 
@@ -12,50 +13,109 @@ import sys
 import time
 
 from ..errors import InvctlError
-from ..model.params import parse_assignments
-from ..scenes import jsonable, load_scene, scene_command
-from ._commands import COMMAND_OPTIONS
+from ..scenes import jsonable
+
+_HELP = {
+    "analyze": "relative degree, internal dynamics, stability analysis of a scene",
+    "invert": "stable inversion by servo constraints and collocation (feedforward with pre-actuation)",
+    "design": "feedback design of a scene (funnel controller; wrist damping)",
+    "simulate": "one closed-loop or contact run of a scene",
+    "pipeline": "the scene's whole job (tracking: invert, design, C1/C2/C3, compare, figures)",
+    "study": "studies: speed-versus-accuracy trade-off",
+    "animate": "draw a saved run of a scene as a GIF/MP4",
+}
+
+
+class _UsageError(Exception):
+    pass
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        raise _UsageError(f"{self.prog}: {message}")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="invctl",
-        description="Model inversion and tracking control of multibody systems.",
-    )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, (help_text, add_options) in COMMAND_OPTIONS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
+    from ..studies.commands import options_of
+
+    parser = _Parser(prog="invctl", description="Model inversion and tracking control of multibody systems.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
+    for name in ("analyze", "invert", "design", "simulate", "pipeline", "study"):
+        p = sub.add_parser(name, help=_HELP[name], description=_HELP[name])
         if name == "study":
-            p.add_argument("kind", help="which study, e.g. tradeoff")
+            p.add_argument("kind", help="which study: tradeoff")
         p.add_argument("scene", help="scene name in problems/ (e.g. manipulator) or path to a scene file")
         p.add_argument("--set", dest="set", action="append", default=[], metavar="NAME=VALUE",
-                       help="override a scene parameter (repeatable)")
+                       help="override a scene parameter or setting (repeatable)")
         p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
-        add_options(p)
+        for opt_name, opt in options_of(name).items():
+            flag = "--" + opt_name.replace("_", "-")
+            if opt.flag:
+                p.add_argument(flag, dest=opt_name, action="store_true", help=opt.help)
+            elif opt.repeat:
+                p.add_argument(flag, dest=opt_name, action="append", default=[], metavar=opt.metavar, help=opt.help)
+            else:
+                p.add_argument(flag, dest=opt_name, type=str, default=None,
+                               help=opt.help + (f" (default {opt.default})" if opt.default is not None else ""))
+    p = sub.add_parser("animate", help=_HELP["animate"], description=_HELP["animate"])
+    p.add_argument("run", help="a run written by invctl (simulate/pipeline/invert --out FILE.npz)")
+    p.add_argument("--out", default=None, help="output file (.gif or .mp4; default: next to the run)")
+    p.add_argument("--fps", default="25", help="frames per second (default 25)")
+    p.add_argument("--speed", default="1", help="playback speed (default 1: real time)")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
+    p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    options = {k: v for k, v in vars(args).items() if k not in ("command", "scene", "set", "json")}
-    t0 = time.perf_counter()
-    try:
-        params = parse_assignments(args.set)
-        scene = load_scene(args.scene)
-        if args.command == "study" and "study" not in getattr(scene, "COMMANDS", {}):
-            from ..studies.commands import study_command
+def _error(command, target, exc, as_json) -> int:
+    print(f"invctl {command} {target}: {type(exc).__name__}: {exc}", file=sys.stderr)
+    if as_json:
+        print(json.dumps(jsonable({"error": type(exc).__name__, "message": str(exc),
+                                    "diagnostics": getattr(exc, "diagnostics", {})})))
+    return 2
 
-            result = study_command(scene, options.pop("kind"), params, **options)
-        else:
-            handler = scene_command(scene, args.command)
-            result = handler(params, **options)
-    except InvctlError as exc:
-        print(f"invctl {args.command} {args.scene}: {type(exc).__name__}: {exc}", file=sys.stderr)
-        if args.json:
-            print(json.dumps(jsonable({"error": type(exc).__name__, "message": str(exc),
-                                        "diagnostics": exc.diagnostics})))
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except _UsageError as exc:
+        print(str(exc), file=sys.stderr)
+        if "--json" in argv:
+            print(json.dumps({"error": "UsageError", "message": str(exc), "diagnostics": {}}))
         return 2
+    t0 = time.perf_counter()
+    target = getattr(args, "scene", getattr(args, "run", ""))
+    try:
+        if args.command == "animate":
+            from ..studies.animation import animate_run
+
+            result = animate_run(args.run, out=args.out, fps=args.fps, speed=args.speed, force=args.force)
+        else:
+            from ..model.params import parse_assignments
+            from ..studies.commands import run_command
+
+            options = {k: v for k, v in vars(args).items() if k not in ("command", "scene", "set", "json")}
+            values = parse_assignments(args.set)
+            result = run_command(args.command, args.scene, values, **options)
+    except InvctlError as exc:
+        return _error(args.command, target, exc, args.json)
+    except Exception as exc:  # a bug: say so, without a traceback unless asked for
+        import os
+
+        if os.environ.get("INVCTL_DEBUG"):
+            raise
+        exc_msg = f"{type(exc).__name__}: {exc}"
+        print(f"invctl {args.command} {target}: internal error ({exc_msg}); this is a bug in invctl - "
+              "rerun with INVCTL_DEBUG=1 for the traceback and report it", file=sys.stderr)
+        if args.json:
+            print(json.dumps(jsonable({"error": "InternalError", "message": exc_msg, "diagnostics": {}})))
+        return 3
+    except KeyboardInterrupt:
+        print(f"invctl {args.command} {target}: interrupted", file=sys.stderr)
+        if args.json:
+            print(json.dumps({"error": "Interrupted", "message": "interrupted by the user", "diagnostics": {}}))
+        return 130
     wall = time.perf_counter() - t0
     if result.text:
         print(result.text)

@@ -3,13 +3,11 @@ boundary conditions (36), collocation through IPOPT, the :class:`Inverse` result
 from .boundary import EquilibriumSolver, Selection, dichotomy, resolve_selection
 from .collocation import Scheme, Transcription, get_scheme
 from .result import Inverse
-from .scene import invert_scene, scene_defaults
 from .servo import ServoModel
 from .solve import interval_errors, invert, quasi_static_guess, servo_model
 from .verify import forward_check
 
 __all__ = [
     "EquilibriumSolver", "Inverse", "dichotomy", "Scheme", "Selection", "ServoModel", "Transcription", "forward_check",
-    "get_scheme", "interval_errors", "invert", "invert_scene", "quasi_static_guess", "resolve_selection",
-    "scene_defaults", "servo_model",
+    "get_scheme", "interval_errors", "invert", "quasi_static_guess", "resolve_selection", "servo_model",
 ]

@@ -1,7 +1,6 @@
 """The result of a stable inversion: :class:`Inverse`."""
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,6 +45,7 @@ class Inverse:
     names: dict = field(default_factory=dict)
     diagnostics: dict = field(default_factory=dict)
     y_ref_fn: object = None
+    meta: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.t_mesh = np.asarray(self.t_mesh, float)
@@ -182,31 +182,55 @@ class Inverse:
             fig.savefig(path, dpi=120)
         return fig
 
-    def to_npz(self, path: str, dt: float | None = None) -> None:
+    def to_npz(self, path, dt: float | None = None, meta: dict | None = None):
         """Save ``t, q, v, lam, mu, u, y_ref`` on a uniform grid of step ``dt`` plus the
-        collocation data (``t_mesh, X_mesh, dX_mesh, X_col``) needed by :meth:`from_npz`."""
+        collocation data (``t_mesh, X_mesh, dX_mesh, X_col``) needed by :meth:`from_npz`;
+        ``meta`` (JSON-able) records where it came from (scene, parameters). Returns the path."""
+        from ..io import save_npz
+
         dt = float(dt) if dt else (self.Tf - self.T0) / 1000
         if not dt > 0:
             raise ValueError(f"dt must be positive, got {dt}")
         t = np.arange(self.T0, self.Tf + 0.5 * dt, dt)
         X = self.X(t)
         yr = self.y_ref(t)
-        meta = {"scheme": self.scheme, "sizes": self.sizes, "t0": self.t0, "tf": self.tf, "names": self.names,
-                "diagnostics": jsonable(self.diagnostics)}
-        np.savez(path, t=t, q=X[self._slice("q")], v=X[self._slice("v")], lam=X[self._slice("lam")],
-                 mu=X[self._slice("mu")], u=X[self._slice("u")], u_causal=self.u_causal(t),
-                 y_ref=np.zeros((0, t.size)) if yr is None else yr,
-                 t_mesh=self.t_mesh, X_mesh=self.X_mesh, dX_mesh=self.dX_mesh, X_col=self.X_col,
-                 meta=np.array(json.dumps(meta)))
+        info = {"scheme": self.scheme, "sizes": self.sizes, "t0": self.t0, "tf": self.tf, "names": self.names,
+                "diagnostics": jsonable(self.diagnostics), **(meta or {})}
+        return save_npz(path, "Inverse", dict(
+            t=t, q=X[self._slice("q")], v=X[self._slice("v")], lam=X[self._slice("lam")], mu=X[self._slice("mu")],
+            u=X[self._slice("u")], u_causal=self.u_causal(t), y_ref=np.zeros((0, t.size)) if yr is None else yr,
+            t_mesh=self.t_mesh, X_mesh=self.X_mesh, dX_mesh=self.dX_mesh, X_col=self.X_col), info)
 
     @classmethod
-    def from_npz(cls, path: str) -> "Inverse":
-        """Load what :meth:`to_npz` wrote (interpolants rebuilt from the collocation data)."""
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(str(z["meta"]))
-            inv = cls(meta["scheme"], z["t_mesh"], z["X_mesh"], z["dX_mesh"], z["X_col"], meta["sizes"],
-                      meta["t0"], meta["tf"], meta.get("names", {}), meta.get("diagnostics", {}))
-            if z["y_ref"].size:
-                t, yr = z["t"], z["y_ref"]
-                inv.y_ref_fn = lambda tt: np.vstack([np.interp(np.atleast_1d(tt), t, row) for row in yr])
+    def from_npz(cls, path) -> "Inverse":
+        """Load what :meth:`to_npz` wrote (interpolants rebuilt from the collocation data).
+
+        Raises
+        ------
+        ResultFileError
+            Missing, truncated, foreign or older files; sizes that do not match the data; NaN.
+        """
+        from ..errors import ResultFileError
+        from ..io import load_npz, require_finite
+
+        z, meta = load_npz(path, "Inverse")
+        need = ("t", "t_mesh", "X_mesh", "dX_mesh", "X_col", "y_ref")
+        missing = [k for k in need if k not in z] + [k for k in ("scheme", "sizes", "t0", "tf") if k not in meta]
+        if missing:
+            raise ResultFileError(f"{path}: incomplete inverse (missing {missing})")
+        require_finite(path, z, ("t_mesh", "X_mesh", "dX_mesh", "X_col", "y_ref"))
+        sizes = {k: int(meta["sizes"].get(k, -1)) for k in ("n", "l", "p", "m")}
+        nx = 2 * sizes["n"] + sizes["l"] + sizes["p"] + sizes["m"]
+        if min(sizes.values()) < 0 or z["X_mesh"].shape != (nx, z["t_mesh"].size):
+            raise ResultFileError(f"{path}: sizes {sizes} (nx = {nx}) do not match the stored mesh data "
+                                  f"{z['X_mesh'].shape}; the file is inconsistent")
+        try:
+            inv = cls(meta["scheme"], z["t_mesh"], z["X_mesh"], z["dX_mesh"], z["X_col"], sizes,
+                      float(meta["t0"]), float(meta["tf"]), meta.get("names", {}), meta.get("diagnostics", {}))
+        except ValueError as exc:
+            raise ResultFileError(f"{path}: {exc}") from None
+        inv.meta = {k: meta[k] for k in ("scene", "params") if k in meta}
+        if z["y_ref"].size:
+            t, yr = z["t"], z["y_ref"]
+            inv.y_ref_fn = lambda tt: np.vstack([np.interp(np.atleast_1d(tt), t, row) for row in yr])
         return inv

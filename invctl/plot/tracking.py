@@ -21,17 +21,19 @@ def plot_run(res, path=None):
     plt = _plt()
     fig, ax = plt.subplots(2, 2, figsize=(10, 6.5), constrained_layout=True)
     t = res.t
+    ynames = res.y_names or [f"y{i + 1}" for i in range(res.y.shape[0])]
     for i in range(res.y.shape[0]):
-        ax[0, 0].plot(t, res.y[i], label=f"y{i + 1}")
+        ax[0, 0].plot(t, res.y[i], label=ynames[i])
         ax[0, 0].plot(t, res.y_ref[i], "k--", lw=0.8)
     ax[0, 0].set(title=f"{res.controller}: outputs (dashed: reference)", xlabel="t [s]")
     ax[0, 0].legend()
-    ax[0, 1].semilogy(t, np.maximum(res.output_error, 1e-12), label="||y - y_ref||")
-    ax[0, 1].semilogy(t, np.maximum(res.endeffector_error, 1e-12), label="||r_app - r_ref||")
+    for name in ["output", *res.signals]:
+        ax[0, 1].semilogy(t, np.maximum(res.signal_error(name), 1e-12), label=f"{name} error")
     ax[0, 1].set(title="tracking errors", xlabel="t [s]")
     ax[0, 1].legend()
+    unames = res.u_names or [f"u{i + 1}" for i in range(res.u.shape[0])]
     for i in range(res.u.shape[0]):
-        ax[1, 0].plot(t, res.u[i], label=f"u{i + 1}")
+        ax[1, 0].plot(t, res.u[i], label=unames[i])
     ax[1, 0].set(title="inputs", xlabel="t [s]")
     ax[1, 0].legend()
     if res.ratios.size:
@@ -48,48 +50,61 @@ def plot_run(res, path=None):
     return fig
 
 
-def plot_study(study, out_dir=None, fmt="png"):
-    """Figures 5-9 of 003 in content: states (C1), end-effector path, errors, inputs, funnel."""
+def _title(captions: dict, key: str, text: str) -> str:
+    return f"{captions[key]}: {text}" if key in captions else text
+
+
+def plot_study(study, out_dir=None, fmt="png", captions=None):
+    """The comparison figures of a tracking study (the content of 003 Figs. 5-9 for any scene):
+    ``states`` (states of the first run), ``path_<signal>`` (planar signals such as an end effector),
+    ``errors`` (output and signal errors), ``inputs`` and ``funnel`` (error norm and funnel boundary).
+    ``captions`` maps these keys to a prefix (e.g. the paper's figure numbers)."""
     plt = _plt()
+    captions = dict(captions or {})
     runs = study.runs
     figs = {}
     main = runs.get("C1") or next(iter(runs.values()))
-    fig, ax = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True, constrained_layout=True)
-    for i, name in enumerate(main.q_names or [f"q{i}" for i in range(main.q.shape[0])]):
-        (ax[0] if i < 2 else ax[1]).plot(main.t, main.q[i], label=name)
-    ax[0].set(title=f"Fig. 5: states under {main.controller}", ylabel="[m]")
-    ax[1].set(xlabel="t [s]", ylabel="[rad]")
-    ax[0].legend()
-    ax[1].legend()
-    figs["fig5_states"] = fig
+    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+    for i, name in enumerate(main.q_names or [f"q{i + 1}" for i in range(main.q.shape[0])]):
+        ax.plot(main.t, main.q[i], label=name)
+    ax.set(title=_title(captions, "states", f"states under {main.controller}"), xlabel="t [s]")
+    ax.legend(ncol=2, fontsize=8)
+    figs["states"] = fig
 
-    fig, ax = plt.subplots(figsize=(6, 4.5), constrained_layout=True)
-    ax.plot(main.r_ref[0], main.r_ref[1], "k--", lw=1.2, label="reference")
-    for name, r in runs.items():
-        ax.plot(r.r[0], r.r[1], color=_COLORS.get(name), label=name)
-    ax.set(title="Fig. 6: end-effector position r_app", xlabel="e1 [m]", ylabel="e2 [m]", aspect="equal")
-    ax.legend()
-    figs["fig6_endeffector"] = fig
+    for sname, ref in main.signals_ref.items():
+        if ref.shape[0] != 2:
+            continue
+        key = f"path_{sname.replace(' ', '_')}"
+        fig, ax = plt.subplots(figsize=(6, 4.5), constrained_layout=True)
+        ax.plot(ref[0], ref[1], "k--", lw=1.2, label="reference")
+        for name, r in runs.items():
+            ax.plot(r.signals[sname][0], r.signals[sname][1], color=_COLORS.get(name), label=name)
+        ax.set(title=_title(captions, key, f"{sname}: path"), aspect="equal")
+        ax.legend()
+        figs[key] = fig
 
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
-    for name, r in runs.items():
-        ax[0].plot(r.t, r.output_error, color=_COLORS.get(name), label=f"{name} ({r.cumulative_output_error:.3g})")
-        ax[1].plot(r.t, r.endeffector_error, color=_COLORS.get(name),
-                   label=f"{name} ({r.cumulative_endeffector_error:.3g})")
-    ax[0].set(title="Fig. 7a: ||y - y_ref|| (cumulative in legend)", xlabel="t [s]")
-    ax[1].set(title="Fig. 7b: ||r_app - r_app,ref||", xlabel="t [s]")
-    ax[0].legend()
-    ax[1].legend()
-    figs["fig7_errors"] = fig
+    kinds = ["output", *main.signals]
+    fig, axs = plt.subplots(1, len(kinds), figsize=(5.5 * len(kinds), 4), constrained_layout=True, squeeze=False)
+    for ax, kind in zip(axs[0], kinds):
+        for name, r in runs.items():
+            ax.plot(r.t, r.signal_error(kind), color=_COLORS.get(name),
+                    label=f"{name} ({r.cumulative_errors[kind]:.3g})")
+        ax.set(title=_title(captions, "errors", f"{kind} error (cumulative in legend)"), xlabel="t [s]")
+        ax.legend()
+    figs["errors"] = fig
 
-    fig, ax = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True, constrained_layout=True)
+    m = main.u.shape[0]
+    fig, axs = plt.subplots(m, 1, figsize=(7, 2.6 * m + 0.6), sharex=True, constrained_layout=True, squeeze=False)
+    unames = main.u_names or [f"u{i + 1}" for i in range(m)]
     for name, r in runs.items():
-        for i in range(r.u.shape[0]):
-            ax[i].plot(r.t, r.u[i], color=_COLORS.get(name), label=name)
-    ax[0].set(title="Fig. 8: inputs", ylabel="u1 [N]")
-    ax[1].set(xlabel="t [s]", ylabel="u2 [N]")
-    ax[0].legend()
-    figs["fig8_inputs"] = fig
+        for i in range(m):
+            axs[i, 0].plot(r.t, r.u[i], color=_COLORS.get(name), label=name)
+    for i in range(m):
+        axs[i, 0].set(ylabel=unames[i])
+    axs[0, 0].set(title=_title(captions, "inputs", "inputs"))
+    axs[-1, 0].set(xlabel="t [s]")
+    axs[0, 0].legend()
+    figs["inputs"] = fig
 
     fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
     drawn = False
@@ -99,9 +114,9 @@ def plot_study(study, out_dir=None, fmt="png"):
             if not drawn:
                 ax.semilogy(r.t, 1.0 / r.phi_bar, "k", lw=1.2, label="funnel boundary 1/phi")
                 drawn = True
-    ax.set(title="Fig. 9: error norm and funnel boundary", xlabel="t [s]")
+    ax.set(title=_title(captions, "funnel", "error norm and funnel boundary"), xlabel="t [s]")
     ax.legend()
-    figs["fig9_funnel"] = fig
+    figs["funnel"] = fig
 
     if out_dir is not None:
         d = Path(out_dir)

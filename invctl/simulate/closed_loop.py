@@ -35,8 +35,10 @@ BOUNDARY_RATIO = 0.99
 class ClosedLoopResult:
     """Trajectory of a closed-loop run (all arrays with time along the last axis).
 
-    ``ratios`` holds ``phi_i,j |e_i,j|`` for every level and ``phi ||e_bar||`` last
-    (``< 1`` inside the funnels); ``drift_g``/``drift_Gv`` are ``max |g(q)|`` and ``max |G v|``.
+    ``ratios`` holds ``phi_i,j |e_i,j|`` for every level and ``phi ||e_bar||`` last (``< 1`` inside the
+    funnels); ``drift_g``/``drift_Gv`` are ``max |g(q)|`` and ``max |G v|``; ``signals``/``signals_ref``
+    hold the scene's extra signals of the output (e.g. the end effector) and ``cumulative_errors`` the
+    integrals ``int ||s - s_ref|| dt`` of the output (key ``"output"``) and of every signal.
     """
 
     t: np.ndarray
@@ -48,30 +50,41 @@ class ClosedLoopResult:
     u_fb: np.ndarray
     y: np.ndarray
     y_ref: np.ndarray
-    r: np.ndarray
-    r_ref: np.ndarray
     ratios: np.ndarray
     e_bar: np.ndarray
     phi_bar: np.ndarray
     drift_g: np.ndarray
     drift_Gv: np.ndarray
-    cumulative_output_error: float
-    cumulative_endeffector_error: float
+    cumulative_errors: dict
     wall_s: float
+    signals: dict = field(default_factory=dict)
+    signals_ref: dict = field(default_factory=dict)
     controller: str = ""
     status: str = "ok"
     message: str = ""
     ratio_names: list = field(default_factory=list)
     q_names: list = field(default_factory=list)
+    y_names: list = field(default_factory=list)
+    u_names: list = field(default_factory=list)
     stats: dict = field(default_factory=dict)
+
+    @property
+    def success(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def cumulative_output_error(self) -> float:
+        return float(self.cumulative_errors["output"])
 
     @property
     def output_error(self) -> np.ndarray:
         return np.linalg.norm(self.y - self.y_ref, axis=0)
 
-    @property
-    def endeffector_error(self) -> np.ndarray:
-        return np.linalg.norm(self.r - self.r_ref, axis=0)
+    def signal_error(self, name: str) -> np.ndarray:
+        """``||s(t) - s_ref(t)||`` of a declared signal (``"output"`` for y)."""
+        if name == "output":
+            return self.output_error
+        return np.linalg.norm(self.signals[name] - self.signals_ref[name], axis=0)
 
     @property
     def max_funnel_ratio(self) -> float:
@@ -90,11 +103,17 @@ class ClosedLoopResult:
     def input_peaks(self) -> np.ndarray:
         return np.max(np.abs(self.u), axis=1)
 
+    def sample(self, t) -> dict:
+        """``q, v, u, y`` at times ``t`` (linear interpolation between the output samples)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        return {k: np.array([np.interp(t, self.t, row) for row in getattr(self, k)])
+                for k in ("q", "v", "u", "y")}
+
     def summary(self) -> dict:
-        return {"controller": self.controller, "status": self.status,
-                "t_end": float(self.t[-1]) if self.t.size else 0.0,
+        return {"controller": self.controller, "status": self.status, "success": self.success,
+                "message": self.message, "t_end": float(self.t[-1]) if self.t.size else 0.0,
+                "cumulative_errors": dict(self.cumulative_errors),
                 "cumulative_output_error": self.cumulative_output_error,
-                "cumulative_endeffector_error": self.cumulative_endeffector_error,
                 "max_funnel_ratio": self.max_funnel_ratio if self.ratios.size else None,
                 "funnel_margin": self.funnel_margin if self.ratios.size else None,
                 "max_constraint_drift": self.max_constraint_drift,
@@ -103,22 +122,32 @@ class ClosedLoopResult:
                 "left_region": self.stats.get("left_region"),
                 "wall_s": self.wall_s}
 
-    def save(self, path) -> None:
-        """Write all arrays and scalars to ``.npz``."""
-        data = {}
-        for f in fields(self):
-            val = getattr(self, f.name)
-            data[f.name] = np.asarray(val) if not isinstance(val, dict) else np.asarray(repr(val))
-        np.savez(path, **data)
+    def save(self, path, meta: dict | None = None) -> None:
+        """Write all arrays and scalars to ``.npz`` (load with :meth:`load`); ``meta`` (JSON-able)
+        records where the run came from (scene, parameters) for ``invctl animate``."""
+        from ..io import save_npz
+
+        data = {f.name: getattr(self, f.name) for f in fields(self)
+                if f.name not in ("signals", "signals_ref", "cumulative_errors", "stats")}
+        for name, arr in self.signals.items():
+            data[f"signal:{name}"] = arr
+            data[f"signal_ref:{name}"] = self.signals_ref[name]
+        info = {"cumulative_errors": self.cumulative_errors, "stats": self.stats, **(meta or {})}
+        save_npz(path, "ClosedLoopResult", data, info)
 
     def to_csv(self, path) -> None:
-        """Time series (t, q, v, u, u_ff, u_fb, y, y_ref, r, r_ref, funnel ratios) as CSV with a header."""
+        """Time series (t, q, v, u, u_ff, u_fb, y, y_ref, signals, funnel ratios) as CSV with a header."""
         cols = [("t", self.t[None, :])]
-        cols += [(f"{n}", self.q[i:i + 1]) for i, n in enumerate(self.q_names or range(self.q.shape[0]))]
-        cols += [(f"d{n}", self.v[i:i + 1]) for i, n in enumerate(self.q_names or range(self.v.shape[0]))]
-        for name in ("u", "u_ff", "u_fb", "y", "y_ref", "r", "r_ref"):
+        qn = self.q_names or [f"q{i + 1}" for i in range(self.q.shape[0])]
+        cols += [(f"{n}", self.q[i:i + 1]) for i, n in enumerate(qn)]
+        cols += [(f"d{n}", self.v[i:i + 1]) for i, n in enumerate(qn)]
+        for name in ("u", "u_ff", "u_fb", "y", "y_ref"):
             arr = getattr(self, name)
             cols += [(f"{name}{i + 1}", arr[i:i + 1]) for i in range(arr.shape[0])]
+        for name, arr in self.signals.items():
+            key = re.sub(r"[^A-Za-z0-9_]+", "_", name).strip("_")
+            cols += [(f"{key}{i + 1}", arr[i:i + 1]) for i in range(arr.shape[0])]
+            cols += [(f"{key}_ref{i + 1}", self.signals_ref[name][i:i + 1]) for i in range(arr.shape[0])]
         safe = [re.sub(r"[^A-Za-z0-9_]+", "_", n).strip("_") for n in self.ratio_names]
         cols += [(f"ratio_{n}", self.ratios[i:i + 1]) for i, n in enumerate(safe)]
         data = np.vstack([c[1] for c in cols]).T
@@ -126,20 +155,29 @@ class ClosedLoopResult:
 
     @classmethod
     def load(cls, path) -> "ClosedLoopResult":
-        with np.load(path, allow_pickle=False) as d:
-            kw = {}
-            for f in fields(cls):
-                a = d[f.name]
-                if f.name in ("cumulative_output_error", "cumulative_endeffector_error", "wall_s"):
-                    kw[f.name] = float(a)
-                elif f.name in ("controller", "status", "message"):
-                    kw[f.name] = str(a)
-                elif f.name in ("ratio_names", "q_names"):
-                    kw[f.name] = [str(x) for x in a]
-                elif f.name == "stats":
-                    kw[f.name] = {}
-                else:
-                    kw[f.name] = np.array(a)
+        """Read a run written by :meth:`save` (format and version checked)."""
+        from ..io import load_npz
+
+        arrays, info = load_npz(path, "ClosedLoopResult")
+        kw = {"signals": {}, "signals_ref": {}, "cumulative_errors": dict(info.get("cumulative_errors", {})),
+              "stats": dict(info.get("stats", {}))}
+        for key, a in arrays.items():
+            if key.startswith("signal:"):
+                kw["signals"][key[7:]] = a
+            elif key.startswith("signal_ref:"):
+                kw["signals_ref"][key[11:]] = a
+            else:
+                kw[key] = a
+        for f in fields(cls):
+            if f.name not in kw:
+                from ..errors import ResultFileError
+
+                raise ResultFileError(f"{path}: not a complete closed-loop run (missing {f.name!r})")
+        kw["wall_s"] = float(kw["wall_s"])
+        for k in ("controller", "status", "message"):
+            kw[k] = str(kw[k])
+        for k in ("ratio_names", "q_names", "y_names", "u_names"):
+            kw[k] = [str(x) for x in np.atleast_1d(kw[k])] if np.size(kw[k]) else []
         return cls(**kw)
 
     def plot(self, path=None):
@@ -193,20 +231,21 @@ class ClosedLoop:
         Feedback; ``None`` for pure feedforward.
     u_ff : (t, values) or casadi.Function, optional
         Causal feedforward samples (shape (m, N)) or an MX Function of ``t``.
-    endeffector : callable, optional
-        ``r(y)`` built from CasADi operations; its error is integrated as well.
+    signals : dict, optional
+        ``name -> s(y)`` built from CasADi operations (e.g. the end effector); each signal and its
+        reference ``s(y_ref)`` are recorded and ``int ||s - s_ref|| dt`` is integrated.
     t_end, dt : float
         Horizon and output step.
     chunks : int
         Integrator calls per run (funnel checks between them).
     """
 
-    def __init__(self, plant, reference, *, controller=None, u_ff=None, endeffector=None, t_end=2.0, dt=1e-3,
+    def __init__(self, plant, reference, *, controller=None, u_ff=None, signals=None, t_end=2.0, dt=1e-3,
                  chunks=8, baumgarte=(20.0, 20.0), rtol=1e-8, atol=1e-10, name="", max_num_steps=20000):
         if not t_end > 0 or not dt > 0:
             raise ParameterError(f"need t_end > 0 and dt > 0, got t_end={t_end}, dt={dt}")
         self.plant, self.reference, self.controller = plant, reference, controller
-        self.endeffector, self.name = endeffector, name
+        self.signals, self.name = dict(signals or {}), name
         self.t_end, self.dt = float(t_end), float(dt)
         n_steps = int(round(self.t_end / self.dt))
         self.chunks = max(1, min(int(chunks), n_steps))
@@ -240,12 +279,14 @@ class ClosedLoop:
         h = plant.function("h")(q, v, theta)
         yref = reference.function(0)(tt)
         quad = [ca.norm_2(h - yref)]
-        if endeffector is not None:
-            r, rref = endeffector(h), endeffector(yref)
-            quad.append(ca.norm_2(r - rref))
-        else:
-            r, rref = h, yref
-            quad.append(ca.norm_2(h - yref))
+        sig, sig_ref = [], []
+        for fn in self.signals.values():
+            s, sr = ca.MX(fn(h)), ca.MX(fn(yref))
+            sig.append(s)
+            sig_ref.append(sr)
+            quad.append(ca.norm_2(s - sr))
+        self.n_quad = len(quad)
+        self._signal_sizes = [int(s.numel()) for s in sig]
         dae = {"t": t, "x": x, "p": ca.vertcat(theta, t_start), "ode": ca.vertcat(v, a, zdot), "quad": ca.vertcat(*quad)}
         grid = np.linspace(0.0, self.per_chunk * self.dt, self.per_chunk + 1)[1:]
         opts = {"abstol": atol, "reltol": rtol, "max_num_steps": max_num_steps, "linear_solver": "csparse",
@@ -254,10 +295,12 @@ class ClosedLoop:
         self.step_integrator = ca.integrator("closed_loop_step", "cvodes", dae, 0.0, [self.dt], opts)
         G = plant.function("G")(q, theta)
         mon = ca.Function("monitor", [t, t_start, x, theta],
-                          [u, uff, ufb, h, yref, r, rref, ratios, ca.norm_2(ebar) if ebar.numel() else ca.MX(0),
+                          [u, uff, ufb, h, yref, ca.vertcat(*sig) if sig else ca.MX(0, 1),
+                           ca.vertcat(*sig_ref) if sig_ref else ca.MX(0, 1), ratios,
+                           ca.norm_2(ebar) if ebar.numel() else ca.MX(0),
                            phib, ca.norm_inf(plant.function("g")(q, theta)), ca.norm_inf(ca.mtimes(G, v))],
                           ["t", "t_start", "x", "theta"],
-                          ["u", "u_ff", "u_fb", "y", "y_ref", "r", "r_ref", "ratios", "e_bar", "phi_bar", "g", "Gv"])
+                          ["u", "u_ff", "u_fb", "y", "y_ref", "s", "s_ref", "ratios", "e_bar", "phi_bar", "g", "Gv"])
         self.monitor = mon
         self._mon_map = {}
 
@@ -287,7 +330,7 @@ class ClosedLoop:
         z0 = self.controller.z0(q0, v0) if self.controller is not None else np.zeros(0)
         x = np.concatenate([q0, v0, z0])
         wall0 = time.perf_counter()
-        Xs, Ts, quad = [x[:, None]], [np.zeros(1)], np.zeros(2)
+        Xs, Ts, quad = [x[:, None]], [np.zeros(1)], np.zeros(self.n_quad)
         status, message, fail = "ok", "", None
         for c in range(self.chunks):
             ts = c * self.per_chunk * self.dt
@@ -301,7 +344,7 @@ class ClosedLoop:
             Ts.append(tg)
             if Xc.shape[1]:
                 x = Xc[:, -1]
-                quad = quad + np.asarray(qf).reshape(2, -1)[:, -1]
+                quad = quad + np.asarray(qf).reshape(self.n_quad, -1)[:, -1]
             mon_ratios = self._monitor(tg, Xc, theta)[7] if Xc.shape[1] and self.controller is not None else None
             if fail is not None or (mon_ratios is not None and mon_ratios.size and mon_ratios.max() >= VIOLATION_RATIO):
                 break
@@ -359,7 +402,7 @@ class ClosedLoop:
     def _steps(self, x, ts, theta, exc):
         """Re-run a failed chunk step by step (one output step per call) to keep the trajectory up to the
         failure; returns the failure of the step integrator, or ``None`` if every step succeeded."""
-        cols, tg, qf = [], [], np.zeros(2)
+        cols, tg, qf = [], [], np.zeros(self.n_quad)
         for kstep in range(self.per_chunk):
             t0 = ts + kstep * self.dt
             try:
@@ -401,17 +444,24 @@ class ClosedLoop:
 
     def _result(self, T, X, theta, quad, wall, label):
         n = self.plant.n
-        u, uff, ufb, y, yref, r, rref, ratios, ebar, phib, dg, dgv = self._monitor(T, X, theta)
+        u, uff, ufb, y, yref, s, sref, ratios, ebar, phib, dg, dgv = self._monitor(T, X, theta)
+        signals, signals_ref, off = {}, {}, 0
+        for name, size in zip(self.signals, self._signal_sizes):
+            signals[name], signals_ref[name] = s[off:off + size], sref[off:off + size]
+            off += size
         if quad is None:
-            eo, er = np.linalg.norm(y - yref, axis=0), np.linalg.norm(r - rref, axis=0)
-            quad = (np.trapezoid(eo, T), np.trapezoid(er, T)) if T.size > 1 else (0.0, 0.0)
+            errs = [np.linalg.norm(y - yref, axis=0)] + [np.linalg.norm(signals[k] - signals_ref[k], axis=0)
+                                                         for k in self.signals]
+            quad = [np.trapezoid(e, T) if T.size > 1 else 0.0 for e in errs]
         names = list(self.controller.ratio_names) if self.controller is not None else []
+        plant = self.plant
         return ClosedLoopResult(
-            t=T, q=X[:n], v=X[n:2 * n], z=X[2 * n:], u=u, u_ff=uff, u_fb=ufb, y=y, y_ref=yref, r=r, r_ref=rref,
+            t=T, q=X[:n], v=X[n:2 * n], z=X[2 * n:], u=u, u_ff=uff, u_fb=ufb, y=y, y_ref=yref,
             ratios=ratios if self.controller is not None else np.zeros((0, T.size)),
             e_bar=ebar.ravel(), phi_bar=phib.ravel(), drift_g=dg.ravel(), drift_Gv=dgv.ravel(),
-            cumulative_output_error=float(quad[0]), cumulative_endeffector_error=float(quad[1]), wall_s=wall,
-            controller=label, ratio_names=names, q_names=list(self.plant.q_names),
+            cumulative_errors={"output": float(quad[0]), **{k: float(v) for k, v in zip(self.signals, quad[1:])}},
+            wall_s=wall, signals=signals, signals_ref=signals_ref, controller=label, ratio_names=names,
+            q_names=list(plant.q_names), y_names=list(plant.y_names), u_names=list(plant.u_names),
             stats={"chunks": self.chunks, "dt": self.dt})
 
 

@@ -22,7 +22,6 @@ phases, App. A) are known in advance and handled exactly as well.
 """
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
@@ -73,6 +72,9 @@ class SwitchedSimulation:
     wall_time: float
     label: str = ""
     meta: dict = field(default_factory=dict)
+    status: str = "ok"
+    message: str = ""
+    stats: dict = field(default_factory=dict)
 
     _ARRAYS = ("t", "x", "v", "xt", "vt", "xd", "xd_dot", "Fd", "Fd_desired", "Fe", "Fc", "wall", "ctrl",
                "intended", "event_t", "event_surface", "event_kind")
@@ -81,6 +83,17 @@ class SwitchedSimulation:
     @property
     def n_events(self) -> int:
         return int(self.event_t.size)
+
+    @property
+    def success(self) -> bool:
+        return self.status == "ok"
+
+    def sample(self, t) -> dict:
+        """``x, v, Fe, Fd`` (and ``xt, vt``) at times ``t``: linear interpolation between the exact
+        samples (which include both sides of every event)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        keys = ["x", "v", "Fe", "Fd"] + (["xt", "vt"] if self.xt.size else [])
+        return {k: np.interp(t, self.t, getattr(self, k)) for k in keys}
 
     def contact_intervals(self) -> list[tuple[float, float]]:
         """Intervals of wall contact ``[(t_on, t_off), ...]``."""
@@ -94,17 +107,21 @@ class SwitchedSimulation:
                 f"  wall time {self.wall_time:.3g} s")
 
     def to_dict(self) -> dict:
-        return {"peak_force": self.peak_force, "bounces": self.bounces, "contact_phases": self.contact_phases,
+        return {"status": self.status, "success": self.success, "message": self.message,
+                "peak_force": self.peak_force, "bounces": self.bounces, "contact_phases": self.contact_phases,
                 "force_rms_error": self.force_rms_error, "n_events": self.n_events,
                 "contact_intervals": self.contact_intervals(), "wall_time": self.wall_time,
                 "t_end": float(self.t[-1]), "label": self.label}
 
-    def to_npz(self, path) -> None:
+    def to_npz(self, path, meta: dict | None = None):
+        """Write to ``.npz`` (read back with :meth:`load`); returns the path written."""
+        from ..io import save_npz
+
         data = {k: np.asarray(getattr(self, k)) for k in self._ARRAYS}
         data.update({k: np.asarray(getattr(self, k)) for k in self._SCALARS})
-        data["label"] = np.asarray(self.label)
-        data["meta"] = np.asarray(json.dumps(self.meta, default=float))
-        np.savez_compressed(path, **data)
+        info = {"label": self.label, "meta": {**self.meta, **(meta or {})}, "status": self.status,
+                "message": self.message, "stats": self.stats}
+        return save_npz(path, "SwitchedSimulation", data, info)
 
     def to_csv(self, path) -> None:
         """Sampled signals as CSV (one row per sample; events and scores are in :meth:`to_npz`)."""
@@ -114,15 +131,22 @@ class SwitchedSimulation:
         np.savetxt(path, data, delimiter=",", header=",".join(cols), comments="", fmt="%.17g")
 
     @classmethod
-    def from_npz(cls, path) -> "SwitchedSimulation":
-        with np.load(path, allow_pickle=False) as f:
-            kw = {k: f[k] for k in cls._ARRAYS}
-            kw.update({k: f[k].item() for k in cls._SCALARS})
-            kw["label"] = str(f["label"])
-            kw["meta"] = json.loads(str(f["meta"]))
+    def load(cls, path) -> "SwitchedSimulation":
+        """Read a file written by :meth:`to_npz` (format and version checked)."""
+        from ..errors import ResultFileError
+        from ..io import load_npz
+
+        f, info = load_npz(path, "SwitchedSimulation")
+        missing = [k for k in cls._ARRAYS + cls._SCALARS if k not in f]
+        if missing:
+            raise ResultFileError(f"{path}: incomplete switched simulation (missing {missing})")
+        kw = {k: f[k] for k in cls._ARRAYS}
+        kw.update({k: f[k].item() for k in cls._SCALARS})
         for k in ("contact_phases", "bounces"):
             kw[k] = int(kw[k])
-        return cls(**kw)
+        return cls(**kw, label=str(info.get("label", "")), meta=dict(info.get("meta", {})),
+                   status=str(info.get("status", "ok")), message=str(info.get("message", "")),
+                   stats=dict(info.get("stats", {})))
 
     def plot(self, axes=None, *, title: str | None = None):
         """Position and force against desired force, contact phases shaded (one call)."""

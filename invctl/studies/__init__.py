@@ -1,5 +1,7 @@
-"""Studies and the command glue on top of them: the tracking study of 003 Sect. 6
-(``tracking``, ``tracking_commands``), the switched-control study of 002 (``switched``), the
-contact scenes of 000 (``contact_commands``, ``timestep``), speed-versus-accuracy trade-offs
-(``tradeoff``, ``tradeoff_specs``, ``commands``) and parameter sweeps (``sweep``,
-``robustness``). Import from the submodules."""
+"""Studies and the commands on top of them, written once for every scene.
+
+``commands`` (the front door of every ``invctl`` command), the scene kinds' commands
+(``tracking`` + ``tracking_report`` for 003, ``contact`` for 000, ``switched`` + ``switched_report``
+for 002), declared ``reports``, ``animation`` of saved runs, speed-versus-accuracy trade-offs
+(``tradeoff``, ``tradeoff_specs``), the time-step study (``timestep``) and parameter sweeps
+(``sweep``, ``robustness``). Import from the submodules."""

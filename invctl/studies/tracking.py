@@ -1,10 +1,18 @@
-"""Feedforward + feedback tracking study of 003 Sect. 6 (controllers C1, C2, C3, Figs. 5-9).
+"""Feedforward + feedback tracking of any tracking scene (003 Sect. 4-6): setup, runs, comparison.
 
-C1: ``u = u_ff + u_fb`` (causal feedforward from the servo-constraint inverse of the reference
-model plus the funnel controller (48)); C2: ``u = u_fb``; C3: ``u = u_ff``.  The plant differs from
-the reference model (by default ``PLANT_FACTORS`` of the scene: m3 x 1.2).  Cumulative errors are
-``int_0^T ||y - y_ref|| dt`` and ``int_0^T ||r_app - r_app,ref|| dt``; the paper reports that C1 reduces
-C2's by 40 % (y) and 50 % (end effector).
+Controllers (the runs of 003 Sect. 6, for any scene):
+
+``C1``     feedforward ``u_ff`` (servo-constraint inverse of the reference model, causal part) plus the
+           funnel controller (48) whose new reference is ``K_1 Psi(q_ff, v_ff)`` along the inverse's
+           state trajectory (invctl's construction: every error level vanishes when the plant follows
+           the inverse);
+``C1-42``  the same feedforward with the paper's new reference (42)/(43);
+``C2``     the funnel controller alone (new reference (42));
+``C3``     the feedforward alone.
+
+The plant differs from the reference model by the scene's declared mismatch (``Tracking.plant``, e.g.
+``m3 x 1.2``) and ``--plant-set`` overrides; it starts at rest at its equilibrium on ``y_ref(0)``.
+Cumulative errors are ``int ||y - y_ref|| dt`` and the same for every declared signal.
 """
 from __future__ import annotations
 
@@ -19,11 +27,119 @@ import numpy as np
 from ..errors import FunnelViolation, ParameterError, SceneError
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
-__all__ = ["CONTROLLERS", "TrackingSetup", "TrackingStudy", "a1_along", "setup_tracking", "run_controller",
-           "run_tracking_study"]
+__all__ = ["CONTROLLERS", "TrackingSetup", "TrackingStudy", "setup_tracking", "run_controller",
+           "run_tracking_study", "tracking_model", "tracking_linearization", "equilibrium_configuration",
+           "invert_tracking", "plant_of", "a1_along"]
 
 CONTROLLERS = {"C1": "feedforward + funnel", "C2": "funnel only", "C3": "feedforward only",
                "C1-42": "ff + funnel, ref. (42)"}
+_NEEDS_INVERSE = ("C1", "C3", "C1-42")
+
+
+def tracking_model(scene, params=None):
+    """``(model, reference)`` of a tracking scene with parameter overrides ``params``."""
+    scene.require("invert")
+    model = scene.model(params)
+    reference = scene.tracking.reference(model)
+    from ..reference import Reference
+
+    if not isinstance(reference, Reference):
+        raise SceneError(f"scene {scene.name!r}: tracking.reference(model) returned {type(reference).__name__}, "
+                         "expected an invctl.reference.Reference")
+    if reference.m != model.ny:
+        raise SceneError(f"scene {scene.name!r}: the reference has {reference.m} components, the model "
+                         f"{model.ny} outputs")
+    return model, reference
+
+
+def equilibrium_configuration(scene, model, y, guess=None) -> np.ndarray:
+    """The configuration ``q`` of the static equilibrium with ``h(q) = y`` (servo constraints at rest),
+    continued from the scene's ``initial_configuration`` (or ``guess``)."""
+    from ..inversion.boundary import EquilibriumSolver
+
+    if guess is None and scene.tracking.initial_configuration is not None:
+        guess = scene.tracking.initial_configuration(model)
+    X, _ = EquilibriumSolver(model).solve(np.asarray(y, float).ravel(), guess_q=guess,
+                                          where=f" (scene {scene.name})")
+    return X[:model.n]
+
+
+def design_configuration(scene, model, reference=None) -> np.ndarray:
+    """Where a tracking scene is analysed: the equilibrium at ``y_ref(t0)``, or the declared point."""
+    t = scene.tracking
+    if t.point is not None:
+        q = np.asarray(t.point(model) if callable(t.point) else t.point, float).ravel()
+        if q.size != model.n:
+            raise SceneError(f"scene {scene.name!r}: tracking.point has {q.size} entries, the model n = {model.n}")
+        return q
+    if reference is None:
+        if t.initial_configuration is not None:
+            return np.asarray(t.initial_configuration(model), float).ravel()
+        return np.zeros(model.n)
+    return equilibrium_configuration(scene, model, reference(reference.t0))
+
+
+def tracking_linearization(scene, model, reference, *, samples: int = 200, internal=None):
+    """The linearized internal dynamics (37)-(39) the scene's controllers use: internal coordinates
+    of the scene (or the default ones of 003 Sect. 3), linearized at the equilibria of ``y_ref(t0)``
+    and ``y_ref(tf)`` (mean of the Jacobians, as 003 Sect. 6) or at the start only."""
+    from ..analysis import internal_dynamics, linearize_internal
+
+    t = scene.tracking
+    q_start = design_configuration(scene, model, reference)
+    if internal is None:
+        phi = t.internal_coordinates(model) if t.internal_coordinates is not None else None
+        internal = internal_dynamics(model, "sect3", phi, point=q_start, samples=samples)
+    times = (reference.t0, reference.tf) if t.linearize_at == "ends" else (reference.t0,)
+    points = []
+    for tk in times:
+        y = reference(tk).ravel()
+        q = q_start if tk == reference.t0 else equilibrium_configuration(scene, model, y, guess=q_start)
+        eta = np.array(internal.eta(q, np.zeros(model.n), model.theta_values)).ravel()
+        points.append(([y] + [np.zeros(model.ny)] * (internal.r_hat - 1), eta))
+    return linearize_internal(model, internal, points, combine="mean", split=t.split)
+
+
+def plant_of(scene, model, plant_params=None, plant_factors=None):
+    """The simulated plant: the scene's mismatch factors (or ``plant_factors``), then overrides."""
+    factors = dict(scene.tracking.plant if plant_factors is None else plant_factors)
+    plant_params = dict(plant_params or {})
+    unknown = sorted(set(plant_params) - set(model.values)) + sorted(set(factors) - set(model.values))
+    if unknown:
+        raise SceneError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(model.values)}")
+    plant = model.scaled(**{k: v for k, v in factors.items() if k not in plant_params})
+    plant = plant.with_params(**plant_params) if plant_params else plant
+    if plant_params:
+        full = {k: plant.values[k] for k in scene.params if k in plant.values}
+        scene.check_values({**scene.params, **scene.settings, **full})
+        plant.validate()
+    return plant
+
+
+def invert_tracking(scene, model, reference, *, progress=False, **options):
+    """The servo-constraint inverse of the scene's reference model: the automatic setup of
+    :func:`invctl.inversion.invert` with the scene's declared overrides (``Tracking.inversion``),
+    then ``options``."""
+    from ..inversion import invert
+
+    cfg = dict(scene.tracking.inversion)
+    if "q_guess" not in options and scene.tracking.initial_configuration is not None:
+        options["q_guess"] = scene.tracking.initial_configuration(model)
+    cfg.update({k: v for k, v in options.items() if v is not None})
+    return invert(model, reference, progress=progress, **cfg)
+
+
+def _signals(scene, model) -> dict:
+    return {name: make(model) for name, make in scene.tracking.signals.items()}
+
+
+def feedback_options(scene, model, lin, reference, *, q0=None, overrides=None) -> dict:
+    """Keyword options of the funnel controller: the scene's declared feedback, then ``overrides``."""
+    cfg = {**scene.tracking.feedback, **dict(overrides or {})}
+    missing = [k for k in ("K", "funnels", "kappa", "kappa_bar", "phi_bar") if k not in cfg]
+    if missing:
+        raise SceneError(f"scene {scene.name!r}: the funnel controller needs {missing} (tracking.feedback)")
+    return cfg
 
 
 @dataclass
@@ -40,7 +156,8 @@ class TrackingSetup:
     q0: np.ndarray
     t_end: float
     dt: float
-    endeffector: object
+    signals: dict
+    params: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     _loops: dict = field(default_factory=dict)
     _c1: object = None
@@ -80,52 +197,59 @@ class TrackingSetup:
             t0 = time.perf_counter()
             ctrl = {"C1": self.c1_controller, "C2": lambda: self.controller, "C1-42": lambda: self.controller,
                     "C3": lambda: None}[name]()
-            uff = self.u_ff_samples() if name in ("C1", "C3", "C1-42") else None
+            uff = self.u_ff_samples() if name in _NEEDS_INVERSE else None
             self._loops[name] = ClosedLoop(self.plant, self.reference, controller=ctrl, u_ff=uff,
-                                           endeffector=self.endeffector, t_end=self.t_end, dt=self.dt, name=name)
+                                           signals=self.signals, t_end=self.t_end, dt=self.dt, name=name)
             self.timings[f"build_{name}"] = time.perf_counter() - t0
         return self._loops[name]
 
+    def meta(self) -> dict:
+        """Where a run comes from (for files and ``invctl animate``)."""
+        scene = self.scene
+        from ..scenes import scene_reference
 
-def _plant(scene, model, plant_params, plant_factors):
-    factors = dict(getattr(scene, "PLANT_FACTORS", {}) if plant_factors is None else plant_factors)
-    plant_params = dict(plant_params or {})
-    unknown = sorted(set(plant_params) - set(model.values)) + sorted(set(factors) - set(model.values))
-    if unknown:
-        raise SceneError(f"--plant-set: unknown parameter(s) {unknown}; known: {sorted(model.values)}")
-    plant = model.scaled(**{k: v for k, v in factors.items() if k not in plant_params})
-    return plant.with_params(**plant_params) if plant_params else plant
+        return {"scene": scene_reference(scene), "params": dict(self.params),
+                "plant": {k: v for k, v in self.plant.values.items() if v != self.model.values.get(k)}}
 
 
-def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, invert=True, t_end=2.0, dt=1e-3,
-                   feedback=None, plant_factors=None, q0=None, reference=None, progress=False) -> TrackingSetup:
-    """Build the reference model (``params``), the plant (``PLANT_FACTORS`` then ``plant_params``),
-    the linearization, the funnel controller (the scene's ``FEEDBACK`` updated by ``feedback``) and,
-    if ``invert`` and no ``inverse`` is given, the servo-constraint inverse of the reference model.
+def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, invert=True, t_end=None, dt=1e-3,
+                   feedback=None, plant_factors=None, q0=None, reference=None, progress=False,
+                   inversion_options=None) -> TrackingSetup:
+    """Build the reference model (``params``), the plant (declared mismatch, then ``plant_params``),
+    the linearization, the funnel controller (declared feedback updated by ``feedback``) and, if
+    ``invert`` and no ``inverse`` is given, the servo-constraint inverse of the reference model.
     ``reference`` (a Reference or ``model -> Reference``) replaces the scene's reference."""
     timings = {}
     t0 = time.perf_counter()
     params = dict(params or {})
-    model = scene.build(**params)
-    plant = _plant(scene, model, plant_params, plant_factors)
-    ref = scene.reference(model) if reference is None else (reference(model) if callable(reference) and not
-                                                                 hasattr(reference, "expr") else reference)
-    lin = scene.manipulator_linearization(model, ref) if hasattr(scene, "manipulator_linearization") else None
+    model, ref = tracking_model(scene, params)
+    if reference is not None:
+        ref = reference(model) if callable(reference) and not hasattr(reference, "expr") else reference
+    if ref.t0 < 0:
+        raise SceneError(f"scene {scene.name!r}: closed-loop runs start at t = 0, but the reference's "
+                         f"transition starts at t0 = {ref.t0} < 0")
+    plant = plant_of(scene, model, plant_params, plant_factors)
+    lin = tracking_linearization(scene, model, ref)
     timings["analysis"] = time.perf_counter() - t0
+    t_end = float(scene.tracking.t_end or (ref.tf + (ref.tf - ref.t0))) if t_end is None else float(t_end)
+    if not t_end > 0:
+        raise ParameterError(f"t_end must be positive, got {t_end}")
     t0 = time.perf_counter()
-    ctrl = scene.funnel_controller(model, ref, lin, t_end=t_end, **dict(feedback or {}))
+    from ..control.funnel_nmp import NMPFunnelController
+
+    ctrl = NMPFunnelController(model, lin, ref, t_end=t_end, **feedback_options(scene, model, lin, ref,
+                                                                                 overrides=feedback))
     timings["controller"] = time.perf_counter() - t0
     if inverse is None and invert:
         t0 = time.perf_counter()
         if progress:
             print("inverting the reference model (servo constraints) ...", file=sys.stderr)
-        from ..inversion import invert_scene
-
-        inverse = invert_scene(scene, params, model=model, reference=ref)
+        inverse = invert_tracking(scene, model, ref, **dict(inversion_options or {}))
         timings["inversion"] = time.perf_counter() - t0
-    q0 = scene.initial_configuration(plant) if q0 is None else np.asarray(q0, float)
-    return TrackingSetup(scene, model, plant, ref, lin, ctrl, inverse, q0, float(t_end), float(dt),
-                         scene.end_effector_expr(model), timings)
+    if q0 is None:
+        q0 = equilibrium_configuration(scene, plant, ref(0.0))
+    return TrackingSetup(scene, model, plant, ref, lin, ctrl, inverse, np.asarray(q0, float).ravel(), t_end,
+                         float(dt), _signals(scene, model), params, timings)
 
 
 def a1_along(setup: TrackingSetup, res: ClosedLoopResult, stride: int = 10) -> dict:
@@ -154,50 +278,66 @@ def run_controller(setup: TrackingSetup, name: str, *, raise_on_violation=True, 
 
 @dataclass
 class TrackingStudy:
-    """Runs of C1/C2/C3 with the comparison of 003 Sect. 6."""
+    """Runs of the controllers with the comparison of 003 Sect. 6."""
 
     runs: dict
     info: dict = field(default_factory=dict)
     setup: object = field(default=None, repr=False, compare=False)
 
     def reduction(self, kind: str = "output", a: str = "C1", b: str = "C2") -> float:
-        """``1 - E_a / E_b`` for the cumulative ``kind`` ("output" or "endeffector") error."""
-        key = f"cumulative_{kind}_error"
-        return 1.0 - getattr(self.runs[a], key) / getattr(self.runs[b], key)
+        """``1 - E_a / E_b`` for the cumulative error of ``kind`` (``"output"`` or a declared signal)."""
+        return 1.0 - self.runs[a].cumulative_errors[kind] / self.runs[b].cumulative_errors[kind]
+
+    @property
+    def error_kinds(self) -> list:
+        first = next(iter(self.runs.values()), None)
+        return list(first.cumulative_errors) if first is not None else []
 
     @property
     def reductions(self) -> dict:
         if not {"C1", "C2"} <= set(self.runs):
             return {}
-        return {"output": self.reduction("output"), "endeffector": self.reduction("endeffector")}
+        return {k: self.reduction(k) for k in self.error_kinds}
 
     def table(self) -> str:
-        head = (f"{'':4s} {'controller':22s} {'cum. |y-y_ref|':>15s} {'cum. |r-r_ref|':>15s} {'final |e_y|':>12s} "
-                f"{'max phi|e|':>11s} {'margin':>8s} {'|u1|max':>9s} {'|u2|max':>9s} {'drift':>9s} {'wall s':>7s}")
+        kinds = self.error_kinds
+        m = max((r.u.shape[0] for r in self.runs.values()), default=0)
+        head = (f"{'':5s} {'controller':22s} " + " ".join(f"{('cum. ' + k)[:15]:>15s}" for k in kinds)
+                + f" {'final |e_y|':>12s} {'max phi|e|':>11s} {'margin':>8s} "
+                + " ".join(f"{f'|u{i + 1}|max':>9s}" for i in range(m)) + f" {'drift':>9s} {'wall s':>7s}")
         lines = [head, "-" * len(head)]
         for name, r in self.runs.items():
             ratio = f"{r.max_funnel_ratio:11.4f}" if r.ratios.size else f"{'-':>11s}"
             margin = f"{r.funnel_margin:8.4f}" if r.ratios.size else f"{'-':>8s}"
             pk = r.input_peaks
-            lines.append(f"{name:4s} {CONTROLLERS.get(name, ''):22s} {r.cumulative_output_error:15.6g} "
-                         f"{r.cumulative_endeffector_error:15.6g} {r.output_error[-1]:12.4g} {ratio} {margin} "
-                         f"{pk[0]:9.3g} {pk[1]:9.3g} {r.max_constraint_drift:9.2g} {r.wall_s:7.3f}")
+            status = "" if r.success else f"  ({r.status}: {r.message})"
+            lines.append(f"{name:5s} {CONTROLLERS.get(name, ''):22s} "
+                         + " ".join(f"{r.cumulative_errors[k]:15.6g}" for k in kinds)
+                         + f" {r.output_error[-1]:12.4g} {ratio} {margin} "
+                         + " ".join(f"{x:9.3g}" for x in pk) + f" {r.max_constraint_drift:9.2g} {r.wall_s:7.3f}"
+                         + status)
         red = self.reductions
         if red:
-            lines.append(f"C1 reduces C2's cumulative error by {100 * red['output']:.1f} % (y) and "
-                         f"{100 * red['endeffector']:.1f} % (end effector); paper: 40 % and 50 %")
+            printed = dict(self.info.get("printed_reduction") or {})
+            parts = [f"{100 * v:.1f} % ({k})" for k, v in red.items()]
+            line = "C1 reduces C2's cumulative error by " + ", ".join(parts)
+            if printed:
+                line += "; paper: " + ", ".join(f"{100 * float(v):.0f} % ({k})" for k, v in printed.items())
+            lines.append(line)
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
         return {"runs": {k: r.summary() for k, r in self.runs.items()}, "reductions": self.reductions,
                 "info": self.info}
 
-    def save(self, directory) -> None:
+    def save(self, directory, meta: dict | None = None) -> None:
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         for name, r in self.runs.items():
-            r.save(d / f"run_{name}.npz")
-        (d / "study.json").write_text(json.dumps(self.to_dict(), indent=1, default=float))
+            r.save(d / f"run_{name}.npz", meta=meta)
+        from ..scenes import jsonable
+
+        (d / "study.json").write_text(json.dumps(jsonable(self.to_dict()), indent=1))
 
     @classmethod
     def load(cls, directory) -> "TrackingStudy":
@@ -207,20 +347,24 @@ class TrackingStudy:
         return cls(runs, meta.get("info", {}))
 
     def plot(self, out_dir=None, fmt="png"):
-        """Figures matching 003 Figs. 5-9; written to ``out_dir`` if given. Returns the figures."""
+        """Figures matching 003 Figs. 5-9 (for any scene); written to ``out_dir`` if given. Returns the figures."""
         from ..plot.tracking import plot_study
 
-        return plot_study(self, out_dir, fmt)
+        return plot_study(self, out_dir, fmt, captions=self.info.get("figure_captions"))
 
 
-def run_tracking_study(scene, params=None, plant_params=None, *, controllers=("C1", "C2", "C3"), setup=None,
+def run_tracking_study(scene, params=None, plant_params=None, *, controllers=None, setup=None,
                        progress=True, **setup_options) -> TrackingStudy:
     """Simulate the controllers on the mismatched plant and compare (003 Sect. 6).
 
     A run that leaves its funnel is kept (``status == "funnel_violation"``, truncated) and reported.
     """
+    controllers = tuple(controllers or scene.tracking.controllers)
+    unknown = [c for c in controllers if c not in CONTROLLERS]
+    if unknown:
+        raise SceneError(f"unknown controller(s) {unknown}; choose from {sorted(CONTROLLERS)}")
     setup = setup if setup is not None else setup_tracking(scene, params, plant_params, progress=progress,
-                                                           invert=bool({"C1", "C3", "C1-42"} & set(controllers)),
+                                                           invert=bool(set(_NEEDS_INVERSE) & set(controllers)),
                                                            **setup_options)
     runs = {}
     for name in controllers:
@@ -231,7 +375,9 @@ def run_tracking_study(scene, params=None, plant_params=None, *, controllers=("C
         except FunnelViolation as exc:
             runs[name] = exc.partial
     a1 = {name: a1_along(setup, r) for name, r in runs.items() if r.t.size > 1}
-    info = {"a1_along_trajectory": a1, "params": dict(params or {}), "plant": {k: v for k, v in setup.plant.values.items()
-                                                    if v != setup.model.values.get(k)},
-            "timings": dict(setup.timings), "t_end": setup.t_end, "dt": setup.dt}
+    info = {"a1_along_trajectory": a1, "params": dict(params or {}),
+            "plant": {k: v for k, v in setup.plant.values.items() if v != setup.model.values.get(k)},
+            "timings": dict(setup.timings), "t_end": setup.t_end, "dt": setup.dt,
+            "printed_reduction": dict(scene.tracking.printed.get("reduction", {})), "scene": scene.name,
+            "figure_captions": dict(scene.tracking.printed.get("figures", {}))}
     return TrackingStudy(runs, info, setup)

@@ -1,29 +1,22 @@
-"""Speed-versus-accuracy specs of the shipped scenes (``invctl study tradeoff <scene>``).
+"""Speed-versus-accuracy specs for any scene (``invctl study tradeoff <scene> [--job JOB]``).
 
-A scene may define its own ``tradeoff_spec(params, smoke=False)``; the scenes
-that do not get theirs from :data:`REGISTRY` here (scene name -> job -> spec
-factory).  Every spec sweeps the accuracy knob of the scene's main job and
-measures the error against an independent, finely resolved reference:
+Jobs by scene kind, each sweeping the accuracy knob of the job against an independent, finely
+resolved reference (a scene may add its own jobs in ``Scene.studies``):
 
-* ``manipulator`` (job ``invert``, default): collocation scheme and mesh size of
-  the servo-constraint inversion; error = forward-check output error (a tight
-  CVODES simulation of the model under ``u_ff`` that shares no code with the
-  collocation equations), time = NLP build + solve.
-* ``manipulator`` (job ``simulate``): CVODES tolerance ``rtol`` (``atol =
-  rtol / 100``) of the compiled C1 closed loop (feedforward + funnel, m3 x 1.2
-  plant); error = max output deviation from the same loop at ``rtol = 1e-12``.
-* ``stiff_wall``, ``compliant_wrist``: the sampling step ``h_max`` of the exact
-  event-located propagation.  Switch times and the peak force are exact at
-  every step (reported as extra columns); what the step buys is the sampled
-  output, scored by the force RMS error against ``h_max = 1e-5``.
-* ``gear_backlash`` (pre-loading), ``slider_crank_clearance`` (PD regulation):
-  the Moreau-Jean step ``h`` against the same loop at a 16x finer step
-  (``bouncing_ball`` and ``prismatic_clearance`` bring their own specs: step
-  against the closed form / the event-driven reference).
-* ``cartpole``, ``two_link_arm``, ``knife_edge`` (analysis only): the number of
-  random region samples of ``invctl analyze --samples``; error = relative excess
-  of the smallest singular value of Gamma found over the region's true minimum
-  (dense sampling + multistart local optimisation), averaged over seeds.
+* tracking, ``invert`` (default with a reference): collocation scheme and mesh size of the
+  servo-constraint inversion; error = forward-check output error (a tight CVODES simulation of
+  the model under ``u_ff`` that shares no code with the collocation equations), time = build + solve.
+* tracking, ``simulate``: CVODES tolerance ``rtol`` (``atol = rtol / 100``) of the compiled C1 loop
+  (C2 in smoke mode); error = max output deviation from the same loop at ``rtol = 1e-12``.
+* tracking, ``analyze`` (default without a reference): the number of random region samples of
+  ``invctl analyze --samples``; error = relative excess of the smallest singular value of Gamma
+  found over the region's true minimum (dense sampling + multistart local optimisation).
+* contact, ``simulate`` (default): the Moreau-Jean step ``h`` of the default controller against the
+  same loop at a 16x finer step; ``impacts``: the first impact times and post-impact velocities
+  against the event-driven simulation (DOP853, located events), or against the scene's closed form
+  (``Contact.exact_impacts``).
+* switched, ``simulate``: the sampling step ``h_max`` of the exact event-located propagation; the
+  force RMS error against ``h_max = 1e-5`` (switch times and peak force are exact at every step).
 """
 from __future__ import annotations
 
@@ -36,7 +29,7 @@ import numpy as np
 from ..errors import SceneError
 from .tradeoff import TradeoffSpec
 
-__all__ = ["REGISTRY", "spec_for", "fitted_order", "gamma_min_reference"]
+__all__ = ["JOBS", "jobs_of", "spec_for", "fitted_order", "gamma_min_reference"]
 
 
 def fitted_order(knob, error) -> float:
@@ -49,11 +42,11 @@ def fitted_order(knob, error) -> float:
 
 
 # ----------------------------------------------------------------- inversion
-def manipulator_invert(scene, params: dict, smoke: bool = False) -> TradeoffSpec:
-    from ..inversion import forward_check, invert_scene
+def tracking_invert(scene, params: dict, settings: dict, smoke: bool = False) -> TradeoffSpec:
+    from ..inversion import forward_check
+    from .tracking import invert_tracking, tracking_model
 
-    model = scene.build(**params)
-    ref = scene.reference(model)
+    model, ref = tracking_model(scene, params)
     if smoke:
         values = [{"scheme": "hermite-simpson", "N": 40}, {"scheme": "hermite-simpson", "N": 80},
                   {"scheme": "radau3", "N": 20}]
@@ -63,7 +56,7 @@ def manipulator_invert(scene, params: dict, smoke: bool = False) -> TradeoffSpec
                   + [{"scheme": "legendre2", "N": n} for n in (40, 80, 160)])
 
     def run(value):
-        inv = invert_scene(scene, model=model, reference=ref, N=int(value["N"]), scheme=value["scheme"])
+        inv = invert_tracking(scene, model, ref, N=int(value["N"]), scheme=value["scheme"])
         d = inv.diagnostics
         fc = forward_check(model, inv, ref)
         return {"error": float(fc["error"]), "time_s": float(d["build_s"] + d["solve_s"]),
@@ -75,11 +68,11 @@ def manipulator_invert(scene, params: dict, smoke: bool = False) -> TradeoffSpec
         reference="forward check (invctl.inversion.forward_check): the reference model simulated under u_ff by "
                   "CVODES (rtol = atol = 1e-12, windowed against the unstable internal mode) from the inverse "
                   "state at t0, no code shared with the collocation equations",
-        error_name="forward-check output error max|y - y_ref| [m, rad]", repeat=False)
+        error_name="forward-check output error max|y - y_ref|", repeat=False)
 
 
 # ---------------------------------------------------------------- closed loop
-def manipulator_simulate(scene, params: dict, smoke: bool = False) -> TradeoffSpec:
+def tracking_simulate(scene, params: dict, settings: dict, smoke: bool = False) -> TradeoffSpec:
     from ..simulate.closed_loop import ClosedLoop
     from .tracking import setup_tracking
 
@@ -89,9 +82,9 @@ def manipulator_simulate(scene, params: dict, smoke: bool = False) -> TradeoffSp
     ctrl = setup.c1_controller() if controller == "C1" else setup.controller
 
     def loop(rtol):
-        return ClosedLoop(setup.plant, setup.reference, controller=ctrl, u_ff=uff,
-                          endeffector=setup.endeffector, t_end=setup.t_end, dt=setup.dt, rtol=rtol,
-                          atol=rtol * 1e-2, max_num_steps=10**6, name=controller)
+        return ClosedLoop(setup.plant, setup.reference, controller=ctrl, u_ff=uff, signals=setup.signals,
+                          t_end=setup.t_end, dt=setup.dt, rtol=rtol, atol=rtol * 1e-2, max_num_steps=10**6,
+                          name=controller)
 
     ref = loop(1e-12).run(setup.q0, controller_label=controller)
     values = [1e-3, 1e-5, 1e-7] if smoke else [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-10]
@@ -109,8 +102,8 @@ def manipulator_simulate(scene, params: dict, smoke: bool = False) -> TradeoffSp
 
 
 # ------------------------------------------------------------ switched contact
-def switched(scene, params: dict, smoke: bool = False) -> TradeoffSpec:
-    s = scene.build(**params)
+def switched(scene, params: dict, settings: dict, smoke: bool = False) -> TradeoffSpec:
+    s = scene.model(params)
     ref = s.simulate(h_max=2e-5 if smoke else 1e-5, samples_per_period=4)
     values = [5e-4, 2.5e-4, 1.25e-4] if smoke else [2e-3, 1e-3, 5e-4, 2.5e-4, 1.25e-4, 6.25e-5, 3.125e-5]
 
@@ -131,49 +124,69 @@ def switched(scene, params: dict, smoke: bool = False) -> TradeoffSpec:
         error_name="relative error of the force RMS error (sampled quadrature)")
 
 
-# ------------------------------------------------------- clearances (fine step)
-def _clearance_setup(scene, name, params):
-    from ..control.pdplus import pd_gravity
-    from .contact_commands import _split
-
-    full, mp = _split(params, scene.PARAMS, scene.MODEL_PARAMS)
-    if name == "gear_backlash":
-        from ..control.preload import preload_law
-
-        model = scene.build(c4=full["c4"], **mp)
-        q0 = scene.preloaded_configuration(model)
-        law = preload_law(model, [0, 3], beta=np.array([full["beta1"], full["beta2"]]), Kp=full["Kp"],
-                          Kv=full["Kv"], y_d=q0 + full["qd"])
-        return model, law, q0, "pre-loading (13) of f1, f4 with a collocated PD", slice(None), "q"
-    model = scene.build(**mp)
-    law = pd_gravity(model, Kp=full["Kp"], Kv=full["Kv"], q_d=full["theta_d"], idx=[0])
-    return (model, law, scene.centered_configuration(model, full["theta0"]), "PD (36) regulation of the crank",
-            slice(0, 1), "crank angle theta")
-
-
-def clearance_fine_step(scene, params: dict, smoke: bool = False) -> TradeoffSpec:
+# ------------------------------------------------------------------ contact
+def contact_fine_step(scene, params: dict, settings: dict, smoke: bool = False) -> TradeoffSpec:
     from ..simulate.timestepping import MoreauJean
+    from .contact import _setting, contact_setup
 
-    name = scene.__name__.rsplit(".", 1)[-1]
-    model, law, q0, what, idx, qname = _clearance_setup(scene, name, params)
-    mj = MoreauJean(model, law)
-    t_end = 0.5
+    run0 = contact_setup(scene, params, settings)
+    model, law, q0, v0 = run0.model, run0.law, run0.q0, run0.v0
+    mj = MoreauJean(model, law, projection=bool(_setting(run0.settings, "projection")))
+    t_end = min(0.5, _setting(run0.settings, "t_end"))
     values = [1e-3, 2.5e-4, 6.25e-5] if smoke else [1e-3, 5e-4, 2.5e-4, 1.25e-4, 6.25e-5, 3.125e-5]
     h_ref = min(values) / 16
-    ref = mj.run(q0, np.zeros(model.n), t_end, h_ref)
+    ref = mj.run(q0, v0, t_end, h_ref)
     grid = np.linspace(0.0, t_end, 501)
-    q_ref = np.array([np.interp(grid, ref.t, ref.q[:, i]) for i in range(model.n)])[idx]
+    q_ref = np.array([np.interp(grid, ref.t, ref.q[:, i]) for i in range(model.n)])
 
     def run(h):
-        tr = mj.run(q0, np.zeros(model.n), t_end, float(h))
-        q = np.array([np.interp(grid, tr.t, tr.q[:, i]) for i in range(model.n)])[idx]
+        tr = mj.run(q0, v0, t_end, float(h))
+        q = np.array([np.interp(grid, tr.t, tr.q[:, i]) for i in range(model.n)])
         return {"error": float(np.max(np.abs(q - q_ref))), "time_s": float(tr.stats["wall_s"]),
                 "steps_per_s": float(tr.stats["steps_per_s"]), "max_gap_violation": float(tr.max_gap_violation)}
 
     return TradeoffSpec(
         knob="h", values=values, run=run,
-        reference=f"the same Moreau-Jean loop ({what}) at h = {h_ref:.3g} s (16x the finest step)",
-        error_name=f"max deviation of {qname} from the fine-step run over [0, {t_end:g}] s")
+        reference=f"the same Moreau-Jean loop (controller {run0.controller}) at h = {h_ref:.3g} s (16x the finest "
+                  "step)",
+        error_name=f"max deviation of q from the fine-step run over [0, {t_end:g}] s")
+
+
+def contact_impacts(scene, params: dict, settings: dict, smoke: bool = False) -> TradeoffSpec:
+    from ..simulate.event_driven import simulate_event_driven
+    from ..simulate.timestepping import MoreauJean
+    from .contact import _setting, contact_setup
+
+    run0 = contact_setup(scene, params, settings)
+    model, law, q0, v0 = run0.model, run0.law, run0.q0, run0.v0
+    potential = scene.contact.potential(model) if scene.contact.potential is not None else None
+    exact = scene.contact.exact_impacts
+    horizon = min(_setting(run0.settings, "t_end"), 10.0)
+    if exact is not None:
+        rt, rp = (np.asarray(a, float) for a in exact(model, run0.settings, horizon))
+        reference = "the scene's closed-form impact times and post-impact velocities"
+    else:
+        ev = simulate_event_driven(model, q0, v0, horizon, law=law, potential=potential)
+        rt, rp = np.asarray(ev.stats["impact_t"], float), np.asarray(ev.stats["impact_post"], float)
+        reference = "event-driven simulation (DOP853, rtol = atol = 1e-12, located events)"
+    if rt.size < 1:
+        raise SceneError(f"scene {scene.name!r}: no impact before t = {horizon:g} s; the impacts study needs one")
+    k = min(3, rt.size)
+    t_end = min(horizon, float(rt[k - 1]) + 0.05)
+    mj = MoreauJean(model, law, potential=potential)
+
+    def run(h):
+        tr = mj.run(q0, v0, t_end, float(h), theta=_setting(run0.settings, "theta"))
+        ti, _, _, post, _ = tr.impacts()
+        kk = min(k, ti.size)
+        if kk < k:
+            return {"error": float("inf"), "time_s": tr.stats["wall_s"]}
+        return {"error": float(max(np.max(np.abs(ti[:k] - rt[:k])), np.max(np.abs(post[:k] - rp[:k])))),
+                "time_s": tr.stats["wall_s"], "steps_per_s": tr.stats["steps_per_s"]}
+
+    values = [1e-3, 2.5e-4, 6.25e-5] if smoke else [1e-3, 5e-4, 2.5e-4, 1.25e-4, 6.25e-5, 3.125e-5, 1.5625e-5]
+    return TradeoffSpec(knob="h", values=values, run=run, reference=reference,
+                        error_name=f"max error of the first {k} impact times [s] and post-impact velocities")
 
 
 # --------------------------------------------------------------- analysis only
@@ -219,10 +232,10 @@ def gamma_min_reference(model, gamma, *, dense: int = 20000, starts: int = 6, se
     return {"sigma_min": best, "point": where, "dense_min": float(smin.min())}
 
 
-def analysis(scene, params: dict, smoke: bool = False) -> TradeoffSpec:
+def analysis(scene, params: dict, settings: dict, smoke: bool = False) -> TradeoffSpec:
     from ..analysis import relative_degree
 
-    model = scene.build(**params)
+    model = scene.model(params)
     if model.region is None:
         raise SceneError(f"scene {model.name!r} has no operating region to sample")
     warm = relative_degree(model, samples=2, rng=0)  # the Lie chain once; the knob is the sampling
@@ -250,35 +263,33 @@ def analysis(scene, params: dict, smoke: bool = False) -> TradeoffSpec:
         error_name="relative excess of the sampled min singular value of Gamma (mean of 5 seeds)")
 
 
-#: scene name -> {job: spec factory(scene_module, params, smoke)}; the first job is the default
-REGISTRY: dict[str, dict[str, Callable[..., TradeoffSpec]]] = {
-    "manipulator": {"invert": manipulator_invert, "simulate": manipulator_simulate},
-    "stiff_wall": {"simulate": switched},
-    "compliant_wrist": {"simulate": switched},
-    "cartpole": {"analyze": analysis},
-    "two_link_arm": {"analyze": analysis},
-    "knife_edge": {"analyze": analysis},
-    "gear_backlash": {"simulate": clearance_fine_step},
-    "slider_crank_clearance": {"simulate": clearance_fine_step},
+#: scene kind -> {job: spec factory(scene, params, settings, smoke)}
+JOBS: dict[str, dict[str, Callable[..., TradeoffSpec]]] = {
+    "tracking": {"invert": tracking_invert, "simulate": tracking_simulate, "analyze": analysis},
+    "contact": {"simulate": contact_fine_step, "impacts": contact_impacts},
+    "switched": {"simulate": switched},
 }
 
 
-def spec_for(scene_module, name: str, params: dict, *, smoke: bool = False, job: str | None = None) -> TradeoffSpec:
-    """The trade-off spec of a scene: its own ``tradeoff_spec`` (when ``job`` is not given)
-    or the registry entry for its name."""
-    own = getattr(scene_module, "tradeoff_spec", None)
-    entry = REGISTRY.get(name, {})
-    if own is not None and (job is None or job not in entry):
-        if job is not None and job != "simulate":
-            raise SceneError(f"scene {name!r} offers its trade-off for its simulation only, not job {job!r}")
-        return own(params, smoke=smoke)
-    if not entry:
-        raise SceneError(f"scene {name!r} offers no speed-versus-accuracy study (no tradeoff_spec, and "
-                         f"invctl knows none for it); scenes with one: {sorted(REGISTRY)}")
-    job = job or next(iter(entry))
-    if job not in entry:
-        raise SceneError(f"scene {name!r}: no trade-off study for job {job!r}; choose one of {sorted(entry)}")
-    spec = entry[job](scene_module, params, smoke)
-    spec.scene = spec.scene or (name if job == next(iter(entry)) else f"{name}_{job}")
-    return spec
+def jobs_of(scene) -> dict:
+    """The trade-off jobs a scene offers (its own ``studies`` first), default first."""
+    jobs = dict(JOBS.get(scene.kind, {}))
+    if scene.kind == "tracking" and scene.tracking.reference is None:
+        jobs = {"analyze": analysis}
+    return {**dict(scene.studies), **jobs}
 
+
+def spec_for(scene, params: dict, settings: dict, *, smoke: bool = False, job: str | None = None) -> TradeoffSpec:
+    """The trade-off spec of ``scene`` for ``job`` (default: the scene's first job)."""
+    jobs = jobs_of(scene)
+    if not jobs:
+        raise SceneError(f"scene {scene.name!r} offers no speed-versus-accuracy study")
+    default = next(iter(jobs))
+    job = job or default
+    if job not in jobs:
+        raise SceneError(f"scene {scene.name!r}: no trade-off study for job {job!r}; choose one of {sorted(jobs)}")
+    spec = jobs[job](scene, dict(params), dict(settings), smoke)
+    if not isinstance(spec, TradeoffSpec):
+        raise SceneError(f"scene {scene.name!r}: study {job!r} returned {type(spec).__name__}, not a TradeoffSpec")
+    spec.scene = spec.scene or (scene.name if job == default else f"{scene.name}_{job}")
+    return spec

@@ -1,0 +1,304 @@
+"""The commands of contact scenes (000): simulate, pipeline, analyze (declared reports).
+
+A contact scene declares its model (with gaps), its controllers (``name -> law(model, settings)``)
+and initial states; the run is the compiled Moreau-Jean time-stepping scheme with the scene's
+settings ``h`` (step), ``theta`` (theta-method), ``t_end``, ``projection`` (0/1) and
+``activation_tol``. What a run reports follows from the law:
+
+* every law: impacts, largest gap violation, steps per second;
+* laws with a Lyapunov function (000 (37), (50)): its largest increase at impacts and elsewhere;
+* pre-loading laws (000 (13), ``info["active"]``): the multiplier ``P/h`` against ``beta`` and
+  whether the pre-loaded contacts stayed closed;
+* regulation laws (``info["idx"]``, PD (36)): the final error of the regulated coordinates and speed;
+* tracking laws (``info["q_d"]`` with ``info["idx"]`` or ``info["tracked"]``): the tracking error,
+  and for PD+ (000 (48)) the desired-velocity conditions (52) at impacts and (54) in persistent
+  contact (Prop. 3);
+* juggling laws (``info["outputs"]``, 000 (25)): the final gap error;
+
+plus the scene's own :class:`~invctl.scenes.Report` entries.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from ..errors import ParameterError, SceneError
+from ..scenes import CommandResult
+from .reports import run_reports
+
+__all__ = ["ContactRun", "contact_setup", "run_contact", "simulate", "pipeline", "analyze", "law_report",
+           "DEFAULT_SETTINGS"]
+
+#: settings of the time-stepping scheme a scene may leave out
+DEFAULT_SETTINGS = {"theta": 0.5, "projection": 0.0, "activation_tol": 1e-12}
+
+
+@dataclass
+class ContactRun:
+    """A contact run with everything needed to report and redo it."""
+
+    scene: object
+    model: object
+    plant: object
+    controller: str
+    law: object
+    q0: np.ndarray
+    v0: np.ndarray
+    settings: dict
+    params: dict
+    trajectory: object = None
+    stats: dict = field(default_factory=dict)
+
+    def meta(self) -> dict:
+        from ..scenes import scene_reference
+
+        return {"scene": scene_reference(self.scene), "params": dict(self.params),
+                "settings": dict(self.settings), "controller": self.controller}
+
+
+def _setting(settings, name):
+    if name in settings:
+        return float(settings[name])
+    if name in DEFAULT_SETTINGS:
+        return DEFAULT_SETTINGS[name]
+    raise SceneError(f"a contact scene needs the setting {name!r} (time step h, horizon t_end)")
+
+
+def contact_setup(scene, params=None, settings=None, *, controller=None, plant_params=None) -> ContactRun:
+    """Model, plant, law and initial state of a contact scene's run."""
+    from ..control.pdplus import zero_input
+    from ..model.params import parse_assignments  # noqa: F401  (plant overrides arrive parsed)
+
+    params, settings = dict(params or {}), dict(settings or {})
+    model = scene.model(params)
+    plant_params = dict(plant_params or {})
+    unknown = sorted(set(plant_params) - set(model.values))
+    if unknown:
+        raise SceneError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(model.values)}")
+    plant = model.with_params(**plant_params) if plant_params else model
+    if plant_params:
+        scene.check_values({**scene.params, **scene.settings, **{k: v for k, v in plant.values.items()
+                                                                 if k in scene.params}})
+        plant.validate()
+    c = scene.contact
+    name = c.controller_for(model, settings, controller)
+    potential = c.potential(model) if c.potential is not None else None
+    law = zero_input(potential) if name == "none" else c.controllers[name](model, settings)
+    q0, v0 = c.initial_state(model, settings, name)
+    q0, v0 = np.asarray(q0, float).ravel(), np.asarray(v0, float).ravel()
+    if q0.size != model.n or v0.size != model.n:
+        raise SceneError(f"scene {scene.name!r}: initial_state returned q0, v0 of lengths {q0.size}, {v0.size}; "
+                         f"the model has n = {model.n}")
+    return ContactRun(scene, model, plant, name, law, q0, v0, settings, params)
+
+
+def run_contact(run: ContactRun, *, t_end=None, progress=None) -> ContactRun:
+    """Simulate ``run`` with the compiled Moreau-Jean scheme; fills ``run.trajectory``."""
+    from ..simulate.timestepping import MoreauJean
+
+    s = run.settings
+    t_end = _setting(s, "t_end") if t_end is None else float(t_end)
+    h = _setting(s, "h")
+    if not (t_end > 0 and h > 0):
+        raise ParameterError(f"need t_end > 0 and h > 0, got t_end = {t_end}, h = {h}")
+    potential = run.scene.contact.potential(run.model) if run.scene.contact.potential is not None else None
+    mj = MoreauJean(run.model, run.law, potential=potential, projection=bool(_setting(s, "projection")))
+    tic = time.perf_counter()
+    run.trajectory = mj.run(run.q0, run.v0, t_end, h, theta=_setting(s, "theta"), params=run.plant.theta_values,
+                            ctrl_params=run.model.theta_values, activation_tol=_setting(s, "activation_tol"),
+                            progress=progress)
+    run.stats["wall_s"] = time.perf_counter() - tic
+    return run
+
+
+def _qd_function(q_d, k):
+    t = ca.SX.sym("t")
+    qd = ca.SX(q_d(t))
+    if qd.shape[0] != k:
+        raise SceneError(f"the desired trajectory q_d(t) has {qd.shape[0]} entries, expected {k}")
+    return ca.Function("qd", [t], [qd, ca.jacobian(qd, t)])
+
+
+def law_report(run: ContactRun) -> tuple[list, dict]:
+    """The report lines and data that follow from the law of a contact run (module docstring)."""
+    from ..stability.lyapunov import lyapunov_report
+
+    tr, law, s = run.trajectory, run.law, run.settings
+    info = dict(law.info)
+    kap = dict(zip(law.kappa_names, law.kappa_values))
+    h = tr.h
+    lines, data = [], {}
+    if info.get("lyapunov", True) and law.name != "open_loop":
+        rep = lyapunov_report(tr)
+        data.update({"V0": rep.V0, "V_end": rep.V_end, "max_V_increase": rep.max_increase,
+                     "max_V_increase_impacts": rep.max_increase_impacts,
+                     "max_V_increase_smooth": rep.max_increase_smooth})
+        lines.append(f"V: {rep.V0:.4g} -> {rep.V_end:.4g}, max increase {rep.max_increase:.2e} "
+                     f"(impacts {rep.max_increase_impacts:.2e}, elsewhere {rep.max_increase_smooth:.2e})")
+    if law.name == "open_loop":
+        dE = float(np.max(np.diff(tr.energy), initial=0.0))
+        data["max_energy_increase"] = dE
+        lines.append(f"mechanical energy {tr.energy[0]:.6g} -> {tr.energy[-1]:.6g}, largest one-step increase "
+                     f"{dE:.2e}")
+    if "active" in info:
+        act = list(info["active"])
+        beta = np.array([kap[f"beta{i + 1}"] for i in range(len(act))])
+        lam = tr.P[:, act] / h
+        err = float(np.max(np.abs(lam - beta)))
+        kept = bool(np.all(tr.active[:, act]))
+        gap = float(np.max(np.abs(tr.gaps[:, act])))
+        from ..control.preload import preload_check
+
+        chk = preload_check(run.model, run.q0, run.v0, act)
+        data.update({"preloaded_contacts": act, "beta": beta.tolist(), "multiplier_error": err,
+                     "contacts_kept": kept, "max_preloaded_gap": gap, "E_hat": chk.E_hat, "rank": chk.rank})
+        lines.append(f"pre-loading contacts {act} (000 Lemma 1 at the start: E_hat = "
+                     f"{np.round(chk.E_hat, 6).tolist()}, rank {chk.rank}): multiplier P/h vs beta = {beta.tolist()}: "
+                     f"max error {err:.3e}; kept closed: {kept}; max |gap| {gap:.2e}")
+    if "outputs" in info:
+        outs = list(info["outputs"])
+        yd = np.array([kap[f"yd{i + 1}"] for i in range(len(outs))])
+        err = (tr.gaps[-1, outs] - yd).tolist()
+        data.update({"juggled_gaps": outs, "gap_target": yd.tolist(), "gap_error_final": err})
+        lines.append(f"gaps {outs} -> {np.round(tr.gaps[-1, outs], 8).tolist()} (target "
+                     f"{np.round(yd, 12).tolist()})")
+    tracked = info.get("tracked") or ((info["idx"], info["q_d"]) if "q_d" in info and "idx" in info else None)
+    if tracked is not None:
+        idx, q_d = list(tracked[0]), tracked[1]
+        qd, dqd = (np.array(a) for a in _qd_function(q_d, len(idx)).map(tr.t.size)(tr.t[None, :]))
+        err = tr.q[:, idx].T - qd
+        half = tr.t >= 0.5 * tr.t[-1]
+        data.update({"tracking_error_max": float(np.max(np.abs(err))),
+                     "tracking_error_last_half": float(np.max(np.abs(err[:, half])))})
+        lines.append(f"tracking error of {[run.model.q_names[i] for i in idx]}: max {data['tracking_error_max']:.3e}, "
+                     f"last half {data['tracking_error_last_half']:.3e}")
+        if law.name == "pd_plus":
+            data.update(_prop3_conditions(run, idx, q_d))
+            lines.append(f"(52) violated at {data['impacts_violating_52']} of {data['impacts_checked']} impacts "
+                         f"(largest V jump where it holds {data['max_V_jump_where_52_holds']:.2e}, where violated "
+                         f"{data['max_V_jump_where_52_violated']:.2e}); (54) violated on "
+                         f"{data['persistent_steps_violating_54']} of {data['persistent_steps']} persistent-contact steps")
+    elif "idx" in info:
+        idx = list(info["idx"])
+        qd = np.array([kap[f"qd{j + 1}"] for j in range(len(idx))])
+        err = (tr.q[-1, idx] - qd).tolist()
+        speed = float(np.max(np.abs(tr.v[-1])))
+        data.update({"regulation_error_final": err, "speed_final": speed})
+        lines.append(f"regulation of {[run.model.q_names[i] for i in idx]} to {qd.tolist()}: final error "
+                     f"{np.round(err, 10).tolist()}, final max |v| {speed:.2e} (000 Prop. 2)")
+    return lines, data
+
+
+def _prop3_conditions(run: ContactRun, idx, q_d) -> dict:
+    """000 (52) at the impact steps (``grad f_i^T qd_dot >= 0`` on the contacts that carry an impulse)
+    and (54) along persistent contact, with the V jumps."""
+    from ..contact.mechanics import ContactSystem
+
+    tr, model = run.trajectory, run.model
+    imp = tr.impact_mask()
+    k, i = np.nonzero(imp)
+    out = {"impacts_checked": int(k.size), "impacts_violating_52": 0, "max_V_jump_where_52_holds": 0.0,
+           "max_V_jump_where_52_violated": 0.0, "persistent_steps": 0, "persistent_steps_violating_54": 0}
+    fn = _qd_function(q_d, len(idx))
+    cs = ContactSystem(model)
+    th = model.theta_values
+
+    def qd_dot(t):
+        full = np.zeros(model.n)
+        full[idx] = np.array(fn(t)[1]).ravel()
+        return full
+
+    if k.size:
+        margins = np.array([cs.gradients(tr.q[kk + 1], th)[:, ii] @ qd_dot(tr.t[kk] + 0.5 * tr.h)
+                            for kk, ii in zip(k, i)])
+        dV = tr.V[k + 1] - tr.V[k]
+        ok = margins >= 0
+        out.update({"impacts_violating_52": int(np.count_nonzero(~ok)),
+                    "max_V_jump_where_52_holds": float(np.max(dV[ok])) if ok.any() else 0.0,
+                    "max_V_jump_where_52_violated": float(np.max(dV[~ok])) if (~ok).any() else 0.0})
+    loaded = tr.P > 0
+    pers = loaded[1:] & loaded[:-1]
+    kp, ip = np.nonzero(pers)
+    kp = kp + 1
+    if kp.size:
+        m54 = np.array([cs.gradients(tr.q[kk], th)[:, ii] @ qd_dot(tr.t[kk]) for kk, ii in zip(kp, ip)])
+        out.update({"persistent_steps": int(kp.size), "persistent_steps_violating_54": int(np.count_nonzero(m54 < 0))})
+    return out
+
+
+def _summary(run: ContactRun) -> tuple[list, dict]:
+    tr = run.trajectory
+    ti = tr.impact_times
+    lines = [f"{run.scene.name}: controller {run.controller}, h = {tr.h:g} s, t_end = {tr.t[-1]:.6g} s",
+             f"impacts {ti.size}" + (f" (first: {np.round(ti[:5], 6).tolist()})" if ti.size else "")
+             + f", max gap violation {tr.max_gap_violation:.2e}, steps/s {tr.stats['steps_per_s']:.3g} "
+             f"({tr.stats['backend']})"]
+    data = {"controller": run.controller, "h": tr.h, "n_impacts": int(ti.size), "impact_times": ti[:200].tolist(),
+            "max_gap_violation": tr.max_gap_violation, "steps_per_s": tr.stats["steps_per_s"],
+            "backend": tr.stats["backend"], "steps": tr.stats["steps"], "q_final": tr.q[-1].tolist(),
+            "v_final": tr.v[-1].tolist(), "settings": dict(run.settings)}
+    law_lines, law_data = law_report(run)
+    return lines + law_lines, {**data, **law_data}
+
+
+def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
+             plot=None, quiet=False) -> CommandResult:
+    """Run one controller of a contact scene and report (module docstring)."""
+    run = run_contact(contact_setup(scene, params, settings, controller=controller, plant_params=plant_params),
+                      t_end=t_end, progress=None if not quiet else False)
+    lines, data = _summary(run)
+    rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
+                               controller=run.controller)
+    if rtext:
+        lines.append(rtext)
+        data["reports"] = rdata
+    if out:
+        data["out"] = str(run.trajectory.save(out))
+        lines.append(f"trajectory written to {data['out']}")
+    if plot:
+        from ..plot import close
+
+        close(run.trajectory.plot(plot, title=f"{scene.name} ({run.controller})"))
+        data["plot"] = str(plot)
+        lines.append(f"figure written to {plot}")
+    return CommandResult("\n".join(lines), data)
+
+
+def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
+             quiet=False) -> CommandResult:
+    """Every declared controller of a contact scene: runs, reports, figures (one per controller)."""
+    from ..plot import close
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    names = list(scene.contact.controllers) or ["none"]
+    lines, data = [], {"runs": {}}
+    for name in names:
+        run = run_contact(contact_setup(scene, params, settings, controller=name, plant_params=plant_params),
+                          t_end=t_end, progress=False)
+        ls, d = _summary(run)
+        rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
+                                   controller=name)
+        if rtext:
+            ls.append(rtext)
+            d["reports"] = rdata
+        run.trajectory.save(out / f"run_{name}.npz")
+        close(run.trajectory.plot(out / f"run_{name}.png", title=f"{scene.name} ({name})"))
+        lines += ls + [""]
+        data["runs"][name] = d
+    files = sorted(p.name for p in out.iterdir())
+    lines.append(f"runs and figures in {out}/ ({', '.join(files)})")
+    return CommandResult("\n".join(lines), {**data, "out_dir": str(out), "files": files})
+
+
+def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:
+    """The scene's declared analysis reports (e.g. pre-loading conditions against printed matrices)."""
+    model = scene.model(params)
+    full = {**scene.settings, **settings, "samples": float(samples)}
+    text, data = run_reports(scene, model, params, full, "analyze")
+    head = f"invctl analyze {scene.name}: n = {model.n}, gaps: {', '.join(g.name for g in model.gaps)}"
+    return CommandResult(head + ("\n" + text if text else ""), {"scene": scene.name, "reports": data})

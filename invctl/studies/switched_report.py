@@ -1,0 +1,166 @@
+"""The commands of switched position/force scenes (002): analyze, simulate, design, pipeline.
+
+The scene's ``build`` returns a :class:`~invctl.studies.switched.SwitchedProblem`; a compliant wrist is
+recognised by its parameters (``kt``), and is analysed by its reduced model (27)-(28).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SceneError, StabilityError
+from ..scenes import CommandResult
+from .switched import (design_bf_min, design_bt_min, design_bt_visible, design_kt_max, effective_wall, error_system,
+                       is_wrist, lambda_map, lambda_point, lambda_sweep, reduction_check, simulate_scenario)
+
+__all__ = ["analyze", "simulate", "design", "pipeline"]
+
+
+def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:
+    """Theorem 1 (visible eigenvectors, Lambda three ways, GUAS) and Theorem 2 (ISS)."""
+    from ..stability.conewise import analyze as analyze_system
+
+    if samples < 8:
+        raise SceneError(f"--samples {samples}: need at least 8 initial directions for the ISS constant")
+    p = scene.model(params).params
+    s = error_system(p)
+    rep = analyze_system(s, with_iss=True, n_angles=min(int(samples), 720))
+    head = f"scene {scene.name}: switched motion/force control against a stiff wall (002)"
+    data = rep.to_dict()
+    if is_wrist(p):
+        ke_bar, be_bar = effective_wall(p["kt"], p["bt"], p["ke"])
+        head += (f"\n  compliant wrist analysed by its reduced model (27)-(28): ke_bar = {ke_bar:.6g} N/m, "
+                 f"be_bar = {be_bar:.6g} Ns/m")
+        # time-scale separation (26) on which the reduction rests
+        ratios = {"Mt/M": p["Mt"] / p["M"], "kt/ke": p["kt"] / p["ke"],
+                  "be/bt": p["be"] / p["bt"] if p["bt"] > 0 else math.inf, "bt/ke [s]": p["bt"] / p["ke"]}
+        weak = [f"{k} = {v:.3g}" for k, v in ratios.items() if v > 0.1]
+        rc = reduction_check(p)
+        head += ("\n  slow poles, full 4-state loop vs reduced model: relative distance "
+                 f"{rc['free']['rel_error']:.3g} (free), {rc['contact']['rel_error']:.3g} (contact)")
+        weak += [f"{k} pole distance {v['rel_error']:.3g}" for k, v in rc.items() if v["rel_error"] > 0.1]
+        data["reduction_pole_error"] = {k: v["rel_error"] for k, v in rc.items()}
+        head += "\n  assumptions (26): " + ", ".join(f"{k} = {v:.3g}" for k, v in ratios.items())
+        if weak:
+            head += f"\n  WARNING: (26) is not well satisfied ({', '.join(weak)}): the reduced model may be inaccurate"
+        data.update({"ke_bar": ke_bar, "be_bar": be_bar, "assumptions_26": ratios, "reduction_ok": not weak})
+    return CommandResult(head + "\n" + rep.summary(), data)
+
+
+def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
+             plot=None, quiet=False) -> CommandResult:
+    """Exact switched simulation; peak force, bounces, force RMS error."""
+    name = scene.name
+    if controller is not None:
+        raise SceneError(f"scene {name!r} has one controller, the switched law 002 (3); "
+                         "--controller is not applicable (change its gains with --set kp=..., bf=...)")
+    if plant_params:
+        raise SceneError(f"scene {name!r}: the controller (3) uses no plant model, so plant and model "
+                         "parameters coincide; --plant-set is not applicable (use --set)")
+    p = scene.model(params).params
+    sim = simulate_scenario(p, t_end=t_end, label=name)
+    text = sim.summary()
+    data = sim.to_dict()
+    if is_wrist(p):
+        red = simulate_scenario(p, reduced=True, t_end=t_end, label=f"{name} (reduced model)")
+        data["reduced"] = red.to_dict()
+        text += "\n" + red.summary()
+    if out:
+        written = sim.to_npz(out)
+        data["out"] = str(written)
+        text += f"\n  trajectory written to {written}"
+    if plot:
+        import matplotlib.pyplot as plt
+
+        axes = sim.plot() if not is_wrist(p) else _plot_fig7(sim, red)
+        axes[0].figure.savefig(plot, dpi=130)
+        plt.close(axes[0].figure)
+        text += f"\n  figure written to {plot}"
+    return CommandResult(text, data)
+
+
+def _plot_fig7(full, reduced):
+    from ..plot.switched import plot_simulation
+
+    return plot_simulation(full, overlay=reduced, overlay_label="(reduced)")
+
+
+def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
+    """Smallest bt, largest kt (wrist) or smallest bf (rigid wall) with GUAS."""
+    p = scene.model(params).params
+    name = scene.name
+    data: dict = {}
+    lines = [f"scene {name}: design by Theorem 1 (002 Sect. 5.3)"]
+    if not is_wrist(p):
+        bf_min = design_bf_min(p)
+        data["bf_min"] = bf_min
+        data["bf_min_numerical"] = design_bf_min(p, method="numerical")
+        q = lambda_point(p)
+        data.update({"Lambda": None if q.visible else q.Lambda, "visible_eigenvector": q.visible,
+                     "guas": q.guas, "bf": p["bf"]})
+        lines.append(f"  smallest controller damping bf with GUAS: {bf_min:.8g} Ns/m "
+                     f"(numerical return map: {data['bf_min_numerical']:.8g})")
+        lines.append(f"  at bf = {p['bf']:.6g}: " + ("visible eigenvector" if q.visible else
+                                                     f"Lambda = {q.Lambda:.6g}") + f", GUAS {q.guas}")
+    if is_wrist(p):
+        bt_min = design_bt_min(p)
+        data["bt_min"] = bt_min
+        data["bt_min_numerical"] = design_bt_min(p, method="numerical")
+        data["kt_max"] = design_kt_max(p)
+        data["kt_max_numerical"] = design_kt_max(p, method="numerical")
+        try:
+            data["bt_visible"] = design_bt_visible(p)
+        except StabilityError:
+            data["bt_visible"] = None
+        q = lambda_point(p)
+        data.update({"Lambda": None if q.visible else q.Lambda, "visible_eigenvector": q.visible,
+                     "guas": q.guas, "kt": p["kt"], "bt": p["bt"], "bf": p["bf"]})
+        bt_txt = (f"GUAS already at the lower end of the search, bt = {bt_min:.6g}" if bt_min <= 1.0 else
+                  f"bt_min = {bt_min:.8g} Ns/m (numerical return map: {data['bt_min_numerical']:.8g})")
+        kt_txt = (f"GUAS up to the end of the search, kt = {data['kt_max']:.6g} N/m" if data["kt_max"] >= 1e9 else
+                  f"kt_max = {data['kt_max']:.8g} N/m (numerical: {data['kt_max_numerical']:.8g})")
+        lines += [
+            f"  at kt = {p['kt']:.6g} N/m, bf = {p['bf']:.6g} Ns/m: smallest wrist damping bt with Lambda < 1: "
+            + bt_txt,
+            f"  at bt = {p['bt']:.6g} Ns/m: largest wrist stiffness kt with GUAS: " + kt_txt,
+            "  bounce-free (visible stable eigenvector) from bt = "
+            + (f"{data['bt_visible']:.8g} Ns/m" if data["bt_visible"] is not None else
+               "-- none for bt in [1, 1e6] at this kt"
+               + (" (A_1 has complex eigenvalues, and no real contact eigenvector enters S_2)"
+                  if error_system(p).damping_case(1) == "complex" else "")),
+            f"  design point bt = {p['bt']:.6g}: " + ("visible eigenvector" if q.visible else
+                                                      f"Lambda = {q.Lambda:.6g}") + f", GUAS {q.guas}",
+        ]
+    if plot:
+        import matplotlib.pyplot as plt
+
+        from ..plot.switched import plot_lambda_curve, plot_lambda_map
+
+        if is_wrist(p):
+            m = lambda_map(p, np.geomspace(3e3, 1e6, 40), np.geomspace(10, 3000, 40))
+            ax = plot_lambda_map(m["kt"], m["bt"], m["Lambda"], m["visible"], design=(p["kt"], p["bt"]))
+        else:
+            sw = lambda_sweep(p, "bf", np.geomspace(1, 1e5, 120))
+            ax = plot_lambda_curve(sw["values"], sw["Lambda"], sw["visible"])
+        ax.figure.tight_layout()
+        ax.figure.savefig(plot, dpi=130)
+        plt.close(ax.figure)
+        lines.append(f"  figure written to {plot}")
+    return CommandResult("\n".join(lines), data)
+
+
+def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
+             quiet=False) -> CommandResult:
+    """Analysis, design and simulation of a switched scene, with their figures in ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    parts = [analyze(scene, params, settings),
+             design(scene, params, settings, plot=out / "design.png"),
+             simulate(scene, params, settings, t_end=t_end, out=out / "run.npz", plot=out / "run.png",
+                      plant_params=plant_params)]
+    files = sorted(q.name for q in out.iterdir())
+    text = "\n\n".join(r.text for r in parts) + f"\nfigures and data in {out}/ ({', '.join(files)})"
+    return CommandResult(text, {"analyze": parts[0].data, "design": parts[1].data, "simulate": parts[2].data,
+                                "out_dir": str(out), "files": files})

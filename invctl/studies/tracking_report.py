@@ -1,0 +1,250 @@
+"""The commands of tracking scenes (003): analyze, invert, design, simulate, pipeline.
+
+Each function takes the :class:`~invctl.scenes.Scene`, the parameter overrides and the command's
+options (already checked by :mod:`invctl.studies.commands`) and returns a
+:class:`~invctl.scenes.CommandResult` whose text is built only from what the scene declares.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..scenes import CommandResult
+from .tracking import (CONTROLLERS, design_configuration, invert_tracking, run_controller, run_tracking_study,
+                       setup_tracking, tracking_linearization, tracking_model)
+
+__all__ = ["analyze", "invert", "design", "simulate", "pipeline"]
+
+
+def _fmt(M) -> str:
+    M = np.atleast_2d(M)
+    return "[" + "; ".join(" ".join(f"{v:10.5g}" for v in row) for row in M) + "]"
+
+
+def _reports(scene, model, params, settings, command, result=None, controller=None):
+    """Text and data of the scene's declared reports for ``command``."""
+    from .reports import run_reports
+
+    return run_reports(scene, model, params, settings, command, result=result, controller=controller)
+
+
+# ------------------------------------------------------------------ analyze
+def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:
+    """Relative degree, Gamma, internal dynamics (two routes), linearization, (A1)/(A2), eta2_ref^0."""
+    from ..analysis.summary import analyze as analyze_model
+
+    t0 = time.perf_counter()
+    model = scene.model(params)
+    t = scene.tracking
+    ref = t.reference(model) if t.reference is not None else None
+    point = design_configuration(scene, model, ref)
+    setup = {"point": point}
+    if ref is not None:
+        setup["reference"] = ref
+        setup["linearization"] = tracking_linearization(scene, model, ref, samples=samples)
+        setup["internal"] = setup["linearization"].internal
+    elif t.internal_coordinates is not None:
+        from ..analysis import internal_dynamics
+
+        setup["internal"] = internal_dynamics(model, "sect3", t.internal_coordinates(model), point=point,
+                                              samples=samples)
+    a1 = {name: dict(v) for name, v in t.a1.items()}
+    fb = dict(t.feedback)
+    if all(k in fb for k in ("K", "k_i", "rho")):
+        a1["K of the declared feedback"] = {k: fb[k] for k in ("K", "k_i", "rho")}
+    if a1:
+        setup["A1"] = a1
+    res = analyze_model(model, setup, samples)
+    rd, internal, lin, checks = res["rd"], res["internal"], res["lin"], res["checks"]
+    wall = time.perf_counter() - t0
+    p, l, m = rd.blocks
+    eig = lin.eigenvalues
+    lines = [f"invctl analyze {scene.name}: n = {model.n}, l = {l}, p = {p}, m = {m}"]
+    if scene.description:
+        lines.append(f"  {scene.description}")
+    lines += [
+        "parameters: " + ", ".join(f"{k}={v:.6g}" for k, v in model.values.items()),
+        f"vector relative degree of the auxiliary ODE (10): {list(rd.r_aux)}  ->  r_hat = {rd.r_hat}, "
+        f"r_bar = {rd.r_bar}",
+        f"high-gain matrix Gamma on {rd.samples} points of {rd.region or 'the sample box'}:",
+        f"  worst condition number {rd.worst_condition:.4g} at q = {np.round(rd.worst_point[0], 4).tolist()}",
+        f"  smallest singular value {rd.min_singular_value:.4g}; det Gamma in [{rd.det_range[0]:.4g}, "
+        f"{rd.det_range[1]:.4g}]",
+        f"internal dynamics: dimension 2n - r_bar = {internal.dim} ({internal.method}, {internal.coordinates})",
+        f"  checks: max |L_K phi| = {checks['L_K_phi_max']:.2g}, min sigma(Phi') = "
+        f"{checks['Phi_prime_sigma_min']:.3g}"
+        + (f", Sect. 2 vs Sect. 3 rhs differ by {checks['sect2_vs_sect3_max_diff']:.2g} (relative, near the "
+           "linearization points)" if checks["sect2_vs_sect3_max_diff"] is not None else ""),
+        f"linearization (37) at {len(lin.points)} point(s)"
+        + (f" (configurations in the region: {lin.diagnostics['points_in_region']})"
+           if "points_in_region" in lin.diagnostics else "")
+        + ", derivative removal (38): eta' = Q eta + P y",
+        f"  Q = {_fmt(lin.Q)}",
+        f"  P = {_fmt(lin.P)}",
+        f"  eigenvalues of Q: {np.round(eig, 6).tolist()}  "
+        f"({lin.k} in the closed right half plane: {'minimum phase' if lin.minimum_phase else 'non-minimum phase'})",
+    ]
+    if lin.k:
+        lines.append(f"  split (39, T by {lin.split}): Q~ = {_fmt(lin.Q_tilde)}, P~ = {_fmt(lin.P_tilde)}")
+    lines.append(f"  (A2): {'holds' if checks['A2']['passed'] else 'NOT shown'} - {checks['A2']['message']}")
+    for name, rep in checks.get("A1_all", {}).items():
+        lines.append(
+            f"  (A1), {name} (rho = {rep['rho']}): {'holds' if rep['passed'] else 'does NOT hold'} on all "
+            f"region samples ({100 * rep['fraction_satisfied']:.0f}% of {rep['samples']} points; min eig of sym. "
+            f"part {rep['min_eig_sym']:.3g}, at the design point {rep['min_eig_at_design_point']:.3g})")
+    if res["eta2_ref0"] is not None:
+        lines.append(f"  eta2_ref^0 by (43): {np.round(res['eta2_ref0'], 6).tolist()}")
+    rtext, rdata = _reports(scene, model, params, {}, "analyze")
+    if rtext:
+        lines.append(rtext)
+    lines.append(f"analysis time {wall:.3f} s")
+    data = {
+        "scene": scene.name, "params": dict(model.values), "relative_degree": list(rd.r_aux), "r_hat": rd.r_hat,
+        "r_bar": rd.r_bar, "gamma": rd.to_dict(), "internal_dim": internal.dim, "internal_method": internal.method,
+        "internal_eigs": eig.real.tolist() if np.all(eig.imag == 0) else [[e.real, e.imag] for e in eig],
+        "minimum_phase": lin.minimum_phase, "Q": lin.Q, "P": lin.P, "P_list": lin.P_list, "T": lin.T, "k": lin.k,
+        "Q_tilde": lin.Q_tilde, "P_tilde": lin.P_tilde, "eta2_ref0": res["eta2_ref0"], "checks": checks,
+        "design_point": point, "reports": rdata, "timings": {**res["timings"], "total_s": wall},
+    }
+    return CommandResult("\n".join(lines), data)
+
+
+# ------------------------------------------------------------------- invert
+def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None, backend=None, out=None,
+           dt=None, quiet=False) -> CommandResult:
+    """Invert with the automatic setup (and the scene's overrides), forward-check, report."""
+    from ..inversion import forward_check
+
+    opts = {k: v for k, v in {"N": N, "scheme": scheme, "tol": tol, "backend": backend}.items() if v is not None}
+    t_wall = time.perf_counter()
+    model, reference = tracking_model(scene, params)
+    inv = invert_tracking(scene, model, reference, progress=not quiet, **opts)
+    fc = forward_check(model, inv, reference)
+    wall = time.perf_counter() - t_wall
+    d = inv.diagnostics
+    tt = np.linspace(inv.T0, inv.t0, 200, endpoint=False)
+    pre = float(np.max(np.abs(inv.u(tt)))) if tt.size else 0.0
+    data = {
+        "scene": scene.name, "status": d["status"], "success": d["success"], "iterations": d["iterations"],
+        "build_s": d["build_s"], "solve_s": d["solve_s"], "wall_s": wall, "N": inv.N, "scheme": d["scheme"],
+        "backend": d["backend"], "formulation": d["formulation"], "T0": inv.T0, "Tf": inv.Tf,
+        "t0": inv.t0, "tf": inv.tf, "selection": d["selection"], "max_output_error": fc["error"],
+        "forward_check": {k: fc[k] for k in ("error", "t_worst", "window", "windows", "rate")},
+        "residuals": d["residuals"], "max_u_pre_actuation": pre, "params": dict(params or {}),
+        "plan": d.get("plan"),
+    }
+    if "meshes" in d:
+        data["meshes"] = d["meshes"]
+    lines = [
+        f"invctl invert {scene.name}: {d['status']} after {d['iterations']} iterations ({d['backend']}, "
+        f"{d['scheme']}, N = {inv.N}, {d['formulation']} index reduction)",
+        f"  horizon [T0, Tf] = [{inv.T0:g}, {inv.Tf:g}] around [t0, tf] = [{inv.t0:g}, {inv.tf:g}]",
+        f"  boundary conditions (003 (36)): {d['selection']}",
+    ]
+    plan = d.get("plan")
+    if isinstance(plan, dict) and plan.get("text"):
+        lines.append("  " + plan["text"].replace("\n", "\n  "))
+    lines += [
+        f"  build {d['build_s']:.3f} s, solve {d['solve_s']:.3f} s, total {wall:.2f} s",
+        f"  residuals: position {d['residuals']['position']:.2e}, velocity "
+        f"{max(d['residuals']['velocity_mesh'], d['residuals']['velocity_between']):.2e}, acceleration "
+        f"{max(d['residuals']['acceleration_mesh'], d['residuals']['acceleration_between']):.2e}",
+        f"  forward check: max |y - y_ref| = {fc['error']:.3e} at t = {fc['t_worst']:.3g} s "
+        f"({fc['windows']} window(s))",
+        f"  pre-actuation: max |u_ff| before t0 = {pre:.3g} (the causal feedforward sets it to 0)",
+    ]
+    if "meshes" in d:
+        lines.append("  meshes tried: " + ", ".join(f"N={m['N']} (err {m['error']:.1e})" for m in d["meshes"]))
+    if out:
+        from ..scenes import scene_reference
+
+        written = inv.to_npz(out, dt, meta={"scene": scene_reference(scene), "params": dict(params or {})})
+        data["out"] = str(written)
+        lines.append(f"  trajectory written to {written}")
+    if not quiet:
+        print(f"invert {scene.name}: done in {wall:.2f} s", file=sys.stderr)
+    return CommandResult("\n".join(lines), data)
+
+
+# ------------------------------------------------------------------- design
+def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
+    """The funnel controller of the scene: new output (41), (A1), funnels and gains."""
+    setup = setup_tracking(scene, params, invert=False)
+    c = setup.controller
+    lines = [f"invctl design {scene.name}: funnel controller (48) of 003 Sect. 5",
+             f"  linearized internal dynamics: {setup.lin.k} unstable mode(s) of {setup.lin.Q.shape[0]}; "
+             f"q = {c.q_rows}, k_i = {list(c.k_i)}, rho = {c.rho}",
+             "  K = " + "; ".join(np.array2string(np.asarray(k), precision=5) for k in c.K),
+             f"  relative degrees of the new output: {list(c.levels.r)}",
+             f"  gains kappa = {c.levels.kappa}, kappa_bar = {c.kappa_bar:g}"]
+    rep = setup.lin.check_A1(c.K, rho=c.rho, k_i=c.k_i, samples=200)
+    lines.append(f"  (A1): min eig of the symmetric part {rep.min_eig_sym:.3g} on the region "
+                 f"({100 * rep.fraction_satisfied:.0f}% of {rep.samples} samples), {rep.min_eig_at_design_point:.3g} "
+                 "at the design point")
+    data = {"K": [np.asarray(k).tolist() for k in c.K], "k_i": list(c.k_i), "rho": c.rho, "r": list(c.levels.r),
+            "kappa": c.levels.kappa, "kappa_bar": c.kappa_bar, "A1": rep.to_dict()}
+    return CommandResult("\n".join(lines), data)
+
+
+# ----------------------------------------------------------------- simulate
+def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
+             plot=None, inverse=None, quiet=False) -> CommandResult:
+    """One closed-loop run of ``controller`` (C1, C2, C3, C1-42) on the mismatched plant."""
+    name = (controller or "C1").upper()
+    t0 = time.perf_counter()
+    setup = setup_tracking(scene, params, plant_params, inverse=inverse, invert=name in ("C1", "C3", "C1-42"),
+                           t_end=t_end, progress=not quiet)
+    res = run_controller(setup, name)
+    wall_total = time.perf_counter() - t0
+    s = res.summary()
+    plant_diff = {k: v for k, v in setup.plant.values.items() if v != setup.model.values[k]}
+    lines = [f"invctl simulate {scene.name} --controller {name} ({CONTROLLERS[name]}), plant: "
+             + (", ".join(f"{k}={v:.6g}" for k, v in plant_diff.items()) or "= reference model")]
+    for kind, val in res.cumulative_errors.items():
+        lines.append(f"  cumulative {kind} error  int ||{kind} - ref|| dt = {val:.6g}")
+    lines.append(f"  final output error = {s['final_output_error']:.4g}")
+    if s["max_funnel_ratio"] is not None:
+        lines.append(f"  max funnel ratio phi|e| = {s['max_funnel_ratio']:.4f} (margin {s['funnel_margin']:.4f})")
+    lines += [f"  input peaks |u| = {[round(x, 4) for x in s['input_peaks']]}",
+              f"  max constraint drift = {s['max_constraint_drift']:.3g}",
+              f"  closed loop {s['wall_s']:.3f} s wall (setup {wall_total - s['wall_s']:.2f} s)"]
+    data = {**s, "setup_timings": setup.timings, "total_wall_s": wall_total, "plant": plant_diff}
+    rtext, rdata = _reports(scene, setup.model, params, settings, "simulate", result=res, controller=name)
+    if rtext:
+        lines.append(rtext)
+        data["reports"] = rdata
+    if out:
+        if str(out).lower().endswith(".csv"):
+            res.to_csv(out)
+        else:
+            res.save(out, meta={**setup.meta(), "controller": name})
+        data["out"] = str(out)
+        lines.append(f"  run written to {out}")
+    if plot:
+        from ..plot import close
+
+        close(res.plot(plot))
+        data["plot"] = str(plot)
+        lines.append(f"  figure written to {plot}")
+    return CommandResult("\n".join(lines), data)
+
+
+# ----------------------------------------------------------------- pipeline
+def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
+             quiet=False, animate=True) -> CommandResult:
+    """Invert, design, simulate every declared controller, compare, write figures, runs (and animations)."""
+    t0 = time.perf_counter()
+    study = run_tracking_study(scene, params, plant_params, t_end=t_end, progress=not quiet)
+    out = Path(out_dir)
+    meta = study.setup.meta()
+    study.save(out, meta=meta)
+    from ..plot import close
+
+    close(study.plot(out))
+    files = sorted(p.name for p in out.iterdir())
+    wall = time.perf_counter() - t0
+    text = "\n".join([study.table(), f"figures and data in {out}/ ({', '.join(files)}); total {wall:.1f} s"])
+    return CommandResult(text, {**study.to_dict(), "out_dir": str(out), "files": files, "total_wall_s": wall})
