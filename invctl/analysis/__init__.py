@@ -6,6 +6,7 @@ derivative removal (38), stable/unstable split (39), checks (A1)/(A2) and the
 initial value (43)/(44) of the new reference dynamics.
 """
 from .auxiliary import AuxiliarySystem, auxiliary_system, consistent_state
+from .equilibrium import EquilibriumSolver
 from .internal import InternalDynamics, default_coordinates, design_point, internal_dynamics, xi_expression
 from .linearize import A1Report, A2Report, LinearizedInternal, from_matrices, linearize_internal, load_linearization
 from .relative_degree import (
@@ -14,7 +15,7 @@ from .relative_degree import (
 )
 
 __all__ = [
-    "A1Report", "A2Report", "AuxiliarySystem", "ColocationReport", "InternalDynamics", "LinearizedInternal",
+    "A1Report", "A2Report", "AuxiliarySystem", "ColocationReport", "EquilibriumSolver", "InternalDynamics", "LinearizedInternal",
     "RelativeDegree", "auxiliary_system", "colocated_check", "consistent_state", "default_coordinates",
     "design_point", "from_matrices", "internal_dynamics", "is_position_output", "linearize_internal",
     "load_linearization", "position_output_gamma", "relative_degree", "schur_complement", "xi_expression",
