@@ -93,3 +93,14 @@ __all__ = [
     "BoundaryConditionError", "InversionFailed", "SimulationFailed", "FunnelViolation",
     "StabilityError", "ContactError", "PreloadInfeasible",
 ]
+
+
+class LinearizationError(InvctlError):
+    """A linearization is not available at the requested point (not an equilibrium, off the manifold)."""
+
+
+class ZeroError(InvctlError):
+    """System zeros cannot be computed or classified (degenerate system matrix, inconsistent tests)."""
+
+
+__all__ += ["LinearizationError", "ZeroError"]

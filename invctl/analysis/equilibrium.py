@@ -6,10 +6,13 @@ and the analysis linearizes there (zeros, operating points along a reference).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import casadi as ca
 import numpy as np
 
 from ..errors import ReferenceSignalError
+from .auxiliary import cached
 
 
 class EquilibriumSolver:
@@ -115,3 +118,123 @@ class EquilibriumSolver:
                 step = np.where(bad, 0.5 * step, step)
             W, r, Jm, res = W + step * dW, r2, J2, res2
         return W, res
+
+
+@dataclass(frozen=True)
+class OperatingPoints:
+    """Equilibria along a reference (see :func:`operating_points`).
+
+    Iterating yields the configurations ``q`` (rows), so ``relative_degree(model, points=ops)``
+    and ``lin.check_A1(..., points=ops)`` analyse the neighbourhood of the path of equilibria.
+
+    Attributes
+    ----------
+    t : ndarray (K,)
+        Times at which the reference was sampled (``t0 .. tf``).
+    y, q, lam, mu, u : ndarray
+        Outputs ``(K, m)``, configurations ``(K, n)``, multipliers ``(K, l)``, ``(K, p)`` and holding
+        inputs ``(K, m)``.
+    residual : ndarray (K,)
+        Max-norm residual of the equilibrium equations at each point.
+    in_region : ndarray of bool or None
+        Whether each ``q`` lies in ``model.region`` (None without a region).
+    """
+
+    t: np.ndarray
+    y: np.ndarray
+    q: np.ndarray
+    lam: np.ndarray
+    mu: np.ndarray
+    u: np.ndarray
+    residual: np.ndarray
+    in_region: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return self.q.shape[0]
+
+    def __iter__(self):
+        return iter(self.q)
+
+    @property
+    def start(self) -> np.ndarray:
+        return self.q[0]
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.q[-1]
+
+
+def operating_points(model, reference, count: int = 5, *, guess_q=None, tol: float = 1e-12) -> OperatingPoints:
+    """The equilibria with ``h(q) = y_ref(t)`` at ``count`` times from ``reference.t0`` to ``reference.tf``.
+
+    Continuation: each equilibrium is found by :class:`EquilibriumSolver` (Gauss-Newton) from
+    the previous one moved along the tangent of the equilibrium path (``dw/dy`` from the
+    Jacobian), so the branch chosen at the start (near ``guess_q``) is followed.  The first
+    and last points are the start and end equilibria of the reference (003 (36)).
+
+    Parameters
+    ----------
+    reference : Reference
+        ``reference(t)`` returns ``y_ref`` as an ``(m, N)`` array; ``t0``, ``tf`` bound the transition.
+    count : int
+        Number of points (>= 2).
+    guess_q : array (n), optional
+        Start of Newton at ``t0`` (default zeros; pass a configuration on the intended branch,
+        e.g. the scene's initial configuration, for mechanisms with several assembly modes).
+
+    Raises
+    ------
+    ReferenceSignalError
+        No equilibrium at some point (the reference leaves the reachable set or the branch
+        ends); the points found before are kept in ``exc.partial``.
+    """
+    n, l, p, m = model.n, model.ell, model.p, model.m
+    if int(count) != count or count < 2:
+        raise ReferenceSignalError(f"operating_points needs count >= 2 (the start and end equilibria), got {count!r}")
+    if not (callable(reference) and hasattr(reference, "t0") and hasattr(reference, "tf")):
+        raise ReferenceSignalError(f"operating_points needs a Reference (callable with t0 and tf), got "
+                                   f"{type(reference).__name__}")
+    count = int(count)
+    t = np.linspace(reference.t0, reference.tf, count)
+    Y = np.asarray(reference(t), float).reshape(-1, count).T
+    if Y.shape[1] != m:
+        raise ReferenceSignalError(f"{model.name}: the reference has {Y.shape[1]} components, the model {m} outputs")
+    solver = _solver(model)
+    th = model.theta_values
+    w = np.zeros(n + l + p + m)
+    if guess_q is not None:
+        gq = np.asarray(guess_q, float).ravel()
+        if gq.size != n:
+            raise ReferenceSignalError(f"{model.name}: guess_q has {gq.size} entries, expected n = {n}")
+        w[:n] = gq
+    W, res = [], []
+    sel = np.zeros((l + p + m + n, m))
+    sel[l + p:l + p + m] = np.eye(m)        # d residual / d y = -sel
+    for k in range(count):
+        if k:
+            Jw = np.array(solver._F(w, Y[k - 1], th)[1])
+            w = w + np.linalg.lstsq(Jw, sel @ (Y[k] - Y[k - 1]), rcond=None)[0]
+        try:
+            X, r = solver.solve(Y[k], guess_w=w, theta=th, tol=tol,
+                                where=f" at t = {t[k]:.6g} (operating point {k + 1} of {count})")
+        except ReferenceSignalError as exc:
+            raise ReferenceSignalError(str(exc), partial=_points(model, t[:k], Y[:k], W, res),
+                                       diagnostics=exc.diagnostics) from None
+        w = np.concatenate([X[:n], X[2 * n:]])
+        W.append(w)
+        res.append(r)
+    return _points(model, t, Y, W, res)
+
+
+def _points(model, t, Y, W, res) -> OperatingPoints:
+    n, l, p = model.n, model.ell, model.p
+    W = np.array(W).reshape(len(W), -1)
+    q = W[:, :n]
+    inside = None if model.region is None else np.array([model.region.contains(qk) for qk in q], bool)
+    return OperatingPoints(t=np.asarray(t), y=np.asarray(Y), q=q, lam=W[:, n:n + l], mu=W[:, n + l:n + l + p],
+                           u=W[:, n + l + p:], residual=np.asarray(res, float), in_region=inside)
+
+
+def _solver(model) -> EquilibriumSolver:
+    """One solver per symbolic model (the residual Function does not depend on parameter values)."""
+    return cached(model, ("equilibrium_solver",), lambda: EquilibriumSolver(model))
