@@ -229,7 +229,7 @@ def relative_degree(model, samples: int = 200, rng=0, *, points=None, radius=Non
     kmin = int(np.argmin(smin / np.maximum(smax, 1e-300)))
     kc = int(np.argmax(cond))
     local = uses_neighbourhood(model, pts, radius) and samples > 0
-    region = sampling_domain(model, pts, radius, v_radius) if (model.region is not None or local) else ""
+    region = sampling_domain(model, pts, radius, v_radius) if samples else "the given points"
     if local:
         restrict = "Analyse a smaller neighbourhood (radius) of the operating points or choose another output"
     elif model.region is not None:
@@ -250,7 +250,7 @@ def relative_degree(model, samples: int = 200, rng=0, *, points=None, radius=Non
         # det Gamma changes sign on the (connected) sampled domain: Gamma is singular in between
         i, j = int(np.argmin(dets)), int(np.argmax(dets))
         raise RelativeDegreeError(
-            f"{model.name}: det Gamma changes sign on {region or 'the sample box'} (det = {dets[i]:.3g} at "
+            f"{model.name}: det Gamma changes sign on {region} (det = {dets[i]:.3g} at "
             f"q = {np.round(qs[i], 5).tolist()}, det = {dets[j]:.3g} at q = {np.round(qs[j], 5).tolist()}), so "
             f"Gamma is singular somewhere between them (the sampled domain is connected); the smallest singular value "
             f"found is {smin[kmin]:.3g} at q = {np.round(qs[kmin], 5).tolist()}. "

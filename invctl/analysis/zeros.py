@@ -51,15 +51,20 @@ def system_matrices(sys) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
         A, B, C, D = sys.A, sys.B, sys.C, sys.D
     else:
         raise DimensionError(f"expected a state-space system (A, B, C, D), got {type(sys).__name__}")
-    A = np.atleast_2d(np.asarray(A, float)) if np.size(A) else np.zeros((0, 0))
-    n = A.shape[0]
-    B = np.asarray(B, float).reshape(n, -1) if n else np.atleast_2d(np.asarray(B, float)).reshape(0, -1)
-    C = np.asarray(C, float).reshape(-1, n) if n else np.atleast_2d(np.asarray(C, float)).reshape(-1, 0)
-    m, p = B.shape[1], C.shape[0]
-    D = np.asarray(D, float).reshape(p, m) if np.size(D) else np.zeros((p, m))
-    if A.shape != (n, n) or D.shape != (p, m) or not all(np.all(np.isfinite(X)) for X in (A, B, C, D)):
-        raise DimensionError(f"inconsistent or non-finite state-space matrices: A {A.shape}, B {B.shape}, "
-                             f"C {C.shape}, D {D.shape}")
+    shapes = [np.shape(X) for X in (A, B, C, D)]
+    try:
+        A = np.atleast_2d(np.asarray(A, float)) if np.size(A) else np.zeros((0, 0))
+        n = A.shape[0]
+        B = np.asarray(B, float).reshape(n, -1)
+        C = np.asarray(C, float).reshape(-1, n) if n else np.zeros((np.shape(D)[0] if np.ndim(D) == 2 else 0, 0))
+        m, p = B.shape[1], C.shape[0]
+        D = np.asarray(D, float).reshape(p, m) if np.size(D) else np.zeros((p, m))
+        ok = A.shape == (n, n) and all(np.all(np.isfinite(X)) for X in (A, B, C, D))
+    except (ValueError, TypeError):
+        ok = False
+    if not ok:
+        raise DimensionError(f"inconsistent or non-finite state-space matrices: shapes of A, B, C, D are {shapes} "
+                             "(need n x n, n x m, p x n, p x m)")
     return A, B, C, D
 
 
@@ -101,22 +106,26 @@ def _reduce(A, B, C, D, atol):
     Row-compress ``D``; the output rows without feedthrough, ``y2 = C2 x``, fix the part
     ``z2`` of the state that ``C2`` sees (rank rho), so the rows of ``z2`` in ``R(s)`` become
     output rows without ``s``: ``A <- A11``, ``B <- B1``, ``C <- [A21; C1]``, ``D <- [B2; D1]``
-    in coordinates ``x = [V_ker, V_row] z``.  Each step removes rho >= 1 states or zero rows.
+    in coordinates ``x = [V_ker, V_row] z``.  Each step removes rho >= 1 states or rows of
+    ``R(s)`` that are identically zero after the (unimodular) eliminations; returns the reduced
+    system and the number of such rows (> 0 means the normal rank is not full).
     """
+    dropped = 0
     while True:
         n = A.shape[0]
         p = D.shape[0]
         if p == 0:
-            return A, B, C, D
+            return (A, B, C, D), dropped
         U, s, _ = np.linalg.svd(D)
         r = int(np.sum(s > atol))
         if r == p:
-            return A, B, C, D
+            return (A, B, C, D), dropped
         Cr, Dr = U.T @ C, U.T @ D
         C1, D1, C2 = Cr[:r], Dr[:r], Cr[r:]
         _, s2, Vt = np.linalg.svd(C2) if n else (None, np.zeros(0), np.zeros((0, 0)))
         rho = int(np.sum(s2 > atol))
-        if rho == 0:  # zero rows of R(s): they do not change its rank anywhere
+        dropped += p - r - rho
+        if rho == 0:
             C, D = C1, D1
             continue
         T = np.hstack([Vt[rho:].T, Vt[:rho].T])
@@ -143,11 +152,11 @@ def invariant_zeros(sys, *, tol: float = ZERO_TOL) -> np.ndarray:
         raise ZeroError(f"invariant_zeros needs a square system (as many outputs as inputs), got {p} outputs and "
                         f"{m} inputs")
     atol = tol * _scale(A, B, C, D)
-    A1, B1, C1, D1 = _reduce(A, B, C, D, atol)
-    At, Ct, Bt, Dt = _reduce(A1.T, C1.T, B1.T, D1.T, atol)
+    (A1, B1, C1, D1), drop1 = _reduce(A, B, C, D, atol)
+    (At, Ct, Bt, Dt), drop2 = _reduce(A1.T, C1.T, B1.T, D1.T, atol)
     A2, B2, C2, D2 = At.T, Bt.T, Ct.T, Dt.T
     n2, (p2, m2) = A2.shape[0], D2.shape
-    if p2 != m2 or (m2 and np.linalg.svd(D2, compute_uv=False)[-1] <= atol):
+    if drop1 or drop2 or p2 != m2 or (m2 and np.linalg.svd(D2, compute_uv=False)[-1] <= atol):
         raise ZeroError(f"the system matrix [A - sI, B; C, D] is rank deficient for every s (normal rank below "
                         f"n + m = {A.shape[0] + m}; reduced to {p2} x {m2} feedthrough): the transfer matrix is "
                         "singular, so its zeros are not isolated. Check for dependent outputs or inputs",
