@@ -86,7 +86,8 @@ def _same(a, b, rtol=1e-9):
 # --------------------------------------------------------- known zeros by construction
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_zeros_of_mixed_siso_blocks(seed):
-    """Relative degrees 1, 2 and 3 in one square system: zeros are those of the blocks (det G = prod G_i det U det V)."""
+    """Relative degrees 1, 2 and 3 in one square system: the zeros are those of the blocks
+    (det G = prod G_i det U det V)."""
     rng = np.random.default_rng(seed)
     blocks = [([1, 2.0], [1, 3, 5, 1]),                       # zero -2, relative degree 2
               ([1.0], [1, 1, 4, 2]),                          # no zero, relative degree 3

@@ -235,8 +235,9 @@ def plant_linearization(model, q0, *, u0=None, v0=None, states=None,
             f"{model.name}: (q0, v0, u0) = ({np.round(q0, 6).tolist()}, {np.round(v0, 6).tolist()}, "
             f"{np.round(u0, 6).tolist()}) is not an equilibrium: max |x'| = {eq:.3g} "
             + ("(v0 != 0 moves q)" if np.any(v0) else "(no input holds the model at rest there)" if computed_u
-               else "(u0 does not hold it)") + ". A linearization about a non-equilibrium point is not time invariant; find an "
-            "equilibrium with EquilibriumSolver / operating_points, or leave u0 unset to compute the holding input",
+               else "(u0 does not hold it)")
+            + ". A linearization about a non-equilibrium point is not time invariant; find an equilibrium with "
+            "EquilibriumSolver / operating_points, or leave u0 unset to compute the holding input",
             partial=lin, diagnostics=lin.diagnostics)
     if inv > 1e-8 * scale:
         raise LinearizationError(
