@@ -101,3 +101,14 @@ __all__ = [
     "BoundaryConditionError", "InversionFailed", "SimulationFailed", "FunnelViolation",
     "StabilityError", "ContactError", "PreloadInfeasible", "ResultFileError", "OutputPathError",
 ]
+
+
+class LinearizationError(InvctlError):
+    """A linearization is not available at the requested point (not an equilibrium, off the manifold)."""
+
+
+class ZeroError(InvctlError):
+    """System zeros cannot be computed or classified (degenerate system matrix, inconsistent tests)."""
+
+
+__all__ += ["LinearizationError", "ZeroError"]

@@ -125,30 +125,137 @@ def auxiliary_system(model) -> AuxiliarySystem:
 
 
 # ----------------------------------------------------------------- sampling
-def region_samples(model, samples: int, rng=0, points=None) -> tuple[np.ndarray, np.ndarray]:
-    """``(q, v)`` sample points (rows) of the model's operating region, plus ``points``.
+#: Half-width (per coordinate, in the units of q) of the neighbourhood of operating points that is
+#: sampled when a model declares no region: 0.1 rad is about 6 degrees, 0.1 m a tenth of a metre-sized
+#: mechanism, i.e. the tracking errors a feedback (003 Sect. 5 funnels) is designed to keep.
+NEIGHBOURHOOD_RADIUS = 0.1
+#: Velocities are sampled in [-1, 1] around the points' velocities, as the box used without points
+#: and the default ``OperatingRegion.v_scale``.
+NEIGHBOURHOOD_V_RADIUS = 1.0
 
-    Without a region, ``q`` and ``v`` are drawn from ``[-1, 1]``.
+
+def as_points(model, points) -> list:
+    """``points`` (``q`` rows, ``(q, v)`` tuples, or an iterable of them) as a list of ``(q, v)``."""
+    out = []
+    for pt in points if points is not None else ():
+        if isinstance(pt, tuple) and len(pt) == 2:
+            qp, vp = pt
+        else:
+            qp, vp = pt, np.zeros(model.n)
+        qp, vp = np.asarray(qp, float).ravel(), np.asarray(vp, float).ravel()
+        if qp.size != model.n or vp.size != model.n:
+            raise DimensionError(f"{model.name}: a sample point needs q and v of length n = {model.n}, got "
+                                 f"{qp.size} and {vp.size}")
+        out.append((qp, vp))
+    return out
+
+
+def _radius(model, radius, default, name) -> np.ndarray:
+    try:
+        r = np.broadcast_to(np.asarray(default if radius is None else radius, float), (model.n,)).copy()
+    except (ValueError, TypeError):
+        r = None
+    if r is None or not np.all(np.isfinite(r)) or np.any(r < 0):
+        raise DimensionError(f"{model.name}: {name} must be a non-negative number or n = {model.n} numbers, "
+                             f"got {radius!r}")
+    return r
+
+
+def neighbourhood_samples(model, points, count: int, rng=0, *, radius=None, v_radius=None):
+    """``count`` samples ``(q, v)`` of the tube around the polyline through ``points``.
+
+    A base point is drawn uniformly along the polyline ``points[0] -> points[1] -> ...`` (the
+    equilibria along a reference, in order; one point gives a box), then offset uniformly by
+    ``|dq_i| <= radius`` and ``|dv_i| <= v_radius`` (defaults :data:`NEIGHBOURHOOD_RADIUS`,
+    :data:`NEIGHBOURHOOD_V_RADIUS`; scalars or one value per coordinate).  The tube is
+    connected, so a sign change of ``det Gamma`` on it still implies a singular point in it.
     """
+    pts = as_points(model, points)
+    if not pts:
+        raise ModelError(f"{model.name}: sampling a neighbourhood needs at least one operating point")
+    rq = _radius(model, radius, NEIGHBOURHOOD_RADIUS, "radius")
+    rv = _radius(model, v_radius, NEIGHBOURHOOD_V_RADIUS, "v_radius")
+    P = np.array([p[0] for p in pts])
+    V = np.array([p[1] for p in pts])
+    gen = np.random.default_rng(rng)
+    if len(pts) == 1:
+        qb, vb = np.repeat(P, count, axis=0), np.repeat(V, count, axis=0)
+    else:
+        s = gen.uniform(0.0, len(pts) - 1, count)
+        i = np.minimum(s.astype(int), len(pts) - 2)
+        w = (s - i)[:, None]
+        qb, vb = (1 - w) * P[i] + w * P[i + 1], (1 - w) * V[i] + w * V[i + 1]
+    return qb + gen.uniform(-1, 1, qb.shape) * rq, vb + gen.uniform(-1, 1, vb.shape) * rv
+
+
+def uses_neighbourhood(model, points, radius) -> bool:
+    """True if :func:`region_samples` draws from the neighbourhood of ``points`` (see there)."""
+    return bool(points is not None and len(as_points(model, points)) and (model.region is None or radius is not None))
+
+
+def sampling_domain(model, points=None, radius=None, v_radius=None) -> str:
+    """Where :func:`region_samples` draws its samples, in words (for reports)."""
+    if uses_neighbourhood(model, points, radius):
+        rq = _radius(model, radius, NEIGHBOURHOOD_RADIUS, "radius")
+        rv = _radius(model, v_radius, NEIGHBOURHOOD_V_RADIUS, "v_radius")
+        fmt = lambda r: f"{r[0]:.3g}" if np.all(r == r[0]) else str(np.round(r, 4).tolist())  # noqa: E731
+        k = len(as_points(model, points))
+        where = f"the neighbourhood |dq_i| <= {fmt(rq)}, |dv_i| <= {fmt(rv)} of {k} operating point(s)"
+        if model.region is not None:
+            where += f" within {model.region.description or 'the operating region'}"
+        return where
+    if model.region is not None:
+        return model.region.description or "the operating region"
+    return "the box |q_i|, |v_i| <= 1 (no region declared)"
+
+
+def region_samples(model, samples: int, rng=0, points=None, *, radius=None,
+                   v_radius=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(q, v)`` sample points (rows): ``samples`` drawn points, then ``points`` themselves.
+
+    The drawn points come from
+
+    * the model's operating region (``model.region``) if it declares one and ``radius`` is None;
+    * otherwise, if ``points`` are given, the neighbourhood of the points
+      (:func:`neighbourhood_samples`; intersected with the region if one is declared);
+    * otherwise the box ``[-1, 1]`` in every ``q`` and ``v``.
+    """
+    pts = as_points(model, points)
     qs, vs = [], []
     if samples:
-        if model.region is not None:
+        if uses_neighbourhood(model, pts, radius):
+            q, v = _neighbourhood_in_region(model, pts, samples, rng, radius, v_radius)
+        elif model.region is not None:
             q, v = model.region.sample(samples, rng)
         else:
             gen = np.random.default_rng(rng)
             q, v = gen.uniform(-1, 1, (samples, model.n)), gen.uniform(-1, 1, (samples, model.n))
         qs.append(q)
         vs.append(v)
-    for pt in points or ():
-        if isinstance(pt, tuple) and len(pt) == 2:
-            qp, vp = pt
-        else:
-            qp, vp = pt, np.zeros(model.n)
-        qs.append(np.asarray(qp, float).reshape(1, model.n))
-        vs.append(np.asarray(vp, float).reshape(1, model.n))
+    for qp, vp in pts:
+        qs.append(qp.reshape(1, model.n))
+        vs.append(vp.reshape(1, model.n))
     if not qs:
         raise ModelError("no sample points: give samples > 0 or points")
     return np.vstack(qs), np.vstack(vs)
+
+
+def _neighbourhood_in_region(model, pts, samples, rng, radius, v_radius, max_rounds: int = 50):
+    if model.region is None:
+        return neighbourhood_samples(model, pts, samples, rng, radius=radius, v_radius=v_radius)
+    gen = np.random.default_rng(rng)
+    keep_q, keep_v, have = [], [], 0
+    for _ in range(max_rounds):
+        q, v = neighbourhood_samples(model, pts, 4 * samples, gen, radius=radius, v_radius=v_radius)
+        ok = np.array([model.region.contains(qk) for qk in q])
+        keep_q.append(q[ok])
+        keep_v.append(v[ok])
+        have += int(ok.sum())
+        if have >= samples:
+            return np.vstack(keep_q)[:samples], np.vstack(keep_v)[:samples]
+    raise ModelError(f"{model.name}: could not draw {samples} samples of the neighbourhood of the operating points "
+                     f"inside {model.region.description or 'the operating region'} (got {have}); the points lie "
+                     "outside the region or the radius is too small to meet it")
 
 
 def eval_batch(fn: ca.Function, *args, theta) -> list[np.ndarray]:

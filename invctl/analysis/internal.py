@@ -248,7 +248,9 @@ def internal_dynamics(model, method: str = "sect3", phi=None, *, point=None, sam
 
 
 def _internal_dynamics(model, method, phi, point, samples, rng, check_points) -> InternalDynamics:
-    rd = relative_degree(model, samples=samples, rng=rng)
+    # without a declared region, the relative degree is checked around the design point (not on a default box)
+    local = [np.asarray(point, float).ravel()] if model.region is None and point is not None else None
+    rd = relative_degree(model, samples=samples, rng=rng, points=local)
     if rd.r_hat is None:
         raise CoordinateError(f"{model.name}: outputs have different relative degrees {rd.r_output}; "
                               "003 Sect. 2 needs a common r_hat")

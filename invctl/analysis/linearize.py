@@ -16,7 +16,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..errors import CoordinateError, StabilityError
-from .auxiliary import eval_batch, region_samples
+from .auxiliary import as_points, eval_batch, region_samples, sampling_domain
 from .internal import point_args
 from .relative_degree import schur_complement
 
@@ -96,13 +96,18 @@ class LinearizedInternal:
         return fn
 
     # ------------------------------------------------------------- (A1), (A2)
-    def check_A1(self, K, rho=None, k_i=None, samples=200, rng=0, points=None) -> "A1Report":
+    def check_A1(self, K, rho=None, k_i=None, samples=200, rng=0, points=None, *, radius=None,
+                 v_radius=None) -> "A1Report":
         """Check (A1) for rows ``K = [K_1, ..., K_m]`` (``K_1..K_q`` of length k, the rest of length m).
 
         ``k_i`` (length q) defaults to all ones with q = number of rows of length k
         (listed first). ``rho`` in {-1, 1}; ``None`` tries both and keeps the one that
         holds at the design point. The matrix ``rho [K_i Q~^(k_i-1) P~; K_(q+1); ...] S~(w)``
-        must be positive definite (symmetric part) at every sample point of the region.
+        must be positive definite (symmetric part) at every sample point: ``samples`` points of
+        the model's region, or, without a declared region, of the neighbourhood (half-widths
+        ``radius``, ``v_radius``; defaults 0.1 and 1.0) of the polyline through the design point
+        and ``points`` (e.g. the equilibria along the reference, ``operating_points``); plus
+        the design point and ``points`` themselves.
         """
         m = self.P.shape[1]
         K = [np.atleast_1d(np.asarray(Ki, float)).ravel() for Ki in K]
@@ -127,7 +132,8 @@ class LinearizedInternal:
         Kmat = np.vstack(rows)
         model = self.model
         S = schur_complement(model)
-        qs, vs = region_samples(model, samples, rng, [(self.internal.point, np.zeros(model.n))] + list(points or []))
+        pts = [(self.internal.point, np.zeros(model.n))] + as_points(model, points)
+        qs, vs = region_samples(model, samples, rng, pts, radius=radius, v_radius=v_radius)
         Ss = eval_batch(S, qs, vs, theta=model.theta_values)[0]
         KS = np.einsum("ij,njk->nik", Kmat, Ss)
         design = int(samples)  # region samples come first, then the design point
@@ -142,6 +148,7 @@ class LinearizedInternal:
             zero_conditions_residual=zero_res, min_eig_sym=float(sym_min.min()),
             min_eig_at_design_point=float(sym_min[design]), fraction_satisfied=float(ok.mean()),
             worst_point=(qs[worst], vs[worst]), matrix=Kmat, samples=qs.shape[0],
+            domain=sampling_domain(model, pts, radius, v_radius),
         )
 
     def _unstable_split(self):
@@ -259,6 +266,12 @@ class LinearizedInternal:
         return (f"linearized internal dynamics (38): eigenvalues of Q: [{ev}]; "
                 f"{self.k} in the closed right half plane ({'minimum phase' if self.minimum_phase else 'non-minimum phase'})")
 
+    def to_statespace(self):
+        """``eta' = Q eta + P y`` of (38) as a ``control.StateSpace`` (see :func:`internal_statespace`)."""
+        from .statespace import internal_statespace
+
+        return internal_statespace(self)
+
     def to_dict(self) -> dict:
         return {"Q": self.Q, "P": self.P, "P_list": self.P_list, "T": self.T, "k": self.k,
                 "Q_tilde": self.Q_tilde, "P_tilde": self.P_tilde, "eigenvalues": self.eigenvalues.real.tolist()
@@ -279,12 +292,13 @@ class A1Report:
     worst_point: tuple
     matrix: np.ndarray
     samples: int
+    domain: str = ""
 
     def to_dict(self) -> dict:
         return {"passed": self.passed, "rho": self.rho, "q": self.q, "k_i": list(self.k_i),
                 "min_eig_sym": self.min_eig_sym, "min_eig_at_design_point": self.min_eig_at_design_point,
                 "fraction_satisfied": self.fraction_satisfied, "samples": self.samples,
-                "worst_q": self.worst_point[0]}
+                "worst_q": self.worst_point[0], "domain": self.domain}
 
 
 @dataclass(frozen=True)

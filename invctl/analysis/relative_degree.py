@@ -19,7 +19,9 @@ import casadi as ca
 import numpy as np
 
 from ..errors import RelativeDegreeError
-from .auxiliary import auxiliary_system, cache_of, cached, eval_batch, region_samples
+from .auxiliary import (
+    as_points, auxiliary_system, cache_of, cached, eval_batch, region_samples, sampling_domain, uses_neighbourhood,
+)
 
 _ZERO_TOL = 1e-10
 _SINGULAR_TOL = 1e-10
@@ -174,27 +176,40 @@ def _aux_name(model, i: int) -> str:
     return f"output {model.y_names[i - p - l]}"
 
 
-def relative_degree(model, samples: int = 200, rng=0, *, points=None) -> RelativeDegree:
+def relative_degree(model, samples: int = 200, rng=0, *, points=None, radius=None,
+                    v_radius=None) -> RelativeDegree:
     """Vector relative degree and high-gain matrix of (10), checked on the operating region.
 
     Parameters
     ----------
     model : Model
     samples : int
-        Number of random points ``(q, v)`` of ``model.region`` at which Gamma is checked.
+        Number of random points ``(q, v)`` at which Gamma is checked: drawn from ``model.region``,
+        or, when the model declares no region and ``points`` are given, from the neighbourhood of
+        the points (see ``radius``).
     rng : int or Generator
         Seed of the sampling.
     points : sequence, optional
-        Extra points (``q`` or ``(q, v)``) to check (e.g. the reference path).
+        Points (``q`` or ``(q, v)``, e.g. :func:`~invctl.analysis.equilibrium.operating_points`
+        along a reference) at which Gamma is checked too.  Without a declared region they define
+        the analysed domain: the tube of half-width ``radius`` around the polyline through them.
+    radius, v_radius : float or array, optional
+        Half-widths of that tube in ``q`` and ``v`` (defaults 0.1 and 1.0, see
+        :data:`~invctl.analysis.auxiliary.NEIGHBOURHOOD_RADIUS`).  Given with a declared region,
+        the tube is intersected with the region.
 
     Raises
     ------
     RelativeDegreeError
         If Gamma is singular at a sample point (names the point and Gamma's smallest
-        singular value), or an output is never influenced by the input.
+        singular value), ``det Gamma`` changes sign on the (connected) sampled domain, or an
+        output is never influenced by the input.
     """
+    pts = as_points(model, points)
     key = ("relative_degree", tuple(model.theta_values), samples, repr(rng),
-           None if points is None else repr([np.asarray(p).tolist() for p in points]))
+           None if points is None else repr([(q.tolist(), v.tolist()) for q, v in pts]),
+           None if radius is None else repr(np.asarray(radius, float).tolist()),
+           None if v_radius is None else repr(np.asarray(v_radius, float).tolist()))
     cache = cache_of(model)
     if key in cache:
         return cache[key]
@@ -204,7 +219,7 @@ def relative_degree(model, samples: int = 200, rng=0, *, points=None) -> Relativ
     r_hat = r_out[0] if r_out and all(r == r_out[0] for r in r_out) else None
     gamma = ca.Function("Gamma", [model.q, model.v, model.theta], [chain.gamma],
                         ["q", "v", "theta"], ["Gamma"])
-    qs, vs = region_samples(model, samples, rng, points)
+    qs, vs = region_samples(model, samples, rng, pts, radius=radius, v_radius=v_radius)
     G = eval_batch(gamma, qs, vs, theta=model.theta_values)[0]
     sv = np.linalg.svd(G, compute_uv=False)
     smin, smax = sv[:, -1], sv[:, 0]
@@ -213,7 +228,15 @@ def relative_degree(model, samples: int = 200, rng=0, *, points=None) -> Relativ
     dets = np.linalg.det(G)
     kmin = int(np.argmin(smin / np.maximum(smax, 1e-300)))
     kc = int(np.argmax(cond))
-    region = model.region.description if model.region is not None else ""
+    local = uses_neighbourhood(model, pts, radius) and samples > 0
+    region = sampling_domain(model, pts, radius, v_radius) if samples else "the given points"
+    if local:
+        restrict = "Analyse a smaller neighbourhood (radius) of the operating points or choose another output"
+    elif model.region is not None:
+        restrict = "Restrict the operating region (model.region) away from these points or choose another output"
+    else:
+        restrict = ("No region is declared, so a default box was sampled: declare model.region, or pass the "
+                    "operating points (points=operating_points(model, reference)) to analyse their neighbourhood")
     result = RelativeDegree(
         r_aux=chain.r_aux, r_hat=r_hat, r_output=tuple(r_out), r_bar=int(sum(chain.r_aux)),
         blocks=(p, l, m), gamma=gamma, worst_condition=float(cond[kc]),
@@ -224,13 +247,14 @@ def relative_degree(model, samples: int = 200, rng=0, *, points=None) -> Relativ
     )
     bad = ~np.isfinite(smin) | (smin <= _SINGULAR_TOL * np.maximum(smax, 1.0))
     if not np.any(bad) and dets.min() < 0 < dets.max():
-        # det Gamma changes sign on the (connected) region: Gamma is singular in between
+        # det Gamma changes sign on the (connected) sampled domain: Gamma is singular in between
         i, j = int(np.argmin(dets)), int(np.argmax(dets))
         raise RelativeDegreeError(
-            f"{model.name}: det Gamma changes sign on the operating region (det = {dets[i]:.3g} at "
+            f"{model.name}: det Gamma changes sign on {region} (det = {dets[i]:.3g} at "
             f"q = {np.round(qs[i], 5).tolist()}, det = {dets[j]:.3g} at q = {np.round(qs[j], 5).tolist()}), so "
-            f"Gamma is singular somewhere between them (the region is connected); the smallest singular value "
-            f"found is {smin[kmin]:.3g} at q = {np.round(qs[kmin], 5).tolist()}. Restrict the operating region.",
+            f"Gamma is singular somewhere between them (the sampled domain is connected); the smallest singular value "
+            f"found is {smin[kmin]:.3g} at q = {np.round(qs[kmin], 5).tolist()}. "
+            + f"{restrict}.",
             partial=result,
             diagnostics={"q": qs[kmin], "v": vs[kmin], "sigma_min": float(smin[kmin]),
                          "det_negative_at": qs[i], "det_positive_at": qs[j]},
@@ -241,8 +265,7 @@ def relative_degree(model, samples: int = 200, rng=0, *, points=None) -> Relativ
             f"{model.name}: the vector relative degree {list(chain.r_aux)} does not exist at "
             f"q = {np.round(qs[k], 6).tolist()}, v = {np.round(vs[k], 6).tolist()}: Gamma's smallest "
             f"singular value is {smin[k]:.3g} (largest {smax[k]:.3g}); {int(bad.sum())} of {qs.shape[0]} "
-            "sample points are singular. Restrict the operating region (model.region) away from these "
-            "points or choose another output.",
+            f"sample points are singular. {restrict}.",
             partial=result,
             diagnostics={"q": qs[k], "v": vs[k], "sigma_min": float(smin[k]), "sigma_max": float(smax[k]),
                          "singular_points": int(bad.sum())},
