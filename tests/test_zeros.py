@@ -210,7 +210,8 @@ def test_manipulator_zeros_at_start_and_end_equilibria():
     model = manip.build()
     ref = manip.reference(model)
     ops = operating_points(model, ref, 2, guess_q=manip.initial_configuration(model))
-    idyn = manip.manipulator_internal(model)
+    idyn = internal_dynamics(model, "sect3", manip.paper_internal_coordinates,
+                             point=manip.initial_configuration(model))
     for k, q in enumerate(ops):
         eta = np.array(idyn.eta(q, np.zeros(model.n), model.theta_values)).ravel()
         lin = linearize_internal(model, idyn, [([ops.y[k], np.zeros(2)], eta)])
