@@ -7,7 +7,9 @@
 ``reference``     a :class:`Reference` (for (A2) and eta2_ref^0),
 ``A1``            ``{"K": [...], "k_i": [...], "rho": ...}`` to check (A1), or a dict name -> such
                   dicts to check several choices (the first is reported as ``checks["A1"]``),
-``point``         the design configuration ``q0``.
+``point``         the design configuration ``q0``,
+``points``        configurations (e.g. the equilibria along the reference) around which the checks
+                  sample when the model declares no operating region.
 """
 from __future__ import annotations
 
@@ -44,7 +46,8 @@ def analyze(model, setup: dict | None = None, samples: int = 200) -> dict:
     setup = dict(setup or {})
     timings = {}
     t = time.perf_counter()
-    rd = relative_degree(model, samples=samples)
+    points = setup.get("points") if model.region is None else None
+    rd = relative_degree(model, samples=samples, points=points)
     timings["relative_degree_s"] = time.perf_counter() - t
     t = time.perf_counter()
     internal = setup.get("internal") or internal_dynamics(model, "sect3", point=setup.get("point"), samples=samples)
@@ -81,12 +84,20 @@ def analyze(model, setup: dict | None = None, samples: int = 200) -> dict:
     checks["A2"] = a2.to_dict()
     if "A1" in setup:
         variants = {"scene": setup["A1"]} if "K" in setup["A1"] else dict(setup["A1"])
-        reports = {name: lin.check_A1(a1["K"], rho=a1.get("rho"), k_i=a1.get("k_i"), samples=samples).to_dict()
+        reports = {name: lin.check_A1(a1["K"], rho=a1.get("rho"), k_i=a1.get("k_i"), samples=samples,
+                                      points=points).to_dict()
                    for name, a1 in variants.items()}
         checks["A1"] = next(iter(reports.values()))
         checks["A1_all"] = reports
+    zeros = None
+    try:
+        from .zeros import classify_zeros
+
+        zeros = classify_zeros(model, internal.point, internal=internal)
+    except InvctlError as exc:
+        checks["zeros_error"] = f"{type(exc).__name__}: {exc}"
     eta_ref0 = None
     if ref is not None and lin.k and a2.l2 == 0:
         eta_ref0 = lin.eta2_ref0(ref)
     return {"rd": rd, "internal": internal, "lin": lin, "checks": checks, "eta2_ref0": eta_ref0,
-            "timings": timings}
+            "zeros": zeros, "timings": timings}

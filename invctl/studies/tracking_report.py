@@ -42,6 +42,12 @@ def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> Comma
     ref = t.reference(model) if t.reference is not None else None
     point = design_configuration(scene, model, ref)
     setup = {"point": point}
+    if ref is not None and model.region is None:
+        from ..analysis.equilibrium import operating_points
+
+        setup["points"] = list(operating_points(model, ref, 11, guess_q=point))
+    elif ref is None and model.region is None:
+        setup["points"] = [point]
     if ref is not None:
         setup["reference"] = ref
         setup["linearization"] = tracking_linearization(scene, model, ref, samples=samples)
@@ -84,9 +90,13 @@ def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> Comma
         + ", derivative removal (38): eta' = Q eta + P y",
         f"  Q = {_fmt(lin.Q)}",
         f"  P = {_fmt(lin.P)}",
-        f"  eigenvalues of Q: {np.round(eig, 6).tolist()}  "
-        f"({lin.k} in the closed right half plane: {'minimum phase' if lin.minimum_phase else 'non-minimum phase'})",
+        f"  eigenvalues of Q: {np.round(eig, 6).tolist()}  ({lin.k} in the closed right half plane)",
     ]
+    zeros = res["zeros"]
+    if zeros is not None:
+        lines.append(f"  zeros of the plant linearized at the design point: {zeros.describe()}")
+    elif "zeros_error" in checks:
+        lines.append(f"  zeros not classified: {checks['zeros_error']}")
     if lin.k:
         lines.append(f"  split (39, T by {lin.split}): Q~ = {_fmt(lin.Q_tilde)}, P~ = {_fmt(lin.P_tilde)}")
     lines.append(f"  (A2): {'holds' if checks['A2']['passed'] else 'NOT shown'} - {checks['A2']['message']}")
@@ -105,7 +115,8 @@ def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> Comma
         "scene": scene.name, "params": dict(model.values), "relative_degree": list(rd.r_aux), "r_hat": rd.r_hat,
         "r_bar": rd.r_bar, "gamma": rd.to_dict(), "internal_dim": internal.dim, "internal_method": internal.method,
         "internal_eigs": eig.real.tolist() if np.all(eig.imag == 0) else [[e.real, e.imag] for e in eig],
-        "minimum_phase": lin.minimum_phase, "Q": lin.Q, "P": lin.P, "P_list": lin.P_list, "T": lin.T, "k": lin.k,
+        "minimum_phase": zeros.minimum_phase if zeros is not None else lin.minimum_phase,
+        "zeros": zeros.to_dict() if zeros is not None else None, "Q": lin.Q, "P": lin.P, "P_list": lin.P_list, "T": lin.T, "k": lin.k,
         "Q_tilde": lin.Q_tilde, "P_tilde": lin.P_tilde, "eta2_ref0": res["eta2_ref0"], "checks": checks,
         "design_point": point, "reports": rdata, "timings": {**res["timings"], "total_s": wall},
     }
