@@ -13,7 +13,7 @@ from invctl.studies.tracking import run_controller, setup_tracking
 
 @pytest.fixture(scope="module")
 def c2_setup():
-    return setup_tracking(scene, invert=False)
+    return setup_tracking(scene.SCENE, invert=False)
 
 
 @pytest.fixture(scope="module")
@@ -50,12 +50,12 @@ def test_compiled_loop_matches_independent_scipy_run(c2_setup, c2_run):
 def test_quadrature_matches_trapezoid_of_grid(c2_run):
     r = c2_run
     assert np.trapezoid(r.output_error, r.t) == pytest.approx(r.cumulative_output_error, rel=1e-5)
-    assert np.trapezoid(r.endeffector_error, r.t) == pytest.approx(r.cumulative_endeffector_error, rel=1e-5)
+    assert np.trapezoid(r.signal_error("end effector"), r.t) == pytest.approx(r.cumulative_errors["end effector"], rel=1e-5)
 
 
 def test_result_save_load_plot(c2_run, tmp_path):
     p = tmp_path / "c2.npz"
-    c2_run.save(p)
+    c2_run.to_npz(p)
     back = ClosedLoopResult.load(p)
     np.testing.assert_array_equal(back.q, c2_run.q)
     assert back.cumulative_output_error == c2_run.cumulative_output_error
@@ -83,7 +83,7 @@ def _outcome(setup, name="C2", **kw):
 
 def test_tight_funnel():
     """A final width of 2 mm on the last level (20x tighter): the funnel law still holds it (large gain)."""
-    s = setup_tracking(scene, invert=False, feedback={"phi_bar": (1.0, 3.0, 0.002)})
+    s = setup_tracking(scene.SCENE, invert=False, feedback={"phi_bar": (1.0, 3.0, 0.002)})
     kind, r = _outcome(s)
     print(f"tight funnel: {kind} at t = {r.t[-1]:.3f}, max ratio {r.max_funnel_ratio:.4f}, "
           f"input peaks {r.input_peaks.round(2)}")
@@ -92,7 +92,7 @@ def test_tight_funnel():
 
 def test_start_outside_funnel_stops_at_once():
     """A funnel narrower than the initial error (phi = 1/1e-7 from t = 0) stops at the first grid point."""
-    s = setup_tracking(scene, invert=False, feedback={"funnels": [(0.0, 0.0, 1e-7)] * 2})
+    s = setup_tracking(scene.SCENE, invert=False, feedback={"funnels": [(0.0, 0.0, 1e-7)] * 2})
     kind, r = _outcome(s)
     assert kind == "violation"
     assert r.t[-1] <= 2e-3
@@ -100,7 +100,7 @@ def test_start_outside_funnel_stops_at_once():
 
 @pytest.mark.parametrize("factor", [1.5])
 def test_larger_mismatch(factor):
-    s = setup_tracking(scene, invert=False, plant_factors={"m3": factor})
+    s = setup_tracking(scene.SCENE, invert=False, plant_factors={"m3": factor})
     kind, r = _outcome(s)
     print(f"m3 x {factor}: {kind}, max ratio {r.max_funnel_ratio:.3f}, input peaks {r.input_peaks.round(2)}")
     assert kind in ("inside", "violation")
@@ -135,7 +135,7 @@ def test_initial_error_close_to_boundary(c2_setup):
 
 @pytest.mark.parametrize("tf", [0.3, 0.5])
 def test_shorter_transition(tf):
-    s = setup_tracking(scene, invert=False, reference=lambda m: scene.reference(m, tf=tf))
+    s = setup_tracking(scene.SCENE, invert=False, reference=lambda m: scene.reference(m, tf=tf))
     kind, r = _outcome(s)
     print(f"tf = {tf} s: {kind} at t = {r.t[-1]:.3f}, max ratio {r.max_funnel_ratio:.3f}, input peaks {r.input_peaks.round(2)}")
     assert kind in ("inside", "violation")
@@ -144,8 +144,8 @@ def test_shorter_transition(tf):
 def test_unknown_controller_and_plant_parameter(c2_setup):
     with pytest.raises(SceneError, match="C1"):
         c2_setup.loop("C4")
-    with pytest.raises(SceneError, match="unknown parameter"):
-        setup_tracking(scene, invert=False, plant_params={"m9": 1.0})
+    with pytest.raises(SceneError, match="unknown plant parameter"):
+        setup_tracking(scene.SCENE, invert=False, plant_params={"m9": 1.0})
 
 
 def test_mismatch_beyond_the_operating_region_is_explained():
@@ -153,7 +153,7 @@ def test_mismatch_beyond_the_operating_region_is_explained():
     stops with a specific error naming the region exit, never a bare integrator error."""
     from invctl.errors import SimulationFailed
 
-    s = setup_tracking(scene, invert=False, plant_params={"m3": 3.0})
+    s = setup_tracking(scene.SCENE, invert=False, plant_params={"m3": 3.0})
     with pytest.raises(SimulationFailed) as info:
         run_controller(s, "C2")
     exc = info.value

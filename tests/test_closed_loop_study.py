@@ -11,12 +11,12 @@ from invctl.studies.tracking import TrackingStudy, run_tracking_study, setup_tra
 
 @pytest.fixture(scope="module")
 def setup():
-    return setup_tracking(scene, invert=True)
+    return setup_tracking(scene.SCENE, invert=True)
 
 
 @pytest.fixture(scope="module")
 def study(setup):
-    return run_tracking_study(scene, setup=setup, progress=False)
+    return run_tracking_study(scene.SCENE, setup=setup, progress=False)
 
 
 def test_feedforward_is_causal_and_matches_reference_model(setup):
@@ -26,7 +26,7 @@ def test_feedforward_is_causal_and_matches_reference_model(setup):
     assert np.allclose(setup.inverse.u_causal(np.array([-0.5, -0.1])), 0.0)
     from invctl.simulate.closed_loop import ClosedLoop
 
-    exact = ClosedLoop(setup.model, setup.reference, u_ff=(t, u), endeffector=setup.endeffector,
+    exact = ClosedLoop(setup.model, setup.reference, u_ff=(t, u), signals=setup.signals,
                        t_end=setup.t_end).run(setup.q0)
     mismatched = setup.loop("C3").run(setup.q0)
     print(f"C3 on the reference model: cum. error {exact.cumulative_output_error:.3g}; "
@@ -41,11 +41,11 @@ def test_study_ordering_and_reductions(study):
     print("\n" + study.table())
     for name in ("C1", "C2", "C3"):
         assert runs[name].status == "ok", (name, runs[name].message)
-    for kind in ("output", "endeffector"):
-        e = [getattr(runs[c], f"cumulative_{kind}_error") for c in ("C1", "C2", "C3")]
+    for kind in ("output", "end effector"):
+        e = [runs[c].cumulative_errors[kind] for c in ("C1", "C2", "C3")]
         assert e[0] < e[1] < e[2], (kind, e)
     red = study.reductions
-    assert red["output"] >= 0.30 and red["endeffector"] >= 0.30, red
+    assert red["output"] >= 0.30 and red["end effector"] >= 0.30, red
     for name in ("C1", "C2"):
         assert runs[name].max_funnel_ratio < 1.0
         assert runs[name].max_constraint_drift < 1e-6
@@ -59,7 +59,7 @@ def test_study_save_load_plot(study, tmp_path):
     back = TrackingStudy.load(tmp_path)
     assert back.reductions == pytest.approx(study.reductions)
     figs = back.plot(tmp_path)
-    assert len(figs) == 5 and (tmp_path / "fig9_funnel.png").exists()
+    assert len(figs) == 5 and (tmp_path / "funnel.png").exists()
 
 
 def test_cli_simulate_json(capsys):
@@ -67,7 +67,7 @@ def test_cli_simulate_json(capsys):
     out = capsys.readouterr().out.strip().splitlines()
     assert rc == 0
     data = json.loads(out[-1])
-    for key in ("cumulative_output_error", "cumulative_endeffector_error", "max_funnel_ratio",
+    for key in ("cumulative_output_error", "max_funnel_ratio",
                 "max_constraint_drift", "wall_s"):
         assert key in data
     assert data["plant"]["m3"] == pytest.approx(0.55)
@@ -81,8 +81,8 @@ def test_c1_on_the_reference_model_is_nearly_exact(setup):
 
     uff = setup.u_ff_samples()
     c1 = ClosedLoop(setup.model, setup.reference, controller=setup.c1_controller(), u_ff=uff,
-                    endeffector=setup.endeffector).run(setup.q0)
-    c3 = ClosedLoop(setup.model, setup.reference, u_ff=uff, endeffector=setup.endeffector).run(setup.q0)
+                    signals=setup.signals).run(setup.q0)
+    c3 = ClosedLoop(setup.model, setup.reference, u_ff=uff, signals=setup.signals).run(setup.q0)
     print(f"reference model: C1 {c1.cumulative_output_error:.3g}, C3 {c3.cumulative_output_error:.3g}, "
           f"max |u_fb| {np.abs(c1.u_fb).max():.3g}")
     assert c1.cumulative_output_error < 0.05 * c3.cumulative_output_error
@@ -107,7 +107,7 @@ def test_c1_extremes(setup, case):
             "tight": dict(inverse=setup.inverse, feedback={"phi_bar": (1.0, 3.0, 0.002),
                                                            "funnels": [(1.0, 3.0, 0.005)] * 2}),
             "tf=0.5": dict(reference=lambda m: scene.reference(m, tf=0.5))}[case]
-    s = setup_tracking(scene, **opts)
+    s = setup_tracking(scene.SCENE, **opts)
     kinds = {}
     for name in ("C1", "C2"):
         kind, r = _run_or_violation(s, name)
@@ -140,7 +140,7 @@ def test_cli_pipeline(tmp_path, capsys):
     assert set(data["runs"]) == {"C1", "C2", "C3", "C1-42"}
     assert data["reductions"]["output"] >= 0.3
     assert any("C1 reduces C2" in line for line in out)
-    for f in ("fig5_states", "fig6_endeffector", "fig7_errors", "fig8_inputs", "fig9_funnel"):
+    for f in ("states", "path_end_effector", "errors", "inputs", "funnel"):
         assert (tmp_path / f"{f}.png").exists()
     assert set(plt.get_fignums()) == open_before  # written figures are closed
 

@@ -30,7 +30,8 @@ def _finite(*arrays):
 def ball():
     from invctl.simulate.timestepping import MoreauJean
 
-    scene = load_scene("bouncing_ball")
+    import problems.bouncing_ball as scene
+
     model = scene.build()
     return scene, model, MoreauJean(model, potential=scene.potential(model))
 
@@ -93,7 +94,8 @@ def test_impact_law_loses_energy_as_39(m1, m2, e, v1, v2):
     (never positive), and the relative normal velocity is reversed times e (Newton)."""
     from invctl.contact.mechanics import ContactSystem
 
-    scene = load_scene("prismatic_clearance")
+    import problems.prismatic_clearance as scene
+
     model = scene.build(actuators=1, m1=m1, m2=m2, e=e)
     cs = ContactSystem(model)
     q = np.array([0.0, model.values["l"]])  # f1 = q2 - q1 - l = 0
@@ -111,14 +113,14 @@ def test_impact_law_loses_energy_as_39(m1, m2, e, v1, v2):
 @pytest.mark.parametrize("c", [1e-9, 1e-6])
 @pytest.mark.parametrize("e", [0.0, 1.0])
 def test_tiny_clearance(c, e):
-    from invctl.studies.robustness import clearance_point
+    from invctl.studies.robustness import contact_point
 
-    out = clearance_point(e=e, c=c, h=1e-4, t_end=0.5)
+    out = contact_point(scene="prismatic_clearance", controller="pd", t_end=0.5, e=e, L=0.1 + c, h=1e-4)
     assert _finite(list(out.values()))
     # penetration O(h |v|) (|v| < 0.5 m/s), never a blow-up; regulation unaffected
     assert out["max_gap_violation"] < 5e-5
     assert out["max_V_jump_at_impacts"] <= 1e-12
-    assert out["q1_error_final"] < 2e-2
+    assert out["regulation_error_final"] < 2e-2
 
 
 @pytest.mark.timeout(30)
@@ -126,7 +128,8 @@ def test_tiny_clearance_with_projection_keeps_gaps():
     from invctl.control.pdplus import pd_gravity
     from invctl.simulate.timestepping import MoreauJean
 
-    scene = load_scene("prismatic_clearance")
+    import problems.prismatic_clearance as scene
+
     l = scene.PARAMS["l"]
     model = scene.build(actuators=1, L=2 * l + 1e-9)
     law = pd_gravity(model, Kp=100.0, Kv=20.0, q_d=0.2, idx=[0])
@@ -142,7 +145,8 @@ def test_extreme_mass_ratio(m2):
     from invctl.control.pdplus import pd_gravity
     from invctl.simulate.timestepping import MoreauJean
 
-    scene = load_scene("prismatic_clearance")
+    import problems.prismatic_clearance as scene
+
     model = scene.build(actuators=1, m2=m2)
     law = pd_gravity(model, Kp=100.0, Kv=20.0, q_d=0.2, idx=[0])
     l = scene.PARAMS["l"]
@@ -225,7 +229,8 @@ def test_lambda_closed_form_equals_return_map(bf, ke, be):
 # ---------------------------------------------------- manipulator: Gamma edge
 @pytest.fixture(scope="module")
 def manipulator_model():
-    scene = load_scene("manipulator")
+    import problems.manipulator as scene
+
     return scene, scene.build()
 
 
@@ -260,12 +265,12 @@ def test_gamma_near_the_edge_of_the_region(manipulator_model, delta):
 # ------------------------------------------------------ inversion: long T0
 @pytest.mark.timeout(90)
 def test_long_pre_actuation_horizon(manipulator_model):
-    from invctl.inversion import invert_scene
+    from invctl.studies.tracking import invert_tracking
 
     scene, model = manipulator_model
     ref = scene.reference(model)
     try:
-        inv = invert_scene(scene, model=model, reference=ref, T0=-4.0, N=250)
+        inv = invert_tracking(scene.SCENE, model, ref, T0=-4.0, N=250)
     except InversionFailed as exc:
         assert exc.partial is not None and "status" in exc.diagnostics
         return
@@ -291,13 +296,14 @@ def c2_setup():
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("r", [0.05, 0.005, 0.0005])
 def test_tight_funnel(c2_setup, r):
+    import problems.manipulator as scene
+    from invctl.control.funnel_nmp import NMPFunnelController
     from invctl.simulate.closed_loop import ClosedLoop
 
-    scene = load_scene("manipulator")
     st_ = c2_setup
-    ctrl = scene.funnel_controller(st_.model, st_.reference, st_.lin, t_end=st_.t_end,
-                                   funnels=[(1.0, 3.0, r), (1.0, 3.0, r)])
-    loop = ClosedLoop(st_.plant, st_.reference, controller=ctrl, endeffector=st_.endeffector, t_end=st_.t_end,
+    ctrl = NMPFunnelController(st_.model, st_.lin, st_.reference, t_end=st_.t_end,
+                               **{**scene.FEEDBACK, "funnels": [(1.0, 3.0, r), (1.0, 3.0, r)]})
+    loop = ClosedLoop(st_.plant, st_.reference, controller=ctrl, signals=st_.signals, t_end=st_.t_end,
                       dt=st_.dt)
     try:
         res = loop.run(st_.q0, controller_label="C2")

@@ -7,6 +7,13 @@ import problems.manipulator as scene
 from invctl.control.funnel import Funnel, as_funnel
 from invctl.control.funnel_nmp import NMPFunnelController
 from invctl.errors import ParameterError
+from invctl.control.funnel_nmp import NMPFunnelController
+from invctl.studies.tracking import tracking_linearization
+
+
+def funnel_controller(model, ref, lin, *, t_end=2.0, **overrides):
+    """The manipulator's controller (48) with its declared feedback, entries overridable."""
+    return NMPFunnelController(model, lin, ref, t_end=t_end, **{**scene.FEEDBACK, **overrides})
 
 
 # ----------------------------------------------------------------- funnels
@@ -63,7 +70,7 @@ def test_funnel_bad_input():
 @pytest.fixture(scope="module")
 def design(manipulator):
     ref = scene.reference(manipulator)
-    lin = scene.manipulator_linearization(manipulator, ref)
+    lin = tracking_linearization(scene.SCENE, manipulator, ref)
     return manipulator, ref, lin
 
 
@@ -77,7 +84,7 @@ def _random_states(model, n, rng):
 def test_ad_derivative_rules_match_closed_form_59(design):
     """y_new,1^[1], ^[2] of (59) and y_new,2 = K2 y, K2 y' against hand-written formulas."""
     model, ref, lin = design
-    ctrl = scene.funnel_controller(model, ref, lin)
+    ctrl = funnel_controller(model, ref, lin)
     K1, K2 = ctrl.K[0][0], ctrl.K[1]
     Qt, Pt = float(lin.Q_tilde[0, 0]), lin.P_tilde.ravel()
     psi = lin.psi_function()
@@ -95,7 +102,7 @@ def test_ad_derivative_rules_match_closed_form_59(design):
 
 def test_gain_derivative_is_exact_product_rule_not_printed_62(design):
     model, ref, lin = design
-    ctrl = scene.funnel_controller(model, ref, lin)
+    ctrl = funnel_controller(model, ref, lin)
     ad, exact, printed = ctrl.gain_derivative_check(t=0.3, e=3.0, de=0.7)
     assert ad == pytest.approx(exact, rel=1e-12)
     phi = ctrl.levels.phi[0][0](0.3)[0]
@@ -110,7 +117,7 @@ def test_error_chain_matches_finite_differences_in_filter_mode(design):
     from invctl.simulate.closed_loop import ClosedLoop
 
     model, ref, lin = design
-    ctrl = scene.funnel_controller(model, ref, lin, eta2_source="filter", t_end=0.25)
+    ctrl = funnel_controller(model, ref, lin, eta2_source="filter", t_end=0.25)
     loop = ClosedLoop(model, ref, controller=ctrl, t_end=0.25, dt=1e-3, rtol=1e-11, atol=1e-13)
     res = loop.run(scene.initial_configuration(model))
     N = res.t.size
@@ -135,7 +142,7 @@ def test_error_chain_matches_finite_differences_in_filter_mode(design):
 
 def test_backward_reference_solves_42_and_starts_at_43(design):
     model, ref, lin = design
-    ctrl = scene.funnel_controller(model, ref, lin)
+    ctrl = funnel_controller(model, ref, lin)
     # (43) by Gauss-Legendre quadrature (analysis) vs our backward integration of (42)
     np.testing.assert_allclose(ctrl.eta2_ref(0.0), lin.eta2_ref0(ref), rtol=1e-9)
     tg, vals = ctrl.eta2_ref_samples(dt=1e-4)
@@ -152,8 +159,8 @@ def test_forward_reference_mode_agrees_early_and_diverges_late(design):
     """Integrating (42) forward from (43) is exact in theory but unstable: it matches the bounded solution
     on a short horizon and drifts away by exp(Q~ t) amplification of rounding errors."""
     model, ref, lin = design
-    back = scene.funnel_controller(model, ref, lin)
-    fwd = scene.funnel_controller(model, ref, lin, reference_mode="forward")
+    back = funnel_controller(model, ref, lin)
+    fwd = funnel_controller(model, ref, lin, reference_mode="forward")
     assert fwd.nz == 1
     from scipy.integrate import solve_ivp
 
@@ -169,25 +176,25 @@ def test_forward_reference_mode_agrees_early_and_diverges_late(design):
 def test_controller_bad_input(design):
     model, ref, lin = design
     with pytest.raises(ParameterError, match="m = 2 rows"):
-        scene.funnel_controller(model, ref, lin, K=[[0.1]])
+        funnel_controller(model, ref, lin, K=[[0.1]])
     with pytest.raises(ParameterError, match="kappa"):
-        scene.funnel_controller(model, ref, lin, kappa=[5.0, -1.0])
+        funnel_controller(model, ref, lin, kappa=[5.0, -1.0])
     with pytest.raises(ParameterError, match="needs 2 levels"):
-        scene.funnel_controller(model, ref, lin, funnels=[(1, 3, 0.05)])
+        funnel_controller(model, ref, lin, funnels=[(1, 3, 0.05)])
     with pytest.raises(ParameterError, match="rho"):
-        scene.funnel_controller(model, ref, lin, rho=0)
+        funnel_controller(model, ref, lin, rho=0)
     with pytest.raises(ParameterError, match="eta2_source"):
-        scene.funnel_controller(model, ref, lin, eta2_source="observer")
+        funnel_controller(model, ref, lin, eta2_source="observer")
 
 
 def test_controller_functions_compiled_and_consistent(design):
     model, ref, lin = design
-    ctrl = scene.funnel_controller(model, ref, lin, eta2_source="filter")
+    ctrl = funnel_controller(model, ref, lin, eta2_source="filter")
     state, output, monitor = ctrl.functions()
     q0 = scene.initial_configuration(model)
     z0 = ctrl.z0(q0)
     # filter started at Psi(x0): same errors as the Psi version at t = 0
-    ctrl_psi = scene.funnel_controller(model, ref, lin)
+    ctrl_psi = funnel_controller(model, ref, lin)
     _, out_psi, mon_psi = ctrl_psi.functions()
     np.testing.assert_allclose(np.array(output(0.0, q0, np.zeros(5), z0)), np.array(out_psi(0.0, q0, np.zeros(5), [])),
                                rtol=1e-10, atol=1e-12)
@@ -206,7 +213,7 @@ def test_user_given_funnel_in_the_closed_loop(design):
     user = Funnel.from_callable(lambda t: 1.0 / (0.1 + 1.9 * ca.exp(-2 * t) * (1 + ca.sin(3 * t) ** 2) / 2),
                                 name="user")
     assert user.check(2).passed
-    ctrl = scene.funnel_controller(model, ref, lin, phi_bar=user)
+    ctrl = funnel_controller(model, ref, lin, phi_bar=user)
     res = ClosedLoop(model.scaled(**scene.PLANT_FACTORS), ref, controller=ctrl).run(scene.initial_configuration(model))
     assert res.max_funnel_ratio < 1
     np.testing.assert_allclose(res.phi_bar, user(res.t), rtol=1e-12)
@@ -215,6 +222,6 @@ def test_user_given_funnel_in_the_closed_loop(design):
 def test_controller_rejects_funnels_outside_phi_k(design):
     model, ref, lin = design
     with pytest.raises(ParameterError, match="Phi_3"):
-        scene.funnel_controller(model, ref, lin, funnels=[lambda t: 2 + ca.sin(t**2) / (1 + t), (1, 3, 0.05)])
+        funnel_controller(model, ref, lin, funnels=[lambda t: 2 + ca.sin(t**2) / (1 + t), (1, 3, 0.05)])
     with pytest.raises(ParameterError, match="phi_bar not in Phi_1"):
-        scene.funnel_controller(model, ref, lin, phi_bar=lambda t: 1 / (1 + t))
+        funnel_controller(model, ref, lin, phi_bar=lambda t: 1 / (1 + t))

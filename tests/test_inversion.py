@@ -6,7 +6,8 @@ import pytest
 import problems.manipulator as scene
 import problems.two_link_arm as arm
 from invctl.errors import BoundaryConditionError, InversionFailed, ReferenceSignalError
-from invctl.inversion import Inverse, invert, invert_scene, resolve_selection, servo_model
+from invctl.inversion import Inverse, invert, resolve_selection, servo_model
+from invctl.studies.tracking import invert_tracking
 from invctl.reference import Reference, poly9_timing_law
 from invctl.testing import assert_inverts
 
@@ -23,7 +24,7 @@ def ref(model):
 
 @pytest.fixture(scope="module")
 def inv160(model, ref):
-    return invert_scene(scene, model=model, reference=ref, N=160, backend="newton")
+    return invert_tracking(scene.SCENE, model, ref, N=160, backend="newton")
 
 
 def test_manipulator_inverse_reproduces_reference(model, ref, inv160):
@@ -68,15 +69,15 @@ def test_equilibria_and_boundary_values(model, ref, inv160):
 
 
 def test_ipopt_and_newton_agree(model, ref):
-    a = invert_scene(scene, model=model, reference=ref, N=60, backend="ipopt")
-    b = invert_scene(scene, model=model, reference=ref, N=60, backend="newton")
+    a = invert_tracking(scene.SCENE, model, ref, N=60, backend="ipopt")
+    b = invert_tracking(scene.SCENE, model, ref, N=60, backend="newton")
     assert a.diagnostics["status"] == "Solve_Succeeded"
     assert a.diagnostics["iterations"] <= 20
     # the same square system solved two ways: agree to the solvers' tolerances
     np.testing.assert_allclose(a.X_mesh, b.X_mesh, atol=1e-7)
     # IPOPT's default on square systems (exact zero Hessian, MUMPS without scaling) against the
     # limited-memory Hessian with IPOPT's own MUMPS defaults: the same Newton iterates
-    c = invert_scene(scene, model=model, reference=ref, N=60, backend="ipopt", ipopt_options={
+    c = invert_tracking(scene.SCENE, model, ref, N=60, backend="ipopt", ipopt_options={
         "ipopt.hessian_approximation": "limited-memory", "ipopt.mumps_scaling": 77,
         "ipopt.mumps_permuting_scaling": 7, "ipopt.mumps_pivot_order": 7, "ipopt.nlp_scaling_method": "gradient-based"})
     assert c.diagnostics["status"] == "Solve_Succeeded"
@@ -86,12 +87,12 @@ def test_ipopt_and_newton_agree(model, ref):
 def test_convergence_order_hermite_simpson(model, ref):
     # error of u_ff against a fine Legendre-4 solution at the common mesh points (t0 and tf are
     # mesh points of every mesh, so the jumps of the 4th derivative of y_ref lie on interval ends)
-    fine = invert_scene(scene, model=model, reference=ref, N=300, scheme="legendre4", backend="newton")
+    fine = invert_tracking(scene.SCENE, model, ref, N=300, scheme="legendre4", backend="newton")
     errs = []
     Ns = [60, 120, 240]
     inv = t = None
     for N in Ns:
-        inv = invert_scene(scene, model=model, reference=ref, N=N, backend="newton", warm_start=inv)
+        inv = invert_tracking(scene.SCENE, model, ref, N=N, backend="newton", warm_start=inv)
         t = inv.t_mesh if t is None else t  # the default meshes are nested (15/30/15 intervals at N = 60)
         errs.append(np.max(np.abs(inv.u(t) - fine.u(t))))
     order = np.polyfit(np.log(Ns), np.log(errs), 1)[0]
@@ -102,7 +103,7 @@ def test_convergence_order_hermite_simpson(model, ref):
 def test_save_load_roundtrip(tmp_path, inv160, ref):
     path = tmp_path / "inv.npz"
     inv160.to_npz(str(path), dt=0.01)
-    back = Inverse.from_npz(str(path))
+    back = Inverse.load(str(path))
     t = np.linspace(-1, 2, 77)
     np.testing.assert_allclose(back.X(t), inv160.X(t), rtol=0, atol=1e-14)
     np.testing.assert_allclose(back.u_causal(t), inv160.u_causal(t), atol=1e-14)
@@ -165,7 +166,7 @@ def test_boundary_selection_errors(model):
     sel = resolve_selection(sv, scene.BOUNDARY_PAPER["start"], scene.BOUNDARY_PAPER["end"])
     assert len(sel.start) == 10 and len(sel.end) == 4
     with pytest.raises(BoundaryConditionError):
-        invert_scene(scene, model=model, end={"q": ["gamma"], "u": "all"}, N=40, backend="newton")
+        invert_tracking(scene.SCENE, model, scene.reference(model), end={"q": ["gamma"], "u": "all"}, N=40, backend="newton")
 
 
 def test_reference_outside_workspace(model):
@@ -175,7 +176,7 @@ def test_reference_outside_workspace(model):
     expr = ca.vertcat(y0[0] + 5.0 * poly9_timing_law(t, 0, 1), y0[1])
     bad = Reference(t, expr, 0.0, 1.0, smoothness=4)
     with pytest.raises(ReferenceSignalError, match="reachable workspace"):
-        invert_scene(scene, model=model, reference=bad, N=40, backend="newton")
+        invert_tracking(scene.SCENE, model, bad, N=40, backend="newton")
 
 
 def test_reference_not_smooth_enough(model):
@@ -184,27 +185,27 @@ def test_reference_not_smooth_enough(model):
     s = ca.if_else(t <= 0, 0, ca.if_else(t >= 1, 1, 3 * t**2 - 2 * t**3))  # C^1 only
     rough = Reference(t, ca.vertcat(y0[0] - 0.1 * s, y0[1]), 0.0, 1.0, smoothness=1)
     with pytest.raises(ReferenceSignalError, match="W\\^\\{3,inf\\}"):
-        invert_scene(scene, model=model, reference=rough, N=40)
+        invert_tracking(scene.SCENE, model, rough, N=40)
 
 
 def test_solver_failure_keeps_last_iterate(model, ref):
     with pytest.raises(InversionFailed) as exc:
-        invert_scene(scene, model=model, reference=ref, N=40, max_iter=1, continuation=False)
+        invert_tracking(scene.SCENE, model, ref, N=40, max_iter=1, continuation=False)
     err = exc.value
     assert isinstance(err.partial, Inverse)
     assert err.diagnostics["status"] == "Maximum_Iterations_Exceeded"
     assert err.partial.X_mesh.shape == (14, 41)
     with pytest.raises(InversionFailed, match="Newton|newton"):
-        invert_scene(scene, model=model, reference=ref, N=40, max_iter=1, backend="newton", continuation=False)
+        invert_tracking(scene.SCENE, model, ref, N=40, max_iter=1, backend="newton", continuation=False)
 
 
 def test_horizon_must_contain_transition(model, ref):
     with pytest.raises(ReferenceSignalError, match="must contain"):
-        invert_scene(scene, model=model, reference=ref, T0=0.5, N=40)
+        invert_tracking(scene.SCENE, model, ref, T0=0.5, N=40)
 
 
 def test_mesh_refinement_reaches_tolerance(model, ref):
-    inv = invert_scene(scene, model=model, reference=ref, N=60, backend="newton", tol=1e-7)
+    inv = invert_tracking(scene.SCENE, model, ref, N=60, backend="newton", tol=1e-7)
     meshes = inv.diagnostics["meshes"]
     assert meshes[-1]["error"] <= 1e-7 and len(meshes) >= 2
     assert_inverts(model, inv, ref, tol=1e-7)
@@ -212,8 +213,9 @@ def test_mesh_refinement_reaches_tolerance(model, ref):
 
 def test_invert_command_json(tmp_path):
     out = tmp_path / "traj.npz"
-    res = scene.COMMANDS["invert"]({}, N=60, backend="newton", out=str(out), dt=0.005, quiet=True, scheme=None,
-                                   tol=None)
+    from invctl.studies import commands
+
+    res = commands.invert("manipulator", N=60, backend="newton", out=str(out), dt=0.005, quiet=True)
     for key in ("status", "iterations", "build_s", "solve_s", "max_output_error", "N"):
         assert key in res.data
     assert res.data["N"] == 60 and res.data["status"] == "Solve_Succeeded"
@@ -223,7 +225,7 @@ def test_invert_command_json(tmp_path):
 
 def test_compiled_evaluation_matches_virtual_machine(model, ref, inv160):
     # C code generated from the same SX functions, compiled once and cached on disk
-    inv = invert_scene(scene, model=model, reference=ref, N=160, backend="ipopt", compiled=True)
+    inv = invert_tracking(scene.SCENE, model, ref, N=160, backend="ipopt", compiled=True)
     assert inv.diagnostics["compiled"] and inv.diagnostics["status"] == "Solve_Succeeded"
     np.testing.assert_allclose(inv.X_mesh, inv160.X_mesh, atol=1e-8)
 
@@ -232,8 +234,8 @@ def test_input_energy_selects_among_non_unique_inverses(model, ref):
     # dropping gamma(Tf) = 0 leaves a one-parameter family of inverses; IPOPT picks the one of least
     # input energy, so its energy cannot exceed that of the square problem's solution (which is
     # feasible for the relaxed problem); quadrature differences are O(h^4), tolerance 1e-3 relative
-    sq = invert_scene(scene, model=model, reference=ref, N=30)
-    free = invert_scene(scene, model=model, reference=ref, N=30, end={}, allow_underdetermined=True)
+    sq = invert_tracking(scene.SCENE, model, ref, N=30)
+    free = invert_tracking(scene.SCENE, model, ref, N=30, end={}, allow_underdetermined=True)
     t = np.linspace(-1, 2, 3001)
     e_sq = np.trapezoid(np.sum(sq.u(t) ** 2, axis=0), t)
     e_free = np.trapezoid(np.sum(free.u(t) ** 2, axis=0), t)
@@ -250,10 +252,10 @@ def test_plot(tmp_path, inv160):
 def test_rebuilt_model_with_other_parameters_shares_the_nlp(model, ref):
     # a scene rebuilt with other values shares the (structural) caches but must use its own values
     heavy = scene.build(m3=0.8)
-    a = invert_scene(scene, model=heavy, N=80, backend="newton")
-    b = invert_scene(scene, model=model.with_params(m3=0.8), reference=ref, N=80, backend="newton")
+    a = invert_tracking(scene.SCENE, heavy, scene.reference(heavy), N=80, backend="newton")
+    b = invert_tracking(scene.SCENE, model.with_params(m3=0.8), ref, N=80, backend="newton")
     np.testing.assert_allclose(a.X_mesh, b.X_mesh, atol=1e-9)
-    base = invert_scene(scene, model=model, reference=ref, N=80, backend="newton")
+    base = invert_tracking(scene.SCENE, model, ref, N=80, backend="newton")
     assert np.max(np.abs(a.u(np.linspace(0, 1, 50)) - base.u(np.linspace(0, 1, 50)))) > 1e-2
     assert_inverts(heavy, a, scene.reference(heavy), tol=1e-5)
 
@@ -269,7 +271,7 @@ def test_paper_selection_is_rank_deficient_in_the_stabilized_formulation(model, 
     from invctl.inversion.solve import transcription
 
     sv = servo_model(model)
-    inv = invert_scene(scene, model=model, reference=ref, N=40, backend="newton")
+    inv = invert_tracking(scene.SCENE, model, ref, N=40, backend="newton")
     Y = sv.reference_samples(ref, np.array([inv.T0, inv.Tf]))
     E0, Ef = inv.X(inv.T0)[:, 0], inv.X(inv.Tf)[:, 0]
     paper = resolve_selection(sv, scene.BOUNDARY_PAPER["start"], scene.BOUNDARY_PAPER["end"])
@@ -295,7 +297,7 @@ def test_paper_selection_is_rank_deficient_in_the_stabilized_formulation(model, 
     assert s_ours[-1] / s_ours[0] > 1e-8
     assert s_paper[-1] / s_paper[0] < 1e-12 and s_paper[-3] / s_paper[0] < 1e-9
     with pytest.raises(BoundaryConditionError, match="13 modes that decay forward"):
-        invert_scene(scene, model=model, reference=ref, N=40, backend="newton", **scene.BOUNDARY_PAPER)
+        invert_tracking(scene.SCENE, model, ref, N=40, backend="newton", **scene.BOUNDARY_PAPER)
 
 
 @pytest.mark.parametrize("scheme,N", [("hermite-simpson", 40), ("legendre3", 12), ("radau2", 16)])
@@ -356,13 +358,13 @@ def test_banded_lu_random_and_singular():
 def test_newton_banded_and_superlu_agree(model, ref):
     from invctl.inversion import solve as S
 
-    a = invert_scene(scene, model=model, reference=ref, N=60, backend="newton")
+    a = invert_tracking(scene.SCENE, model, ref, N=60, backend="newton")
     orig = S._newton
     try:
         S._newton = lambda *args, **kw: orig(*args, **dict(kw, banded=False))
         for tr in S._TRANS_CACHE.values():
             tr._lu = None
-        b = invert_scene(scene, model=model, reference=ref, N=60, backend="newton")
+        b = invert_tracking(scene.SCENE, model, ref, N=60, backend="newton")
     finally:
         S._newton = orig
     t = np.linspace(a.T0, a.Tf, 301)

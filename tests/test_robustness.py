@@ -2,11 +2,12 @@
 import numpy as np
 import pytest
 
-from invctl.studies.robustness import clearance_grid, funnel_mismatch, plot_sweep, wrist_lambda_map
+from invctl.studies.robustness import contact_grid, plant_mismatch, plot_sweep, switched_lambda_map
 
 
 def test_wrist_lambda_map_process_pool(tmp_path):
-    res = wrist_lambda_map(kt=[1e3, 5e4, 1e6], bt=[10.0, 171.0, 1e4], max_workers=2, progress=False)
+    res = switched_lambda_map("compliant_wrist", kt=[1e3, 5e4, 1e6], bt=[10.0, 171.0, 1e4], max_workers=2,
+                              progress=False)
     assert res.shape == (3, 3)
     # kt = 1e3 makes the wall softer than the position loop (K2 < K1): Theorem 1 does not apply,
     # and every such point is reported with the reason, not dropped
@@ -29,8 +30,8 @@ def test_wrist_lambda_map_process_pool(tmp_path):
 
 
 def test_funnel_mismatch_process_pool(tmp_path):
-    res = funnel_mismatch(m3=[1.0, 1.5, 10.0], other="m2", other_factors=[1.0, 1.3], controller="C2",
-                          max_workers=2, progress=False)
+    res = plant_mismatch("manipulator", m3=[1.0, 1.5, 10.0], m2=[1.0, 1.3], controller="C2", max_workers=2,
+                         progress=False)
     assert res.shape == (3, 2)
     # m3 x 10: pure feedback reaches the funnel boundary; reported with the reason, not dropped
     assert res.n_failed == 2
@@ -50,14 +51,16 @@ def test_funnel_mismatch_rejects_unknown_parameter():
     from invctl.errors import ParameterError
 
     with pytest.raises(ParameterError, match="known"):
-        funnel_mismatch(other="no_such", executor="serial", progress=False)
+        plant_mismatch("manipulator", no_such=[1.0], executor="serial", progress=False)
 
 
 def test_clearance_grid_dask_local_cluster(tmp_path):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, distributed.Client(cluster) as client:
-        res = clearance_grid(e=[0.0, 1.0], c=[1e-9, 1e-3, 2.0], executor=client, progress=False)
+        # the slot is L = 2 l + c with l = 0.05: clearances c = 1e-6, 1e-3 and 2 m
+        res = contact_grid("prismatic_clearance", controller="pd", t_end=1.0, e=[0.0, 1.0],
+                           L=[0.1 + 1e-6, 0.1 + 1e-3, 2.1], executor=client, progress=False)
     assert res.shape == (2, 3)
     assert res.n_failed == 0
     # PD (36): V never jumps up at an impact (000 Prop. 2; round-off allowance 1e-12 J)
@@ -67,6 +70,6 @@ def test_clearance_grid_dask_local_cluster(tmp_path):
     # a 2 m slot is never reached within 1 s: no impact at all
     assert np.all(res.array("n_impacts")[:, 2] == 0)
     # regulation of body 1 to qd = 0.2 m within 1 s whatever the clearance and restitution
-    assert np.all(res.array("q1_error_final") < 5e-3)
+    assert np.all(res.array("regulation_error_final") < 5e-3)
     res.to_csv(tmp_path / "grid.csv")
     assert (tmp_path / "grid.csv").read_text().count("\n") == 7

@@ -184,7 +184,7 @@ class Inverse:
 
     def to_npz(self, path, dt: float | None = None, meta: dict | None = None):
         """Save ``t, q, v, lam, mu, u, y_ref`` on a uniform grid of step ``dt`` plus the
-        collocation data (``t_mesh, X_mesh, dX_mesh, X_col``) needed by :meth:`from_npz`;
+        collocation data (``t_mesh, X_mesh, dX_mesh, X_col``) needed by :meth:`load`;
         ``meta`` (JSON-able) records where it came from (scene, parameters). Returns the path."""
         from ..io import save_npz
 
@@ -202,7 +202,7 @@ class Inverse:
             t_mesh=self.t_mesh, X_mesh=self.X_mesh, dX_mesh=self.dX_mesh, X_col=self.X_col), info)
 
     @classmethod
-    def from_npz(cls, path) -> "Inverse":
+    def load(cls, path) -> "Inverse":
         """Load what :meth:`to_npz` wrote (interpolants rebuilt from the collocation data).
 
         Raises

@@ -122,9 +122,9 @@ class ClosedLoopResult:
                 "left_region": self.stats.get("left_region"),
                 "wall_s": self.wall_s}
 
-    def save(self, path, meta: dict | None = None) -> None:
+    def to_npz(self, path, meta: dict | None = None):
         """Write all arrays and scalars to ``.npz`` (load with :meth:`load`); ``meta`` (JSON-able)
-        records where the run came from (scene, parameters) for ``invctl animate``."""
+        records where the run came from (scene, parameters) for ``invctl animate``. Returns the path."""
         from ..io import save_npz
 
         data = {f.name: getattr(self, f.name) for f in fields(self)
@@ -133,7 +133,7 @@ class ClosedLoopResult:
             data[f"signal:{name}"] = arr
             data[f"signal_ref:{name}"] = self.signals_ref[name]
         info = {"cumulative_errors": self.cumulative_errors, "stats": self.stats, **(meta or {})}
-        save_npz(path, "ClosedLoopResult", data, info)
+        return save_npz(path, "ClosedLoopResult", data, info)
 
     def to_csv(self, path) -> None:
         """Time series (t, q, v, u, u_ff, u_fb, y, y_ref, signals, funnel ratios) as CSV with a header."""

@@ -1,23 +1,22 @@
-"""Ready-made robustness and parameter sweeps on :func:`invctl.studies.sweep.sweep`.
+"""Ready-made robustness and parameter sweeps of any scene on :func:`invctl.studies.sweep.sweep`.
 
-Each sweep runs on any ``concurrent.futures.Executor`` (a local process pool
-by default) or a ``dask.distributed.Client`` unchanged, reports failed points
-with their exception instead of dropping them, and returns a
-:class:`~invctl.studies.sweep.SweepResult` whose ``plot`` draws a heat map.
+Each sweep runs on any ``concurrent.futures.Executor`` (a local process pool by default) or a
+``dask.distributed.Client`` unchanged, reports failed points with their exception instead of
+dropping them, and returns a :class:`~invctl.studies.sweep.SweepResult` whose ``plot`` draws a
+heat map.  Scenes are passed by name or path (workers load them themselves).
 
-* :func:`funnel_mismatch` -- the tracking study of 003 Sect. 6 over a grid of
-  plant mismatches (``m3`` factor x another parameter's factor): cumulative
-  output and end-effector errors, the largest funnel ratio, input peaks; a run
-  that leaves its funnel is a failed point (``FunnelViolation``).
-* :func:`wrist_lambda_map` -- the return-map factor Lambda of the compliant
-  wrist (002 Sect. 5) over ``(kt, bt)`` by the closed form (14)-(16) *and* the
-  numerical return map, with the GUAS verdict and visible eigenvectors.
-* :func:`clearance_grid` -- the prismatic clearance (000 Example 3) under PD
-  (36) on body 1 over restitution x clearance: impacts, penetration, the
-  largest Lyapunov increase (must not be positive at impacts, Prop. 2).
+* :func:`plant_mismatch` -- a tracking scene's closed loop over a grid of plant mismatches
+  (factors on the plant's parameters): cumulative errors, the largest funnel ratio, input peaks;
+  a run that leaves its funnel is a failed point (``FunnelViolation``).
+* :func:`switched_lambda_map` -- the return-map factor Lambda of a switched scene (002) over two of
+  its parameters by the closed form (14)-(16) *and* the numerical return map, with the GUAS verdict
+  and visible eigenvectors.
+* :func:`contact_grid` -- a contact scene's run over a grid of parameters/settings: impacts,
+  penetration, the largest Lyapunov increase at impacts (must not be positive, 000 Prop. 2), the
+  final regulation error.
 
-Workers build their scene objects once per process (module-level caches), so
-a point costs one simulation, not one build.
+Workers build their scene objects once per process (module-level caches), so a point costs one
+simulation, not one build.
 """
 from __future__ import annotations
 
@@ -26,10 +25,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ParameterError, SceneError
 from .sweep import SweepResult, grid, sweep
 
-__all__ = ["funnel_mismatch", "wrist_lambda_map", "clearance_grid", "plot_sweep"]
+__all__ = ["plant_mismatch", "mismatch_point", "switched_lambda_map", "lambda_map_point", "contact_grid",
+           "contact_point", "plot_sweep"]
 
 _CACHE: dict[Any, Any] = {}
 
@@ -40,61 +40,76 @@ def _cached(key, build):
     return _CACHE[key]
 
 
-# ------------------------------------------------------------------- funnel
-def _tracking_setup(controller: str, t_end: float):
+def _scene(ref):
     from ..scenes import load_scene
+
+    return _cached(("scene", ref), lambda: load_scene(ref))
+
+
+def _two(grids: dict, what: str):
+    if len(grids) != 2:
+        raise ParameterError(f"{what} sweeps exactly two parameters, got {sorted(grids)}")
+    return grids
+
+
+# ------------------------------------------------------------------- funnel
+def _tracking_setup(scene_ref: str, controller: str, t_end, params: tuple):
     from .tracking import setup_tracking
 
-    scene = load_scene("manipulator")
-    setup = setup_tracking(scene, invert=controller in ("C1", "C3"), t_end=t_end, plant_factors={})
-    return scene, setup
+    scene = _scene(scene_ref)
+    return setup_tracking(scene, dict(params), invert=controller in ("C1", "C3", "C1-42"), t_end=t_end,
+                          plant_factors={})
 
 
-def funnel_point(*, controller: str = "C1", t_end: float = 2.0, **factors) -> dict:
-    """One closed-loop run of the manipulator with the plant's parameters scaled by ``factors``."""
-    scene, setup = _cached(("tracking", controller, t_end), lambda: _tracking_setup(controller, t_end))
+def mismatch_point(*, scene: str, controller: str = "C1", t_end=None, params=(), **factors) -> dict:
+    """One closed-loop run of ``scene`` with the plant's parameters scaled by ``factors``."""
+    setup = _cached(("tracking", scene, controller, t_end, tuple(params)),
+                    lambda: _tracking_setup(scene, controller, t_end, tuple(params)))
     plant = setup.model.scaled(**factors)
-    q0 = scene.initial_configuration(plant)
+    from .tracking import equilibrium_configuration
+
+    q0 = equilibrium_configuration(setup.scene, plant, setup.reference(0.0))
     res = setup.loop(controller).run(q0, theta=plant.theta_values, controller_label=controller)
-    peaks = res.input_peaks
-    out = {"cumulative_output_error": res.cumulative_output_error,
-           "cumulative_endeffector_error": res.cumulative_endeffector_error,
-           "max_constraint_drift": res.max_constraint_drift, "wall_s": res.wall_s}
+    out = {f"cumulative_{k.replace(' ', '_')}_error": v for k, v in res.cumulative_errors.items()}
+    out.update({"max_constraint_drift": res.max_constraint_drift, "wall_s": res.wall_s})
     if res.ratios.size:
         out["max_funnel_ratio"] = res.max_funnel_ratio
-    out.update({f"input_peak_{i + 1}": float(p) for i, p in enumerate(peaks)})
+    out.update({f"input_peak_{i + 1}": float(p) for i, p in enumerate(res.input_peaks)})
     return out
 
 
-def funnel_mismatch(m3: Sequence[float] = (0.8, 1.0, 1.2, 1.5), other: str = "m2",
-                    other_factors: Sequence[float] = (0.8, 1.0, 1.2), *, controller: str = "C1",
-                    t_end: float = 2.0, executor=None, max_workers: int | None = None,
-                    progress: bool = True) -> SweepResult:
-    """The tracking study over plant mismatches: plant = reference model with ``m3`` and
-    ``other`` multiplied by the grid's factors (derived inertias follow)."""
-    from ..scenes import load_scene
+def plant_mismatch(scene: str = "manipulator", *, controller: str = "C1", t_end=None, params=None, executor=None,
+                   max_workers: int | None = None, progress: bool = True, **factors) -> SweepResult:
+    """A tracking scene's closed loop over plant mismatches: plant = reference model (``params``) with
+    its parameters multiplied by the grid's factors, e.g. ``plant_mismatch("manipulator", m3=[1, 1.2],
+    m2=[0.8, 1.2])`` (derived parameters follow)."""
+    from ..scenes import load_scene, scene_reference
 
-    model = load_scene("manipulator").build()
-    if other not in model.values or other == "m3":
-        raise ParameterError(f"other must be a manipulator parameter other than m3, got {other!r}; "
-                             f"known: {sorted(model.values)}")
-    fn = functools.partial(funnel_point, controller=controller, t_end=t_end)
-    res = sweep(fn, grid(m3=list(m3), **{other: list(other_factors)}), executor=executor,
-                max_workers=max_workers, progress=progress, label=f"funnel mismatch {controller}")
-    res.meta.update({"study": "funnel_mismatch", "controller": controller,
-                     "labels": {"m3": "m3 factor (plant / model)", other: f"{other} factor (plant / model)"}})
+    sc = load_scene(scene)
+    sc.require("simulate")
+    if sc.kind != "tracking":
+        raise SceneError(f"plant_mismatch needs a tracking scene; {sc.name!r} is a {sc.kind} scene")
+    model = sc.model(params)
+    bad = sorted(set(factors) - set(model.values))
+    if bad or not factors:
+        raise ParameterError(f"plant_mismatch: give factors of the plant's parameters, e.g. m3=[1.0, 1.2]; unknown "
+                             f"{bad}; known: {sorted(model.values)}")
+    fn = functools.partial(mismatch_point, scene=scene_reference(sc), controller=controller, t_end=t_end,
+                           params=tuple(sorted(dict(params or {}).items())))
+    res = sweep(fn, grid(**{k: list(v) for k, v in factors.items()}), executor=executor, max_workers=max_workers,
+                progress=progress, label=f"{sc.name} plant mismatch {controller}")
+    res.meta.update({"study": "plant_mismatch", "scene": sc.name, "controller": controller,
+                     "labels": {k: f"{k} factor (plant / model)" for k in factors}})
     return res
 
 
-# -------------------------------------------------------------------- wrist
-def wrist_point(*, kt: float, bt: float, **overrides) -> dict:
-    """Lambda of the wrist at ``(kt, bt)`` by the closed form and the numerical return map."""
-    from ..scenes import load_scene
+# ------------------------------------------------------------ switched (002)
+def lambda_map_point(*, scene: str, params=(), **values) -> dict:
+    """Lambda of a switched scene at parameter ``values`` by the closed form and the numerical return map."""
     from .switched import lambda_point
 
-    p = _cached(("wrist", tuple(sorted(overrides.items()))),
-                lambda: dict(load_scene("compliant_wrist").build(**overrides).params))
-    p = {**p, "kt": float(kt), "bt": float(bt)}
+    p = _cached(("switched", scene, tuple(params)), lambda: dict(_scene(scene).model(dict(params)).params))
+    p = {**p, **{k: float(v) for k, v in values.items()}}
     closed = lambda_point(p, method="closed")
     out = {"visible": float(closed.visible), "guas": float(closed.guas)}
     if closed.visible:
@@ -107,59 +122,67 @@ def wrist_point(*, kt: float, bt: float, **overrides) -> dict:
     return out
 
 
-def wrist_lambda_map(kt: Sequence[float] = tuple(np.geomspace(1e3, 1e6, 7)),
-                     bt: Sequence[float] = tuple(np.geomspace(10.0, 1e4, 7)), *, executor=None,
-                     max_workers: int | None = None, progress: bool = True, **overrides) -> SweepResult:
-    """Lambda over a ``(kt, bt)`` grid of the compliant wrist (other parameters: the scene's,
-    updated by ``overrides``); ``Lambda`` is NaN where a visible eigenvector exists (no rotation)."""
-    fn = functools.partial(wrist_point, **overrides)
-    res = sweep(fn, grid(kt=list(kt), bt=list(bt)), executor=executor, max_workers=max_workers,
-                progress=progress, label="wrist Lambda map")
-    res.meta.update({"study": "wrist_lambda_map", "labels": {"kt": "wrist stiffness kt [N/m]",
-                                                             "bt": "wrist damping bt [Ns/m]"}})
+def switched_lambda_map(scene: str = "compliant_wrist", *, params=None, executor=None, max_workers: int | None = None,
+                        progress: bool = True, **grids) -> SweepResult:
+    """Lambda of a switched scene over a grid of two of its parameters (others: the scene's, updated by
+    ``params``), e.g. ``switched_lambda_map("compliant_wrist", kt=[...], bt=[...])``; ``Lambda`` is NaN
+    where a visible eigenvector exists (no rotation)."""
+    from ..scenes import load_scene, scene_reference
+
+    sc = load_scene(scene)
+    if sc.kind != "switched":
+        raise SceneError(f"switched_lambda_map needs a switched scene; {sc.name!r} is a {sc.kind} scene")
+    _two(grids, "switched_lambda_map")
+    unknown = sorted(set(grids) - set(sc.params))
+    if unknown:
+        raise ParameterError(f"{sc.name}: unknown parameter(s) {unknown}; known: {sorted(sc.params)}")
+    fn = functools.partial(lambda_map_point, scene=scene_reference(sc), params=tuple(sorted(dict(params or {}).items())))
+    res = sweep(fn, grid(**{k: list(v) for k, v in grids.items()}), executor=executor, max_workers=max_workers,
+                progress=progress, label=f"{sc.name} Lambda map")
+    res.meta.update({"study": "switched_lambda_map", "scene": sc.name, "labels": {k: k for k in grids}})
     return res
 
 
-# ---------------------------------------------------------------- clearance
-def _prismatic_loop():
-    from ..control.pdplus import pd_gravity
-    from ..scenes import load_scene
-    from ..simulate.timestepping import MoreauJean
+# ----------------------------------------------------------------- contact
+def contact_point(*, scene: str, controller=None, t_end=None, base=(), **values) -> dict:
+    """One run of a contact scene with parameters/settings ``values`` (on top of ``base``)."""
+    from .contact import contact_setup, law_report, run_contact
 
-    scene = load_scene("prismatic_clearance")
-    p = scene.PARAMS
-    model = scene.build(actuators=1)
-    law = pd_gravity(model, Kp=p["Kp"], Kv=p["Kv"], q_d=p["qd"], idx=[0])
-    return scene, model, MoreauJean(model, law)
-
-
-def clearance_point(*, e: float, c: float, h: float = 1e-4, t_end: float = 1.0) -> dict:
-    """PD regulation of body 1 of the prismatic clearance with restitution ``e`` and clearance ``c``."""
-    if not 0 <= e <= 1 or not c >= 0:
-        raise ParameterError(f"need 0 <= e <= 1 and c >= 0, got e = {e}, c = {c}")
-    scene, model, mj = _cached("prismatic", _prismatic_loop)
-    l = scene.PARAMS["l"]
-    plant = model.with_params(e=float(e), L=2 * l + float(c))
-    q0, v0 = [0.0, l + 0.5 * c], [0.0, scene.PARAMS["v20"]]
-    tr = mj.run(q0, v0, t_end, h, params=plant.theta_values, ctrl_params=plant.theta_values)
-    imp = tr.impact_mask()
-    k = np.nonzero(imp.any(axis=1))[0]
-    dV_imp = tr.V[k + 1] - tr.V[k] if k.size else np.zeros(0)
-    return {"n_impacts": float(tr.impact_times.size), "max_gap_violation": tr.max_gap_violation,
-            "max_V_jump_at_impacts": float(dV_imp.max(initial=-np.inf)) if dV_imp.size else 0.0,
-            "q1_error_final": float(abs(tr.q[-1, 0] - scene.PARAMS["qd"])),
-            "steps_per_s": float(tr.stats["steps_per_s"])}
+    sc = _scene(scene)
+    params, settings = sc.split({**dict(base), **values})
+    run = run_contact(contact_setup(sc, params, settings, controller=controller), t_end=t_end, progress=False)
+    tr = run.trajectory
+    k = np.nonzero(tr.impact_mask().any(axis=1))[0]
+    dV = tr.V[k + 1] - tr.V[k] if k.size else np.zeros(0)
+    _, law = law_report(run)
+    out = {"n_impacts": float(tr.impact_times.size), "max_gap_violation": tr.max_gap_violation,
+           "max_V_jump_at_impacts": float(dV.max()) if dV.size else 0.0, "steps_per_s": float(tr.stats["steps_per_s"])}
+    if "regulation_error_final" in law:
+        out["regulation_error_final"] = float(np.max(np.abs(law["regulation_error_final"])))
+    if "tracking_error_last_half" in law:
+        out["tracking_error_last_half"] = law["tracking_error_last_half"]
+    return out
 
 
-def clearance_grid(e: Sequence[float] = (0.0, 0.25, 0.5, 0.75, 1.0),
-                   c: Sequence[float] = (1e-9, 1e-6, 1e-4, 1e-3, 1e-2), *, h: float = 1e-4, t_end: float = 1.0,
-                   executor=None, max_workers: int | None = None, progress: bool = True) -> SweepResult:
-    """Restitution x clearance grid of the prismatic joint (Moreau-Jean, PD (36) on body 1)."""
-    fn = functools.partial(clearance_point, h=h, t_end=t_end)
-    res = sweep(fn, grid(e=list(e), c=list(c)), executor=executor, max_workers=max_workers,
-                progress=progress, label="clearance grid")
-    res.meta.update({"study": "clearance_grid", "h": h, "t_end": t_end,
-                     "labels": {"e": "restitution e", "c": "clearance c [m]"}})
+def contact_grid(scene: str = "prismatic_clearance", *, controller=None, t_end=None, base=None, executor=None,
+                 max_workers: int | None = None, progress: bool = True, **grids) -> SweepResult:
+    """A contact scene's run over a grid of its parameters and settings, e.g.
+    ``contact_grid("prismatic_clearance", e=[0, 0.5, 1], L=[0.1 + 1e-6, 0.11])``."""
+    from ..scenes import load_scene, scene_reference
+
+    sc = load_scene(scene)
+    if sc.kind != "contact":
+        raise SceneError(f"contact_grid needs a contact scene; {sc.name!r} is a {sc.kind} scene")
+    unknown = sorted(set(grids) - set(sc.params) - set(sc.settings))
+    if unknown or not grids:
+        raise ParameterError(f"{sc.name}: give grids of parameters or settings; unknown {unknown}; known: "
+                             f"{sorted({**sc.params, **sc.settings})}")
+    fn = functools.partial(contact_point, scene=scene_reference(sc), controller=controller, t_end=t_end,
+                           base=tuple(sorted(dict(base or {}).items())))
+    res = sweep(fn, grid(**{k: list(v) for k, v in grids.items()}), executor=executor, max_workers=max_workers,
+                progress=progress, label=f"{sc.name} grid")
+    res.meta.update({"study": "contact_grid", "scene": sc.name, "controller": controller, "t_end": t_end,
+                     "labels": {k: k for k in grids}})
     return res
 
 

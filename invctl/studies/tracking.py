@@ -334,7 +334,7 @@ class TrackingStudy:
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         for name, r in self.runs.items():
-            r.save(d / f"run_{name}.npz", meta=meta)
+            r.to_npz(d / f"run_{name}.npz", meta=meta)
         from ..scenes import jsonable
 
         (d / "study.json").write_text(json.dumps(jsonable(self.to_dict()), indent=1))

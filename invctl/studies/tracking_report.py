@@ -231,7 +231,7 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
         if str(out).lower().endswith(".csv"):
             res.to_csv(out)
         else:
-            res.save(out, meta={**setup.meta(), "controller": name})
+            res.to_npz(out, meta={**setup.meta(), "controller": name})
         data["out"] = str(out)
         lines.append(f"  run written to {out}")
     if plot:
