@@ -87,9 +87,17 @@ class PreloadInfeasible(ContactError):
     """Persistent-contact (pre-loading) control does not exist (000 Lemma 1)."""
 
 
+class AnimationError(InvctlError):
+    """An animation or snapshot cannot be written (format, writer, times, frame count)."""
+
+
+class DrawingError(AnimationError, ValueError):
+    """A drawing of a mechanism is malformed (points, links, symbols, styles)."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError",
     "RelativeDegreeError", "CoordinateError", "ReferenceSignalError",
     "BoundaryConditionError", "InversionFailed", "SimulationFailed", "FunnelViolation",
-    "StabilityError", "ContactError", "PreloadInfeasible",
+    "StabilityError", "ContactError", "PreloadInfeasible", "AnimationError", "DrawingError",
 ]
