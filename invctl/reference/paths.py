@@ -138,7 +138,8 @@ def waypoints(times, values, smoothness: int = 4, *, stop: bool = False, name: s
         coeffs[:, 0, :] = v[:-1]  # interpolation conditions exactly
         expr = ppoly_expr(t, tb, coeffs)
     ref = Reference(t, expr, tb[0], tb[-1], k, name,
-                    diagnostics={"kind": "waypoints", "stop": bool(stop), "degree": degree, "pieces": P})
+                    diagnostics={"kind": "waypoints", "stop": bool(stop), "degree": degree, "pieces": P,
+                                 "breaks": tb.copy()})
     err = float(np.max(np.abs(ref(tb) - v.T)))
     ref.diagnostics["interpolation_error"] = err
     if not err <= tol * max(1.0, float(np.max(np.abs(v)))):

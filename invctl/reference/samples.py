@@ -18,8 +18,9 @@ inversion's pre- and post-actuation needs).  ``ends="free"`` leaves them free
 The smoothing parameter ``lam`` is chosen per output (Demmler-Reinsch basis, a log grid
 of 241 values refined by Brent's method) by
 
-* ``smoothing="gcv"``: generalized cross-validation ``N RSS / (N - tr H)^2`` (Craven and
-  Wahba 1979; no noise level needed);
+* ``smoothing="gcv"``: generalized cross-validation ``N RSS / (N - 1.4 tr H)^2`` (Craven and
+  Wahba 1979, with the factor 1.4 of Kim and Gu 2004 against GCV's occasional
+  undersmoothing; no noise level needed);
 * ``smoothing="noise"`` with ``noise=sigma``: the unbiased risk estimate (Mallows' C_p)
   ``RSS/N + 2 sigma^2 tr H / N`` for a known noise standard deviation;
 * ``smoothing=<float>``: this ``lam`` (>= 0) as it is.
@@ -39,6 +40,9 @@ from .piecewise import check_continuity, ppoly_expr
 from .signals import Reference
 
 __all__ = ["from_samples", "penalty_order"]
+
+#: GCV with inflated degrees of freedom (Kim and Gu 2004): 1.0 is plain GCV
+GCV_GAMMA = 1.4
 
 
 def penalty_order(k: int) -> int:
@@ -93,33 +97,41 @@ def _knots(s: np.ndarray, max_pieces: int) -> np.ndarray:
 
 
 class _Fit:
-    """Simultaneous diagonalization of data and penalty terms (Demmler-Reinsch), shared by all outputs.
+    """The penalized least-squares problem in Demmler-Reinsch form, shared by all outputs.
 
-    With ``F = X^T W X + kappa Omega = R^T R`` (positive definite whenever the data fix the
-    unpenalized polynomials) and ``R^-T X^T W X R^-1 = V diag(alpha) V^T``, the penalty is
-    ``V diag((1 - alpha)/kappa) V^T`` in the same basis, so the fit for any ``lam`` is
-    ``a = b / (alpha + N lam (1 - alpha)/kappa)`` with ``b = V^T R^-T X^T W y`` -- also
-    when the basis is richer than the data (then some ``alpha = 0``).
+    Coefficients ``z = E0 u + E1 v``: ``E0`` spans the unpenalized polynomials (known
+    exactly, so a large ``lam`` cannot leak into them through rounding), ``E1`` the rest.
+    ``u`` is eliminated by a weighted projection ``Pi`` onto the complement of ``X E0``;
+    for ``v``, with ``F = X1^T X1 + kappa P11 = R^T R`` (positive definite also when the
+    basis is richer than the data) and ``R^-T X1^T X1 R^-1 = V diag(alpha) V^T``, the
+    penalty is ``diag((1 - alpha)/kappa)`` in the same basis: for any ``lam`` the fit is
+    ``a = b / (alpha + N lam (1 - alpha)/kappa)``, ``b = (X1 R^-1 V)^T Pi W^1/2 y``.
     """
 
-    def __init__(self, X: np.ndarray, w: np.ndarray, Pm: np.ndarray):
-        N, p = X.shape
-        A = X.T @ (w[:, None] * X)
-        kappa = np.trace(A) / max(np.trace(Pm), 1e-300)
-        F = A + kappa * Pm
-        try:
-            R = sla.cholesky(0.5 * (F + F.T))
-        except np.linalg.LinAlgError:
+    def __init__(self, X: np.ndarray, w: np.ndarray, Pm: np.ndarray, E0: np.ndarray):
+        N = X.shape[0]
+        sw = np.sqrt(w)
+        E1 = sla.null_space(E0.T)
+        X0, X1 = sw[:, None] * (X @ E0), sw[:, None] * (X @ E1)
+        Q0, R0 = np.linalg.qr(X0)
+        if np.min(np.abs(np.diag(R0)), initial=np.inf) <= 1e-10 * max(np.max(np.abs(R0)), 1e-300):
             raise ReferenceSignalError("from_samples: the samples do not determine the fit (too few distinct "
-                                       "times for the spline degree)") from None
-        Rinv = sla.solve_triangular(R, np.eye(p))
+                                       "times for the spline degree)")
+        X1p = X1 - Q0 @ (Q0.T @ X1)
+        A = X1p.T @ X1p
+        P11 = E1.T @ Pm @ E1
+        kappa = np.trace(A) / max(np.trace(P11), 1e-300)
+        F = A + kappa * P11
+        R = sla.cholesky(0.5 * (F + F.T))
+        Rinv = sla.solve_triangular(R, np.eye(R.shape[0]))
         Mt = Rinv.T @ A @ Rinv
         alpha, V = sla.eigh(0.5 * (Mt + Mt.T))
         self.alpha = np.clip(alpha, 0.0, 1.0)
         self.pen = (1.0 - self.alpha) / kappa
-        self.T = Rinv @ V                       # coefficients = T (b g)
-        self.Q = X @ self.T
-        self.N, self.w = N, w
+        self.T = Rinv @ V
+        self.Q = X1p @ self.T
+        self.N, self.m0, self.sw = N, E0.shape[1], sw
+        self.E0, self.E1, self.Q0, self.R0, self.X1 = E0, E1, Q0, R0, X1
 
     def gains(self, lam) -> np.ndarray:
         lam = np.atleast_1d(np.asarray(lam, float))
@@ -129,34 +141,54 @@ class _Fit:
         out[ok] = 1.0 / den[ok]
         return out
 
-    def scores(self, b, yr, lam, rule, sigma):
+    def project(self, y: np.ndarray):
+        """``(W^1/2 y, Pi W^1/2 y, b)`` for one output."""
+        ys = self.sw * y
+        yp = ys - self.Q0 @ (self.Q0.T @ ys)
+        return ys, yp, self.Q.T @ yp
+
+    def scores(self, b, yp, lam, rule, sigma):
         g = self.gains(lam)
-        fitted = self.Q @ (b[:, None] * g)
-        rss = np.sum(self.w[:, None] * (yr[:, None] - fitted) ** 2, axis=0)
-        edf = self.alpha @ g
+        rss = np.sum((yp[:, None] - self.Q @ (b[:, None] * g)) ** 2, axis=0)
+        edf = self.m0 + self.alpha @ g
         if rule == "gcv":
-            score = self.N * rss / np.maximum(self.N - edf, 1e-9) ** 2
-            score[self.N - edf < 0.5] = np.inf
+            dof = self.N - GCV_GAMMA * edf
+            score = self.N * rss / np.maximum(dof, 1e-9) ** 2
+            score[dof < 0.5] = np.inf
         else:
             score = rss / self.N + 2.0 * sigma**2 * edf / self.N
         return score, rss, edf
 
+    def coefficients(self, ys, b, lam) -> np.ndarray:
+        """Spline coefficients (in the constrained coordinates ``z``) for one output."""
+        v = self.T @ (b * self.gains(lam)[:, 0])
+        u = sla.solve_triangular(self.R0, self.Q0.T @ (ys - self.X1 @ v))
+        return self.E0 @ u + self.E1 @ v
 
-def _choose(fit: _Fit, b, yr, rule, sigma):
-    both = (fit.alpha > 1e-12) & (fit.pen > 1e-12 * fit.pen.max())
+
+def _choose(fit: _Fit, b, yp, rule, sigma):
+    both = (fit.alpha > 1e-12) & (fit.pen > 1e-12 * max(fit.pen.max(), 1e-300))
     if not np.any(both):
         return 0.0
     ratio = fit.pen[both] / fit.alpha[both]
     lo = -math.log10(fit.N * ratio.max()) - 3.0
     hi = -math.log10(fit.N * ratio.min()) + 3.0
     grid = np.linspace(lo, hi, 241)
-    score = fit.scores(b, yr, 10.0**grid, rule, sigma)[0]
+    score = fit.scores(b, yp, 10.0**grid, rule, sigma)[0]
     i = int(np.argmin(score))
     a, c = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
-    res = minimize_scalar(lambda x: fit.scores(b, yr, 10.0**x, rule, sigma)[0][0], bounds=(a, c),
+    res = minimize_scalar(lambda x: fit.scores(b, yp, 10.0**x, rule, sigma)[0][0], bounds=(a, c),
                           method="bounded", options={"xatol": 1e-4})
     best = res.x if res.fun <= score[i] else grid[i]
     return float(10.0**best)
+
+
+def _polynomials(basis: BSpline, knots: np.ndarray, degree: int) -> np.ndarray:
+    """B-spline coefficients of ``1, s, ..., s^degree`` (Greville interpolation, exact)."""
+    d = basis.k
+    nb = knots.size - d - 1
+    gr = np.array([knots[i + 1:i + d + 1].mean() for i in range(nb)])
+    return np.linalg.solve(basis(gr), gr[:, None] ** np.arange(degree + 1)[None, :])
 
 
 def from_samples(t, y, smoothness: int = 4, *, smoothing="gcv", noise: float | None = None, weights=None,
@@ -226,19 +258,21 @@ def from_samples(t, y, smoothness: int = 4, *, smoothing="gcv", noise: float | N
     C = np.vstack([basis(np.array([e]), nu=j) for j in range(1, k + 1) for e in (0.0, 1.0)]) \
         if ends == "rest" and k > 0 else np.zeros((0, nb))
     Z = sla.null_space(C) if C.shape[0] else np.eye(nb)
-    if N < m + 1 or Z.shape[1] < 1:
+    # unpenalized part: polynomials of degree < m; with rest ends only constants satisfy the constraints
+    m0 = 1 if C.shape[0] else m
+    if N < m + 1 or Z.shape[1] <= m0:
         raise ReferenceSignalError(f"from_samples: {N} samples are too few for a C^{k} fit "
                                    f"(degree {d}; at least {m + 1} are needed)")
-    fit = _Fit(basis(s) @ Z, w, Z.T @ _penalty(basis, br, m) @ Z)
+    E0 = sla.orth(Z.T @ _polynomials(basis, knots, m0 - 1))
+    fit = _Fit(basis(s) @ Z, w, Z.T @ _penalty(basis, br, m) @ Z, E0)
     rule = smoothing if isinstance(smoothing, str) else "given"
     coef = np.zeros((nb, mo))
     per = []
     for r in range(mo):
-        yr = Y[:, r]
-        b = fit.Q.T @ (w * yr)
-        lam = float(smoothing) if rule == "given" else _choose(fit, b, yr, rule, noise)
-        coef[:, r] = Z @ (fit.T @ (b * fit.gains(lam)[:, 0]))
-        score, rss, edf = (float(v[0]) for v in fit.scores(b, yr, lam, "gcv" if rule != "noise" else rule, noise))
+        ys, yp, b = fit.project(Y[:, r])
+        lam = float(smoothing) if rule == "given" else _choose(fit, b, yp, rule, noise)
+        coef[:, r] = Z @ fit.coefficients(ys, b, lam)
+        score, rss, edf = (float(v[0]) for v in fit.scores(b, yp, lam, "gcv" if rule != "noise" else rule, noise))
         per.append({"lam": lam, "edf": edf, "score": score,
                     "sigma_hat": math.sqrt(rss / max(N - edf, 1e-9))})
     spl = BSpline(knots, coef, d)
@@ -248,7 +282,7 @@ def from_samples(t, y, smoothness: int = 4, *, smoothing="gcv", noise: float | N
     tt = ca.SX.sym("t")
     expr = ppoly_expr(tt, a + L * br, coeffs)
     diag = {"kind": "from_samples", "rule": rule, "noise": noise, "ends": ends, "degree": d, "penalty_order": m,
-            "pieces": P, "samples": N, "interior_smoothness": d - 1}
+            "pieces": P, "breaks": a + L * br, "samples": N, "interior_smoothness": d - 1}
     ref = Reference(tt, expr, a, t[-1], k if ends == "rest" else 0, name, diagnostics=diag)
     diag = ref.diagnostics
     resid = Y.T - ref(t)
