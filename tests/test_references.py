@@ -315,6 +315,27 @@ def test_from_samples_vector_many_samples_and_per_output_smoothing():
     assert_continuous(ref, d["breaks"], 3)
 
 
+def test_from_samples_unsorted_samples_and_weights():
+    """Order of the samples does not matter; residuals come back in the order given; a sample
+    with a much smaller weight pulls the fit much less (weights are inverse variances)."""
+    rng = np.random.default_rng(2)
+    t = np.linspace(0, T_END, 120)
+    y = signal(t) + 0.01 * rng.standard_normal(t.size)
+    perm = rng.permutation(t.size)
+    a = from_samples(t, y, 4, smoothing=1e-8)
+    b = from_samples(t[perm], y[perm], 4, smoothing=1e-8)
+    tt = np.linspace(0, T_END, 301)
+    assert np.max(np.abs(a(tt) - b(tt))) <= 1e-12
+    assert np.allclose(b.diagnostics["residuals"][0], y[perm] - b(t[perm])[0], atol=1e-14)
+    y_out = y.copy()
+    y_out[60] += 1.0  # an outlier
+    w = np.ones(t.size)
+    w[60] = 1e-6
+    pulled = from_samples(t, y_out, 4, smoothing=1e-8)
+    weighted = from_samples(t, y_out, 4, smoothing=1e-8, weights=w)
+    assert abs(weighted([t[60]])[0, 0] - a([t[60]])[0, 0]) <= 1e-3 < abs(pulled([t[60]])[0, 0] - a([t[60]])[0, 0])
+
+
 def test_from_samples_errors():
     t = np.linspace(0, 1, 30)
     y = np.sin(t)

@@ -44,13 +44,10 @@ def select_rows(t: ca.SX, breaks, table) -> list[ca.SX]:
                                    f"got shape {table.shape}")
     if b.size < 1 or np.any(np.diff(b) <= 0) or not np.all(np.isfinite(b)):
         raise ReferenceSignalError(f"breakpoints must be finite and strictly increasing, got {b.tolist()}")
-    geq = [t >= float(bi) for bi in b]
-    act = [1 - geq[0]] + [geq[i] - geq[i + 1] for i in range(b.size - 1)] + [geq[-1]]
-    cols = []
-    for j in range(table.shape[1]):
-        terms = [act[i] * float(table[i, j]) for i in range(table.shape[0]) if table[i, j] != 0.0]
-        cols.append(ca.SX(0) if not terms else sum(terms[1:], terms[0]))
-    return cols
+    geq = t >= ca.DM(b)                                    # (P + 1) comparisons
+    act = ca.vertcat(1 - geq[0], geq[:-1] - geq[1:], geq[-1])  # one-hot piece indicator
+    sel = ca.mtimes(ca.DM(table.T), act)                   # structural zeros of the table drop out
+    return [sel[j] for j in range(table.shape[1])]
 
 
 def _horner(tau: ca.SX, coeffs) -> ca.SX:

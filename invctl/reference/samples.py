@@ -85,7 +85,7 @@ def _samples(t, y, weights):
     if w.shape != t.shape or not np.all(np.isfinite(w)) or np.any(w <= 0):
         raise ReferenceSignalError(f"from_samples: weights must be {t.size} positive finite numbers")
     order = np.argsort(t, kind="stable")
-    return t[order], Y[order], w[order] / w.mean()
+    return t[order], Y[order], w[order] / w.mean(), order
 
 
 def _knots(s: np.ndarray, max_pieces: int) -> np.ndarray:
@@ -223,8 +223,9 @@ def from_samples(t, y, smoothness: int = 4, *, smoothing="gcv", noise: float | N
     -------
     Reference
         ``diagnostics`` holds, per output, ``lam``, ``edf`` (effective degrees of
-        freedom), ``score``, ``rms_residual``, ``max_residual``, ``sigma_hat``, the
-        residuals themselves, and the continuity check at every knot.
+        freedom), ``score``, ``rms_residual``, ``max_residual``, ``sigma_hat``; the
+        residuals ``y - y_ref(t)`` (shape ``(m, N)``, in the order given) and the
+        continuity check at every knot.
     """
     if isinstance(smoothness, bool) or int(smoothness) != smoothness or not 0 <= int(smoothness) <= 10:
         raise ReferenceSignalError(f"smoothness must be an integer in [0, 10], got {smoothness!r}")
@@ -243,7 +244,7 @@ def from_samples(t, y, smoothness: int = 4, *, smoothing="gcv", noise: float | N
         raise ReferenceSignalError(f"smoothing must be 'gcv', 'noise' or a number >= 0, got {smoothing!r}")
     if int(max_pieces) != max_pieces or max_pieces < 1:
         raise ReferenceSignalError(f"max_pieces must be a positive integer, got {max_pieces!r}")
-    t, Y, w = _samples(t, y, weights)
+    t, Y, w, order = _samples(t, y, weights)
     N, mo = Y.shape
     a, L = t[0], t[-1] - t[0]
     if not L > 0:
@@ -289,7 +290,9 @@ def from_samples(t, y, smoothness: int = 4, *, smoothing="gcv", noise: float | N
     direct = Y.T - spl(s).T
     for r, p in enumerate(per):
         p.update(rms_residual=float(np.sqrt(np.mean(resid[r] ** 2))), max_residual=float(np.max(np.abs(resid[r]))))
-    diag.update(outputs=per, residuals=resid)
+    unsorted = np.empty_like(resid)
+    unsorted[:, order] = resid
+    diag.update(outputs=per, residuals=unsorted)
     gap = float(np.max(np.abs(resid - direct)))
     if not gap <= 1e-9 * max(1.0, float(np.max(np.abs(Y)))):
         raise ReferenceSignalError(f"{name}: the SX reference differs from the fitted spline by {gap:.3g} at the "

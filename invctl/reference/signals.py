@@ -60,6 +60,9 @@ class Reference:
         self.diagnostics = dict(diagnostics or {})
         self._functions: dict[int, ca.Function] = {}
 
+    def __getstate__(self) -> dict:  # compiled Functions are rebuilt on demand, not pickled
+        return {**self.__dict__, "_functions": {}}
+
     @property
     def m(self) -> int:
         return self.expr.shape[0]
