@@ -346,7 +346,8 @@ def animate(model, drawing: Drawing, t, q, path, *, fps: float = 25, speed: floa
     _freeze_background(fig, ax)
     pose = _Pose(ax, drawing)
     paths = [ax.plot([], [], **TRAIL_STYLE)[0] for _ in trails]
-    clock = ax.text(0.02, 0.96, "", transform=ax.transAxes, va="top", family="monospace")
+    clock = ax.text(0.02, 0.96, "", transform=ax.transAxes, va="top", family="monospace",
+                    bbox={"fc": "white", "ec": "none", "alpha": 0.8, "pad": 1.0})
     path.parent.mkdir(parents=True, exist_ok=True)
     with writer.saving(fig, str(path), dpi):
         for f in range(n_frames):
