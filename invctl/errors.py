@@ -95,11 +95,20 @@ class OutputPathError(InvctlError, ValueError):
     """An output path cannot be written (no such directory, not writable, exists without --force)."""
 
 
+class AnimationError(InvctlError):
+    """An animation or snapshot cannot be written (format, writer, times, frame count)."""
+
+
+class DrawingError(AnimationError, ValueError):
+    """A drawing of a mechanism is malformed (points, links, symbols, styles)."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError",
     "RelativeDegreeError", "CoordinateError", "ReferenceSignalError",
     "BoundaryConditionError", "InversionFailed", "SimulationFailed", "FunnelViolation",
     "StabilityError", "ContactError", "PreloadInfeasible", "ResultFileError", "OutputPathError",
+    "AnimationError", "DrawingError",
 ]
 
 
