@@ -87,9 +87,13 @@ class PreloadInfeasible(ContactError):
     """Persistent-contact (pre-loading) control does not exist (000 Lemma 1)."""
 
 
+class FeedbackDesignError(InvctlError):
+    """An automatic feedback design is impossible ((A1) cannot hold, a funnel cannot contain the start)."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError",
     "RelativeDegreeError", "CoordinateError", "ReferenceSignalError",
     "BoundaryConditionError", "InversionFailed", "SimulationFailed", "FunnelViolation",
-    "StabilityError", "ContactError", "PreloadInfeasible",
+    "StabilityError", "ContactError", "PreloadInfeasible", "FeedbackDesignError",
 ]
