@@ -398,14 +398,16 @@ def _notes(new, lin, T, eps, expected_error, rules, kappa, kappa_bar, lam0, fin,
            kappa_bar_load):
     src = lambda name: "given" if sources[name] == "override" else "designed"  # noqa: E731
     K = "; ".join(np.array2string(Ki, precision=4) for Ki in new.K)
-    notes = [f"K ({src('K')}, {new.construction}): rows {K}, k_i = {list(new.k_i)} (controllability indices "
+    default_eps = f"default: {rules.expected_fraction:g} x largest excursion"
+    how = "given" if new.construction == "given" else f"designed, {new.construction} construction"
+    notes = [f"K ({how}): rows {K}, k_i = {list(new.k_i)} (controllability indices "
              f"{list(new.indices)}), pairing {list(new.pairing)} (e_bar_i drives u[pairing[i]]), rho = {new.rho}; "
              f"{new.note}",
-             f"(A1): lambda_min(sym(rho D S~ E)) = {new.margins[0]:.4g} at the design point, min {new.margins.min():.4g} "
-             f"over {new.margins.size} points, relative margin {new.relative_margin:.3g}; zero conditions "
-             f"{new.zero_residual:.2g}, rank of K_i Q~^j = {new.flatness_rank} (k = {lin.k if lin is not None else 0})",
+             f"(A1): lambda_min(sym(rho D S~ E)) = {new.margins[0]:.4g} at the design point, "
+             f"min {new.margins.min():.4g} over {new.margins.size} points, relative margin "
+             f"{new.relative_margin:.3g}; zero conditions {new.zero_residual:.2g}, rank of K_i Q~^j = {new.flatness_rank} (k = {lin.k if lin is not None else 0})",
              f"time scale T = {T:.4g} s; expected error {np.array2string(eps, precision=4)} "
-             f"({'given' if expected_error is not None else f'default: {rules.expected_fraction:g} x largest excursion'})",
+             f"({'given' if expected_error is not None else default_eps})",
              f"kappa ({src('kappa')}): " + (f"{rules.kappa_rate:g}/T = {rules.kappa_rate / T:.4g}" if
                                           sources["kappa"] == "designed" else repr(kappa)),
              f"kappa_bar ({src('kappa_bar')}): " + (
@@ -413,10 +415,12 @@ def _notes(new, lin, T, eps, expected_error, rules, kappa, kappa_bar, lam0, fin,
                  f"{kappa_bar_load:.4g}) (lambda_0 = {lam0:.4g}; holding input ||u_s|| = "
                  f"{'n/a' if load is None else f'{load:.3g}'} carried at the expected error with nominal gains)"
                  if sources["kappa_bar"] == "designed" else f"{kappa_bar:g}"),
-             f"funnels ({src('funnels')}), phi_bar ({src('phi_bar')}): q = {rules.decay:g}/T; final widths "
-             f"{[[float(f'{x:.3g}') for x in row[:-1]] for row in fin]}, phi_bar {fin_bar:.3g} ({rules.final_factor:g} x "
-             f"the quasi-static image of the expected error on level 0, x {rules.level_factor:g} kappa per level); "
-             f"initial widths >= {rules.transient_factor:g} x final and >= |e(0)|/{rules.start_ratio:g}"]
+             f"funnels ({src('funnels')}), phi_bar ({src('phi_bar')})" + (
+                 "" if "designed" not in (sources["funnels"], sources["phi_bar"]) else
+                 f": q = {rules.decay:g}/T; final widths {[[float(f'{x:.3g}') for x in row[:-1]] for row in fin]}, "
+                 f"phi_bar {fin_bar:.3g} ({rules.final_factor:g} x the quasi-static image of the expected error on "
+                 f"level 0, x {rules.level_factor:g} kappa per level); initial widths >= "
+                 f"{rules.transient_factor:g} x final and >= |e(0)|/{rules.start_ratio:g}")]
     if not (np.allclose(q0, w0[0]) and np.allclose(v0, w0[1])):
         notes.append(f"start state q0 = {np.round(q0, 4).tolist()} differs from the design point "
                      f"{np.round(w0[0], 4).tolist()}")

@@ -19,6 +19,7 @@ With an output/input pairing ``E`` (``e_bar_i`` drives input ``pairing[i]``) the
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from itertools import permutations
 
@@ -32,6 +33,7 @@ from ..errors import FeedbackDesignError, ParameterError
 __all__ = ["A1Margin", "NewOutput", "a1_margin_along", "controllability_indices", "design_new_output"]
 
 _RANK_TOL = 1e-9
+_MAX_PAIRINGS = 720      # try every output/input pairing up to m = 6
 
 # ----------------------------------------------------------------------------- the new output (41)
 def controllability_indices(Q, P, tol: float = _RANK_TOL) -> tuple:
@@ -179,7 +181,13 @@ def design_new_output(Q_tilde, P_tilde, S, *, S_points=None, k_i=None, K=None, r
         raise ParameterError(f"(A1): need 1 <= q <= m = {m} integers k_i >= 1 with sum k = {k}, got k_i = {k_i}")
     spaces = {s: _row_space(Qt, Pt, s) for s in set(k_i)}
     given_pairing = None if pairing is None else tuple(int(x) for x in pairing)
-    candidates = [given_pairing[:q]] if given_pairing is not None else list(permutations(range(m), q))
+    if given_pairing is not None:
+        candidates = [given_pairing[:q]]
+    elif math.perm(m, q) <= _MAX_PAIRINGS:
+        candidates = list(permutations(range(m), q))
+    else:                        # many inputs: the identity, and one eta2 row at a time moved to another input
+        candidates = [tuple(range(q))] + [tuple(j if i2 == i else i2 for i2 in range(q))
+                                          for i in range(q) for j in range(q, m)]
 
     def full(c):
         return given_pairing if given_pairing is not None else tuple(c) + tuple(x for x in range(m) if x not in c)
