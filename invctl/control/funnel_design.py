@@ -405,7 +405,8 @@ def _notes(new, lin, T, eps, expected_error, rules, kappa, kappa_bar, lam0, fin,
              f"{new.note}",
              f"(A1): lambda_min(sym(rho D S~ E)) = {new.margins[0]:.4g} at the design point, "
              f"min {new.margins.min():.4g} over {new.margins.size} points, relative margin "
-             f"{new.relative_margin:.3g}; zero conditions {new.zero_residual:.2g}, rank of K_i Q~^j = {new.flatness_rank} (k = {lin.k if lin is not None else 0})",
+             f"{new.relative_margin:.3g}; zero conditions {new.zero_residual:.2g}, rank of K_i Q~^j = "
+             f"{new.flatness_rank} (k = {lin.k if lin is not None else 0})",
              f"time scale T = {T:.4g} s; expected error {np.array2string(eps, precision=4)} "
              f"({'given' if expected_error is not None else default_eps})",
              f"kappa ({src('kappa')}): " + (f"{rules.kappa_rate:g}/T = {rules.kappa_rate / T:.4g}" if
