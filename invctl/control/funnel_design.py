@@ -160,9 +160,29 @@ def _as_points(points, n):
 # ----------------------------------------------------------------------------- the whole design
 @dataclass(frozen=True)
 class FunnelDesign:
-    """Parameters of (48) with the reasons (``notes``); ``NMPFunnelController(model, lin, reference,
-    **design.controller_options())``.  ``funnels[i][j]``, ``kappa[i][j]`` are per output i and level j
-    (or the override as given); ``sources[name]`` is ``"designed"`` or ``"override"``."""
+    """Parameters of (48) with the reasons: ``NMPFunnelController(model, lin, reference,
+    **design.controller_options())``.
+
+    Attributes
+    ----------
+    K, k_i, rho, pairing, funnels, kappa, kappa_bar, phi_bar
+        The controller's parameters (``funnels[i][j]``, ``kappa[i][j]`` per output i and level j, or the
+        override as given).
+    relative_degrees : tuple
+        ``r_i`` of ``y_new`` (``r_hat + k_i`` for the eta2 rows, ``r_hat`` otherwise).
+    new_output : NewOutput
+        The (A1) construction with its margins (``a1_design_point``, ``a1_points``).
+    sources : dict
+        ``"designed"`` or ``"override"`` per parameter.
+    time_scale, expected_error
+        ``T`` [s] and ``eps`` (output units) the rules used.
+    initial_errors, initial_ratios, ratio_names
+        ``e_i,j(0)`` per output (last entry: ``e_bar_i``) and ``phi(0) |e(0)|`` per level at ``start``.
+    design_point, start : (q, v)
+        Where ``S~`` for the construction was taken, and the plant's start state.
+    notes, warnings : tuple of str
+        How each piece was chosen; (A1) failures at design points.
+    """
 
     K: tuple
     k_i: tuple
@@ -221,7 +241,7 @@ class FunnelDesign:
         lines = [f"funnel feedback design ({self.construction} construction)"]
         lines += [f"  - {n}" for n in self.notes]
         lines += [f"  ! {w}" for w in self.warnings]
-        lines.append(f"  start ratios phi(0)|e(0)|: " + ", ".join(
+        lines.append("  start ratios phi(0)|e(0)|: " + ", ".join(
             f"{n} {r:.3g}" for n, r in zip(self.ratio_names, self.initial_ratios)))
         return "\n".join(lines)
 
