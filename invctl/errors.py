@@ -103,12 +103,16 @@ class DrawingError(AnimationError, ValueError):
     """A drawing of a mechanism is malformed (points, links, symbols, styles)."""
 
 
+class FeedbackDesignError(InvctlError):
+    """An automatic feedback design is impossible ((A1) cannot hold, a funnel cannot contain the start)."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError",
     "RelativeDegreeError", "CoordinateError", "ReferenceSignalError",
     "BoundaryConditionError", "InversionFailed", "SimulationFailed", "FunnelViolation",
     "StabilityError", "ContactError", "PreloadInfeasible", "ResultFileError", "OutputPathError",
-    "AnimationError", "DrawingError",
+    "AnimationError", "DrawingError", "FeedbackDesignError",
 ]
 
 

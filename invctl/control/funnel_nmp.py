@@ -28,6 +28,11 @@ manipulator).  By default (``reference_mode="backward"``) ``eta2_ref(t)`` is the
 as the bounded solution of (42), integrated backward in time from its equilibrium at the end of the
 transition (stable in reverse time); its value at ``t = 0`` is (43).  ``reference_mode="forward"``
 runs (42) literally as a controller state.
+
+Minimum-phase systems (``k = 0``, or ``lin=None``) have no eta2: ``y_new = K y`` with m rows of
+length m, every output has relative degree ``r_hat``, and the law is (48) without (40)-(43) (the
+funnel controller of [13] for the outputs ``K y``).  An output/input ``pairing`` lets ``e_bar_i``
+drive input ``pairing[i]`` (see :mod:`invctl.control.funnel_design`).
 """
 from __future__ import annotations
 
@@ -101,16 +106,24 @@ class NMPFunnelController:
     ----------
     model : Model
         The reference (design) model; its parameter values are baked in.
-    lin : LinearizedInternal
+    lin : LinearizedInternal or None
         Linearized internal dynamics with the split (39) (``Q_tilde``, ``P_tilde``, ``T``, ``F``).
+        With ``lin.k == 0`` (minimum phase) or ``lin=None`` (minimum phase, or no internal
+        dynamics at all) there is no eta2: ``y_new = K y`` (all m rows of length m), every output
+        keeps the relative degree ``r_hat`` and the law is (48) without (40)-(43).
     reference : Reference
         ``y_ref`` (needs ``r_hat - 1`` continuous derivatives, plus ``k_i`` for (42)).
     K : list of array_like
         Rows ``K_1..K_q`` (length k) then ``K_(q+1)..K_m`` (length m) of (A1)/(41).
+        (With ``k = m`` the number q of rows on eta2 is ``len(k_i)``.)
     k_i : list of int, optional
         ``k_1..k_q`` (default: one per row of length k, each 1).
     rho : {-1, 1}, optional
         Sign of (A1) (default: from ``lin.check_A1`` at the design point).
+    pairing : sequence of int, optional
+        Output/input pairing: the last-level error ``e_bar_i`` drives input ``pairing[i]``,
+        ``u[pairing[i]] = -rho kappa_bar e_bar_i / (1 - phi^2 ||e_bar||^2)``, so (A1) is needed for
+        ``rho [stacked K] S~ E`` with ``E[pairing[i], i] = 1`` (default: the identity).
     funnels : list
         Funnel functions of the levels: a list over ``j`` shared by all outputs (as 003 Sect. 6 does)
         or nested ``[i][j]``; entries are :class:`Funnel`, ``(p, q, r)`` or dicts.
@@ -136,11 +149,11 @@ class NMPFunnelController:
     """
 
     def __init__(self, model, lin, reference, *, K, k_i=None, rho=None, funnels, kappa, kappa_bar,
-                 phi_bar, eta2_source: str = "psi", reference_mode: str = "backward", t_end: float = 2.0,
-                 eta2_ref0=None, grid_dt: float = 5e-4, eta2_ref_samples=None):
+                 phi_bar, pairing=None, eta2_source: str = "psi", reference_mode: str = "backward",
+                 t_end: float = 2.0, eta2_ref0=None, grid_dt: float = 5e-4, eta2_ref_samples=None):
         if eta2_source not in ("psi", "filter", "auto"):
             raise ParameterError(f"eta2_source must be 'psi', 'filter' or 'auto', got {eta2_source!r}")
-        if eta2_source == "auto":
+        if eta2_source == "auto" and lin is not None and lin.k:
             try:
                 lin.psi_function()
                 eta2_source = "psi"
@@ -151,10 +164,17 @@ class NMPFunnelController:
         self.model, self.lin, self.reference = model, lin, reference
         self.eta2_source, self.reference_mode = eta2_source, reference_mode
         self.t_end = float(t_end)
-        m, k, r_hat = model.m, lin.k, lin.r_hat
-        if k == 0:
-            raise CoordinateError("the linearized internal dynamics are minimum phase (k = 0): "
-                                  "use a classical funnel controller, there is no unstable part to remove")
+        m = model.m
+        if lin is None:
+            from ..analysis import relative_degree
+
+            k, r_hat = 0, relative_degree(model, samples=0, points=[np.zeros(model.n)]).r_hat
+            if r_hat is None:
+                raise CoordinateError(f"{model.name}: the outputs have different relative degrees; the law (48) "
+                                      "needs a common r_hat")
+        else:
+            k, r_hat = lin.k, lin.r_hat
+        self.k, self.r_hat = k, r_hat
         K = [np.atleast_1d(np.asarray(Ki, float)).ravel() for Ki in K]
         if len(K) != m:
             raise ParameterError(f"K needs m = {m} rows (K_1..K_m of (41)), got {len(K)}")
@@ -167,13 +187,17 @@ class NMPFunnelController:
             if Ki.size != want:
                 raise ParameterError(f"K_{i + 1} must have length {want} ({'k' if i < q_rows else 'm'}), got {Ki.size}")
         self.K, self.k_i, self.q_rows = K, k_i, q_rows
-        self.Qt, self.Pt = np.asarray(lin.Q_tilde, float), np.asarray(lin.P_tilde, float)
+        if k:
+            self.Qt, self.Pt = np.asarray(lin.Q_tilde, float), np.asarray(lin.P_tilde, float)
+        else:
+            self.Qt, self.Pt = np.zeros((0, 0)), np.zeros((0, m))
         zero_res = max([float(np.abs(K[i] @ np.linalg.matrix_power(self.Qt, j) @ self.Pt).max())
                         for i in range(q_rows) for j in range(k_i[i] - 1)] + [0.0])
-        if zero_res > 1e-8 * max(1.0, np.abs(self.Pt).max()):
+        if zero_res > 1e-8 * max(1.0, np.abs(self.Pt).max(initial=0.0)):
             raise ParameterError(f"(A1) requires K_i Q~^j P~ = 0 for j <= k_i - 2; residual {zero_res:.3g}")
+        self.pairing = _pairing(pairing, m)
         if rho is None:
-            rho = lin.check_A1(K, k_i=k_i, samples=1).rho
+            rho = self._default_rho()
         if rho not in (-1, 1):
             raise ParameterError(f"rho must be -1 or 1, got {rho!r}")
         self.rho = int(rho)
@@ -186,10 +210,16 @@ class NMPFunnelController:
         self.kappa_bar = _positive(kappa_bar, "kappa_bar")
         self.phi_bar = as_funnel(phi_bar, "phi_bar")
         self._check_funnel_classes()
-        self.eta2_ref0 = (np.asarray(eta2_ref0, float).ravel() if eta2_ref0 is not None
-                          else np.asarray(lin.eta2_ref0(reference), float).ravel())
+        if k == 0:
+            self.eta2_ref0 = np.zeros(0)
+        else:
+            self.eta2_ref0 = (np.asarray(eta2_ref0, float).ravel() if eta2_ref0 is not None
+                              else np.asarray(lin.eta2_ref0(reference), float).ravel())
         self._grid_dt = float(grid_dt)
         if eta2_ref_samples is not None:
+            if k == 0:
+                raise ParameterError("eta2_ref_samples: the system has no unstable internal part (k = 0), "
+                                     "there is no new reference (42) to replace")
             if reference_mode != "backward":
                 raise ParameterError("eta2_ref_samples replaces the backward reference; use reference_mode='backward'")
             ts, vals = eta2_ref_samples
@@ -199,6 +229,32 @@ class NMPFunnelController:
             eta2_ref_samples = (ts, vals)
         self._given_ref = eta2_ref_samples
         self._build()
+
+    @property
+    def decoupling_matrix(self) -> np.ndarray:
+        """The stacked matrix ``[K_i Q~^(k_i-1) P~ (i <= q); K_i (i > q)]`` of (A1) (m x m)."""
+        rows = [self.K[i] @ np.linalg.matrix_power(self.Qt, self.k_i[i] - 1) @ self.Pt for i in range(self.q_rows)]
+        return np.vstack(rows + [self.K[i] for i in range(self.q_rows, len(self.K))])
+
+    @property
+    def pairing_matrix(self) -> np.ndarray:
+        """``E`` with ``E[pairing[i], i] = 1``: ``u_fb = E u_law``."""
+        E = np.zeros((len(self.pairing), len(self.pairing)))
+        E[list(self.pairing), np.arange(len(self.pairing))] = 1.0
+        return E
+
+    def _default_rho(self) -> int:
+        """Sign that makes the symmetric part of ``[stacked] S~ E`` positive definite at the design point."""
+        from ..analysis import schur_complement
+        from ..analysis.internal import design_point
+
+        lin, model = self.lin, self.model
+        if lin is not None and self.pairing == tuple(range(model.m)):
+            return lin.check_A1(self.K, k_i=self.k_i, samples=1).rho
+        q0 = np.asarray(lin.internal.point, float) if lin is not None else design_point(model)
+        S = np.array(schur_complement(model)(q0, np.zeros(model.n), model.theta_values))
+        G = self.decoupling_matrix @ S @ self.pairing_matrix
+        return 1 if np.linalg.eigvalsh(0.5 * (G + G.T))[0] > 0 else -1
 
     def _check_funnel_classes(self):
         """phi_i,j must lie in Phi_(r_i - j) and phi in Phi_1 (003 Sect. 5, after (48))."""
@@ -220,7 +276,7 @@ class NMPFunnelController:
 
     # ----------------------------------------------------------------- symbolic
     def _build(self):
-        model, m, k, r_hat = self.model, self.model.m, self.lin.k, self.lin.r_hat
+        model, m, k, r_hat = self.model, self.model.m, self.k, self.r_hat
         r = self.levels.r
         L = max(r)
         t = ca.SX.sym("t")
@@ -266,6 +322,8 @@ class NMPFunnelController:
         nrm = ca.norm_2(ebar)
         ratios.append(phib * nrm)
         u = -self.rho * self.kappa_bar / ca.fmax(1 - phib**2 * nrm**2, _CLIP) * ebar
+        if self.pairing != tuple(range(m)):
+            u = ca.mtimes(ca.DM(self.pairing_matrix), u)
         self._formal = dict(t=t, E2=E2, E2r=E2r, Y=Y, Yr=Yr, errors=errors, u=u, ratios=ca.vertcat(*ratios),
                             ebar=ebar, ynew_jets=ynew_jets)
         self.ratio_names = [f"phi_{i + 1},{j}|e_{i + 1},{j}|" for i in range(m) for j in range(r[i] - 1)] + \
@@ -287,7 +345,9 @@ class NMPFunnelController:
             eta2r, off = z[:k], k
         else:
             eta2r = w
-        if self.eta2_source == "filter":
+        if k == 0:
+            eta2 = ca.SX(0, 1)
+        elif self.eta2_source == "filter":
             eta2 = z[off:off + k]
         else:
             eta2 = self.lin.psi_function()(q, v, th)
@@ -302,13 +362,13 @@ class NMPFunnelController:
         zdot = ca.vertcat(*zdot) if zdot else ca.SX(0, 1)
         err_flat = ca.vertcat(*[e for row in errors for e in row])
         ins, names = [t, q, v, z, w], ["t", "q", "v", "z", "w"]
-        self.nz, self.k = nz, k
+        self.nz = nz
         self.core = ca.Function("funnel_nmp", ins, [sub(u), sub(self._formal["ratios"]), sub(ebar), sub(err_flat),
                                                     zdot], names, ["u_fb", "ratios", "e_bar", "errors", "z_dot"])
         self.ynew_function = ca.Function(
             "y_new_derivatives", [q, v, z], [ca.vertcat(*[sub(j) for j in jets[:-1]]) for jets in ynew_jets],
             ["q", "v", "z"], [f"y_new_{i + 1}" for i in range(m)])
-        self._w_fn = self._eta2_ref_function() if self.reference_mode == "backward" else None
+        self._w_fn = self._eta2_ref_function() if self.reference_mode == "backward" and k else None
 
     def _check_dropped_jets(self, Y, r_hat):
         """Jets y^(l), l >= r_hat, must not enter (their coefficients are K_i Q~^j P~ = 0 by (A1))."""
@@ -319,7 +379,7 @@ class NMPFunnelController:
         dropped = ca.vertcat(*Y[r_hat:])
         J = ca.Function("J", [f["t"], f["E2"], f["E2r"], *f["Y"], *f["Yr"]], [ca.jacobian(expr, dropped)])
         rng = np.random.default_rng(0)
-        args = [0.3, rng.normal(size=self.lin.k) * 1e-3, rng.normal(size=self.lin.k) * 1e-3] + \
+        args = [0.3, rng.normal(size=self.k) * 1e-3, rng.normal(size=self.k) * 1e-3] + \
             [rng.normal(size=self.model.m) * 1e-3 for _ in range(2 * len(Y))]
         worst = float(np.max(np.abs(np.array(J(*args))))) if dropped.numel() else 0.0
         if worst > 1e-8:
@@ -363,6 +423,8 @@ class NMPFunnelController:
     def z0(self, q0=None, v0=None) -> np.ndarray:
         """Initial controller state: ``eta2_ref(0)`` of (43) (forward mode) and the filter start
         ``Psi(q0, v0)`` (filter mode; the state of (40) that matches the plant)."""
+        if self.k == 0:
+            return np.zeros(0)
         parts = []
         if self.reference_mode == "forward":
             parts.append(self.eta2_ref0)
@@ -376,6 +438,8 @@ class NMPFunnelController:
 
     def eta2_ref(self, t) -> np.ndarray:
         """``eta2_ref(t)`` of the backward mode (shape (k,) for scalar t)."""
+        if self.k == 0:
+            return np.zeros(0)
         if self._w_fn is None:
             raise ParameterError("eta2_ref(t) is a controller state in reference_mode='forward'")
         return np.array(self._w_fn(float(t))).ravel()
@@ -409,6 +473,18 @@ class NMPFunnelController:
         den = 1 - ph**2 * e**2
         num = 2 * kap * (ph * dph * e**2 + ph**2 * e * de)
         return float(fn(t, e, de)), num / den**2, num / den
+
+
+def _pairing(pairing, m) -> tuple:
+    if pairing is None:
+        return tuple(range(m))
+    try:
+        p = tuple(int(i) for i in pairing)
+    except (TypeError, ValueError):
+        raise ParameterError(f"pairing must be a permutation of 0..{m - 1}, got {pairing!r}") from None
+    if sorted(p) != list(range(m)):
+        raise ParameterError(f"pairing must be a permutation of 0..{m - 1} (input driven by e_bar_i), got {p}")
+    return p
 
 
 def _positive(x, name):
