@@ -117,12 +117,15 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps({"error": "Interrupted", "message": "interrupted by the user", "diagnostics": {}}))
         return 130
     wall = time.perf_counter() - t0
-    if result.text:
-        print(result.text)
-    if args.json:
-        data = dict(result.data)
-        data.setdefault("command_wall_s", wall)
-        print(json.dumps(jsonable(data)))
+    try:
+        if result.text:
+            print(result.text)
+        if args.json:
+            data = dict(result.data)
+            data.setdefault("command_wall_s", wall)
+            print(json.dumps(jsonable(data)))
+    except BrokenPipeError:  # the reader (e.g. head) went away
+        return 0
     return 0
 
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_run", "plot_study"]
+__all__ = ["plot_run", "plot_study", "plot_funnels"]
 
 _COLORS = {"C1": "tab:blue", "C2": "tab:orange", "C3": "tab:green", "C1-42": "tab:purple"}
 
@@ -124,3 +124,19 @@ def plot_study(study, out_dir=None, fmt="png", captions=None):
         for key, f in figs.items():
             f.savefig(d / f"{key}.{fmt}", dpi=120)
     return figs
+
+
+def plot_funnels(controller, t_end: float, path=None):
+    """The funnel boundaries ``1/phi_i,j(t)`` of every level and ``1/phi(t)`` of ``e_bar`` (log scale)."""
+    plt = _plt()
+    t = np.linspace(0.0, t_end, 400)
+    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    for i, row in enumerate(controller.levels.phi):
+        for j, f in enumerate(row):
+            ax.semilogy(t, np.ravel(f.boundary(t)), label=f"level {i + 1},{j}")
+    ax.semilogy(t, np.ravel(controller.phi_bar.boundary(t)), "k", lw=1.5, label="e_bar")
+    ax.set(title="funnel boundaries 1/phi(t)", xlabel="t [s]")
+    ax.legend(fontsize=8, ncol=2)
+    if path:
+        fig.savefig(path, dpi=120)
+    return fig

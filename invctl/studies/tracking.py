@@ -29,7 +29,7 @@ from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
 __all__ = ["CONTROLLERS", "TrackingSetup", "TrackingStudy", "setup_tracking", "run_controller",
            "run_tracking_study", "tracking_model", "tracking_linearization", "equilibrium_configuration",
-           "invert_tracking", "plant_of", "a1_along"]
+           "invert_tracking", "plant_of", "a1_along", "feedback_design"]
 
 CONTROLLERS = {"C1": "feedforward + funnel", "C2": "funnel only", "C3": "feedforward only",
                "C1-42": "ff + funnel, ref. (42)"}
@@ -133,13 +133,15 @@ def _signals(scene, model) -> dict:
     return {name: make(model) for name, make in scene.tracking.signals.items()}
 
 
-def feedback_options(scene, model, lin, reference, *, q0=None, overrides=None) -> dict:
-    """Keyword options of the funnel controller: the scene's declared feedback, then ``overrides``."""
+def feedback_design(scene, model, lin, reference, *, q0=None, overrides=None, t_end=2.0):
+    """The funnel controller's parameters: the automatic design of
+    :func:`invctl.control.funnel_design.design_funnel_feedback` with the scene's declared feedback
+    (``Tracking.feedback``) and ``overrides`` used as given."""
+    from ..control.funnel_design import design_funnel_feedback
+
     cfg = {**scene.tracking.feedback, **dict(overrides or {})}
-    missing = [k for k in ("K", "funnels", "kappa", "kappa_bar", "phi_bar") if k not in cfg]
-    if missing:
-        raise SceneError(f"scene {scene.name!r}: the funnel controller needs {missing} (tracking.feedback)")
-    return cfg
+    return design_funnel_feedback(model, lin, reference, q0=q0, expected_error=scene.tracking.expected_error,
+                                  controller_options={"t_end": t_end}, **cfg)
 
 
 @dataclass
@@ -153,6 +155,7 @@ class TrackingSetup:
     lin: object
     controller: object
     inverse: object
+    design: object
     q0: np.ndarray
     t_end: float
     dt: float
@@ -174,10 +177,13 @@ class TrackingSetup:
             psi = self.lin.psi_function().map(t.size)
             w = np.array(psi(q, v, np.tile(self.model.theta_values[:, None], (1, t.size))))
             c = self.controller
+            if c.k == 0:  # minimum phase: y_new = K y, no new reference to replace
+                self._c1 = c
+                return c
             self._c1 = type(c)(self.model, self.lin, self.reference, K=c.K, k_i=c.k_i, rho=c.rho,
-                               funnels=c.levels.phi, kappa=c.levels.kappa, kappa_bar=c.kappa_bar,
-                               phi_bar=c.phi_bar, eta2_source=c.eta2_source, t_end=self.t_end,
-                               eta2_ref_samples=(t, w))
+                               pairing=c.pairing, funnels=c.levels.phi, kappa=c.levels.kappa,
+                               kappa_bar=c.kappa_bar, phi_bar=c.phi_bar, eta2_source=c.eta2_source,
+                               t_end=self.t_end, eta2_ref_samples=(t, w))
         return self._c1
 
     def u_ff_samples(self):
@@ -234,11 +240,14 @@ def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, inver
     t_end = float(scene.tracking.t_end or (ref.tf + (ref.tf - ref.t0))) if t_end is None else float(t_end)
     if not t_end > 0:
         raise ParameterError(f"t_end must be positive, got {t_end}")
+    if q0 is None:
+        q0 = equilibrium_configuration(scene, plant, ref(0.0))
+    q0 = np.asarray(q0, float).ravel()
     t0 = time.perf_counter()
     from ..control.funnel_nmp import NMPFunnelController
 
-    ctrl = NMPFunnelController(model, lin, ref, t_end=t_end, **feedback_options(scene, model, lin, ref,
-                                                                                 overrides=feedback))
+    design = feedback_design(scene, model, lin, ref, q0=q0, overrides=feedback, t_end=t_end)
+    ctrl = NMPFunnelController(model, lin, ref, t_end=t_end, **design.controller_options())
     timings["controller"] = time.perf_counter() - t0
     if inverse is None and invert:
         t0 = time.perf_counter()
@@ -246,29 +255,17 @@ def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, inver
             print("inverting the reference model (servo constraints) ...", file=sys.stderr)
         inverse = invert_tracking(scene, model, ref, **dict(inversion_options or {}))
         timings["inversion"] = time.perf_counter() - t0
-    if q0 is None:
-        q0 = equilibrium_configuration(scene, plant, ref(0.0))
-    return TrackingSetup(scene, model, plant, ref, lin, ctrl, inverse, np.asarray(q0, float).ravel(), t_end,
-                         float(dt), _signals(scene, model), params, timings)
+    return TrackingSetup(scene, model, plant, ref, lin, ctrl, inverse, design, q0, t_end, float(dt),
+                         _signals(scene, model), params, timings)
 
 
 def a1_along(setup: TrackingSetup, res: ClosedLoopResult, stride: int = 10) -> dict:
-    """(A1) along a trajectory: smallest eigenvalue of the symmetric part of
-    ``rho [K_1 Q~^(k_1-1) P~; ...; K_m] S~(q, v)`` at every ``stride``-th grid point (> 0 required)."""
-    from ..analysis import schur_complement
+    """(A1) along a run: smallest eigenvalue of the symmetric part of ``rho [stacked K] S~(q, v) E`` at every
+    ``stride``-th grid point (> 0 required), the time of the minimum and the fraction where it holds."""
+    from ..control.funnel_design import a1_margin_along
 
-    ctrl = setup.controller
-    rows = [ctrl.K[i] @ np.linalg.matrix_power(ctrl.Qt, ctrl.k_i[i] - 1) @ ctrl.Pt for i in range(ctrl.q_rows)]
-    rows += [ctrl.K[i] for i in range(ctrl.q_rows, len(ctrl.K))]
-    Kmat = ctrl.rho * np.vstack(rows)
-    idx = np.arange(0, res.t.size, stride)
-    S = schur_complement(setup.model).map(idx.size)
-    th = np.tile(setup.model.theta_values[:, None], (1, idx.size))
-    Ss = np.array(S(res.q[:, idx], res.v[:, idx], th)).reshape(Kmat.shape[1], idx.size, -1).transpose(1, 0, 2)
-    KS = np.einsum("ij,njk->nik", Kmat, Ss)
-    ev = np.linalg.eigvalsh(0.5 * (KS + KS.transpose(0, 2, 1)))[:, 0]
-    return {"min_eig": float(ev.min()), "t_min": float(res.t[idx][np.argmin(ev)]),
-            "fraction_positive": float(np.mean(ev > 0))}
+    sl = slice(None, None, stride)
+    return a1_margin_along(setup.controller, setup.model, res.q[:, sl], res.v[:, sl], t=res.t[sl]).to_dict()
 
 
 def run_controller(setup: TrackingSetup, name: str, *, raise_on_violation=True, v0=None) -> ClosedLoopResult:

@@ -182,21 +182,25 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
 
 # ------------------------------------------------------------------- design
 def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
-    """The funnel controller of the scene: new output (41), (A1), funnels and gains."""
+    """The funnel controller (48) of the scene: new output (41), (A1), funnels and gains, with the reasons."""
     setup = setup_tracking(scene, params, invert=False)
-    c = setup.controller
+    d, c = setup.design, setup.controller
     lines = [f"invctl design {scene.name}: funnel controller (48) of 003 Sect. 5",
-             f"  linearized internal dynamics: {setup.lin.k} unstable mode(s) of {setup.lin.Q.shape[0]}; "
-             f"q = {c.q_rows}, k_i = {list(c.k_i)}, rho = {c.rho}",
+             f"  linearized internal dynamics: {setup.lin.k} unstable mode(s) of {setup.lin.Q.shape[0]}",
+             f"  q = {c.q_rows}, k_i = {list(c.k_i)}, rho = {c.rho}, pairing = {list(c.pairing)}",
              "  K = " + "; ".join(np.array2string(np.asarray(k), precision=5) for k in c.K),
              f"  relative degrees of the new output: {list(c.levels.r)}",
-             f"  gains kappa = {c.levels.kappa}, kappa_bar = {c.kappa_bar:g}"]
-    rep = setup.lin.check_A1(c.K, rho=c.rho, k_i=c.k_i, samples=200)
-    lines.append(f"  (A1): min eig of the symmetric part {rep.min_eig_sym:.3g} on the region "
-                 f"({100 * rep.fraction_satisfied:.0f}% of {rep.samples} samples), {rep.min_eig_at_design_point:.3g} "
-                 "at the design point")
-    data = {"K": [np.asarray(k).tolist() for k in c.K], "k_i": list(c.k_i), "rho": c.rho, "r": list(c.levels.r),
-            "kappa": c.levels.kappa, "kappa_bar": c.kappa_bar, "A1": rep.to_dict()}
+             f"  (A1) margin at the design point {d.a1_design_point:.4g}, smallest over the design points "
+             f"{float(np.min(d.a1_points)):.4g} ({d.a1_points.size} points)",
+             "  " + d.describe().replace("\n", "\n  ")]
+    data = d.to_dict()
+    if plot:
+        from ..plot import close
+        from ..plot.tracking import plot_funnels
+
+        close(plot_funnels(c, setup.t_end, plot))
+        data["plot"] = str(plot)
+        lines.append(f"  figure written to {plot}")
     return CommandResult("\n".join(lines), data)
 
 
