@@ -87,9 +87,38 @@ class PreloadInfeasible(ContactError):
     """Persistent-contact (pre-loading) control does not exist (000 Lemma 1)."""
 
 
+class PositionOutputError(ModelError):
+    """An output is not a function ``h(q)`` that depends on the configuration (it is
+    constant or depends on velocities): servo constraints ``h(q) = y_ref`` need one."""
+
+
+class SingularDecouplingError(RelativeDegreeError):
+    """The decoupling matrix ``A_z`` of the jerk-level index reduction is singular at a
+    point of the inversion: the vector relative degree is not (2, ..., 2) there (e.g. a
+    flat output of relative degree 4)."""
+
+
+class ReferenceSmoothnessError(ReferenceSignalError):
+    """A reference is less smooth than the inversion needs: declared smoothness too low, or a
+    derivative that jumps (measured) although more smoothness is declared."""
+
+
+class NoDichotomyError(BoundaryConditionError):
+    """The internal (zero) dynamics at an equilibrium of the inverse model have eigenvalues on
+    the imaginary axis, or different numbers of unstable modes at the two ends: no
+    exponential dichotomy, so no bounded stable inverse and no boundary selection 003 (36)."""
+
+
+class HorizonTooLongError(BoundaryConditionError):
+    """The pre-/post-actuation needed for the requested truncation error exceeds the cap
+    (a slow internal mode)."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError",
     "RelativeDegreeError", "CoordinateError", "ReferenceSignalError",
     "BoundaryConditionError", "InversionFailed", "SimulationFailed", "FunnelViolation",
     "StabilityError", "ContactError", "PreloadInfeasible",
+    "PositionOutputError", "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError",
+    "HorizonTooLongError",
 ]

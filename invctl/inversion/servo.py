@@ -39,7 +39,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from ..errors import ModelError
+from ..errors import ModelError, PositionOutputError
 
 FORMULATIONS = ("jerk", "baumgarte")
 
@@ -89,9 +89,7 @@ class ServoModel:
         if model.ny != model.m:
             raise ModelError(f"model {model.name!r}: servo constraints need as many outputs as inputs "
                              f"(m = {model.m}, outputs = {model.ny})")
-        if ca.depends_on(model.h, model.v):
-            raise ModelError(f"model {model.name!r}: the output h depends on v; servo constraints (34) "
-                             "need a position output h(q)")
+        _check_position_output(model)
         self.model = model
         self.formulation = formulation
         self.omega = float(omega)
@@ -189,6 +187,14 @@ class ServoModel:
         return self._fn("servo_residuals", [S["phi_p"], S["phi_v"], S["phi_a"]], ["pos", "vel", "acc"])
 
     @cached_property
+    def constraint_jacobian(self) -> ca.Function:
+        """``(X, Y, theta) -> C``: Jacobian w.r.t. ``X`` of the stacked position, velocity and
+        acceleration residuals; its null space is the tangent space of the constraint manifold."""
+        S = self._sym
+        res = ca.vertcat(S["phi_p"], S["phi_v"], S["phi_a"])
+        return self._fn("servo_constraint_jac", [ca.densify(ca.jacobian(res, S["X"]))], ["C"])
+
+    @cached_property
     def output(self) -> ca.Function:
         """``(X, Y, theta) -> y = h(q)``."""
         return self._fn("servo_output", [self._sym["h"]], ["y"])
@@ -204,3 +210,21 @@ class ServoModel:
         fn = reference.function(3)
         outs = fn.map(t.size)(t[None, :])
         return np.vstack([np.array(o).reshape(reference.m, t.size) for o in outs])
+
+
+def _check_position_output(model) -> None:
+    """Raise :class:`PositionOutputError` unless every output row is a function of ``q`` alone
+    that depends on ``q`` (checked symbolically, before any solve)."""
+    bad = []
+    for i in range(model.ny):
+        hi, name = model.h[i], model.y_names[i]
+        if ca.depends_on(hi, model.v):
+            bad.append(f"output {name!r} (row {i}) depends on the velocities v")
+        elif not ca.depends_on(hi, model.q):
+            bad.append(f"output {name!r} (row {i}) does not depend on q (it is constant)")
+    if bad:
+        raise PositionOutputError(
+            f"model {model.name!r}: servo constraints h(q) = y_ref (003 (34)) need outputs that are functions "
+            f"of the configuration q: {'; '.join(bad)}. Such an output cannot be prescribed by the inputs "
+            "through the configuration; choose a position output (e.g. a coordinate or a point of a body)",
+            diagnostics={"outputs": list(model.y_names), "problems": bad})
