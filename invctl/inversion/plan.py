@@ -32,7 +32,7 @@ import scipy.linalg as sla
 from ..errors import (BoundaryConditionError, HorizonTooLongError, NoDichotomyError, ReferenceSignalError,
                       ReferenceSmoothnessError)
 from .boundary import BLOCKS, explain_no_dichotomy, neutral_tolerance, resolve_selection, tangent_dynamics
-from .solve import _equilibrium_solver, quasi_static_guess, servo_model
+from .solve import _equilibrium_solver, _split, quasi_static_guess, servo_model
 
 #: largest number of candidate selections enumerated exactly (otherwise column-pivoted QR)
 MAX_ENUMERATION = 5000
@@ -257,19 +257,19 @@ def _invariant_subspace(A, select):
 def _tail_span(M, tol: float, cap: float):
     """Smallest ``s`` with ``||exp(M s)||_2 <= tol`` for a stable ``M`` (rate = slowest decay).
 
-    Returns ``(s, rate, kappa)`` with ``kappa = ||exp(M s)|| exp(rate s)``; ``s = inf`` when the
-    lower bound ``ln(1/tol)/rate`` already exceeds ``cap``."""
+    Returns ``(s, rate, kappa)`` with ``kappa = ||exp(M s)|| exp(rate s)``; once the span exceeds
+    ``cap`` the search stops and returns a lower bound (``ln(1/tol)/rate`` or the last span tried)."""
     rate = float(-np.max(np.linalg.eigvals(M).real))
     s_lo = math.log(1.0 / tol) / rate
     if s_lo > cap:
-        return math.inf, rate, 1.0
+        return s_lo, rate, 1.0
     f = _expm_norm(M)
 
     lo, hi = s_lo, s_lo
     while f(hi) > tol:
         lo, hi = hi, hi * 1.25
-        if hi > 2 * cap:
-            return math.inf, rate, 1.0
+        if lo > cap:
+            return lo, rate, f(lo) * math.exp(rate * lo)
     if hi > lo:
         for _ in range(40):
             mid = 0.5 * (lo + hi)
@@ -383,6 +383,38 @@ def _block_scales(servo, G, scale=None) -> np.ndarray:
     return d
 
 
+def graded_mesh(T0, Tf, t0, tf, N, decay=(0.0, 0.0)):
+    """Mesh of ``[T0, Tf]`` with ``t0``, ``tf`` as mesh points, uniform on ``[t0, tf]`` and
+    graded geometrically outside: at distance ``s`` from the transition the step grows like
+    ``exp(b s)`` (``decay = (b_pre, b_post)``), so the mesh is uniform in the stretched
+    coordinate ``(1 - exp(-b s)) / b``.  The ``N`` intervals are split by stretched length
+    (at least one per non-empty span; a span with ``b = 0`` is at rest and gets one).  For
+    tails decaying like ``exp(-r s)`` and a scheme of order ``p``, ``b = r / (p + 1)``
+    equidistributes the local error (:meth:`InversionPlan.mesh_decay`)."""
+    spans = [max(t0 - T0, 0.0), tf - t0, max(Tf - tf, 0.0)]
+    b = [float(decay[0]), 0.0, float(decay[1])]
+    eff = [(-math.expm1(-bi * L) / bi if bi > 0 else (L if i == 1 else 0.0)) for i, (bi, L) in enumerate(zip(b, spans))]
+    counts = _split(int(N), spans, eff)
+
+    def side(L, bi, k):  # distances from the transition, 0 .. L
+        j = np.arange(k + 1) / k
+        if bi <= 0:
+            return L * j
+        s = -np.log1p(j * math.expm1(-bi * L)) / bi
+        s[-1] = L
+        return s
+
+    parts = []
+    if counts[0]:
+        parts.append((t0 - side(spans[0], b[0], counts[0]))[::-1][:-1])
+    parts.append(np.linspace(t0, tf, counts[1] + 1)[:-1])
+    if counts[2]:
+        parts.append(tf + side(spans[2], b[2], counts[2])[:-1])
+    out = np.concatenate(parts + [[Tf]])
+    out[0] = T0
+    return out
+
+
 # --------------------------------------------------------------------------- the plan
 def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "baumgarte", omega: float = 10.0,
                    q_guess=None, start: dict | None = None, end: dict | None = None, T0: float | None = None,
@@ -477,16 +509,17 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
             rate = float(-np.max(np.linalg.eigvals(M).real))
             spans[key] = (s, rate, _expm_norm(M)(s) * math.exp(rate * s))
     (pre, rate_pre, k_pre), (post, rate_post, k_post) = spans["pre"], spans["post"]
-    if tau + pre + post > cap:
+    needed = tau + (pre if T0 is None else 0.0) + (post if Tf is None else 0.0)  # given spans are not capped
+    if needed > cap:
         slow = []
-        if rate_pre is not None:
+        if rate_pre is not None and T0 is None:
             slow.append(f"pre-actuation {pre:.4g} s from the slowest unstable internal rate {rate_pre:.4g}/s at "
                         "the start equilibrium")
-        if rate_post is not None:
+        if rate_post is not None and Tf is None:
             slow.append(f"post-actuation {post:.4g} s from the slowest stable internal rate {rate_post:.4g}/s at "
                         "the end equilibrium")
         raise HorizonTooLongError(
-            f"the horizon needed for neglected tails below tol = {tol:.1e} is {tau + pre + post:.4g} s "
+            f"the horizon needed for neglected tails below tol = {tol:.1e} is at least {needed:.4g} s "
             f"({'; '.join(slow)}), longer than max_horizon = {cap:.4g} s ({cap / tau:.4g} (tf - t0)): a slow "
             "internal mode makes the stable inverse reach far beyond the transition. Raise max_horizon or tol "
             "(invert(..., plan_options={'max_horizon': ..., 'tol': ...})), give T0 and Tf yourself, or choose an "
@@ -525,8 +558,8 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
     drift_rate = float(-np.max(np.real(rest))) if rest else None
     derived = tuple(k for k, v in (("start", start), ("end", end), ("T0", T0), ("Tf", Tf)) if v is None)
     return InversionPlan(
-        start=_by_name(servo, sel.start), end=_by_name(servo, sel.end), T0=T0v, Tf=Tfv, t0=t0, tf=tf, eigenvalues_start=tuple(complex(z) for z in it0),
-        eigenvalues_end=tuple(complex(z) for z in itf), rate_pre=rate_pre, rate_post=rate_post,
+        start=_by_name(servo, sel.start), end=_by_name(servo, sel.end), T0=T0v, Tf=Tfv, t0=t0, tf=tf,
+        eigenvalues_start=tuple(complex(z) for z in it0), eigenvalues_end=tuple(complex(z) for z in itf), rate_pre=rate_pre, rate_post=rate_post,
         tail_pre=float(tail_pre), tail_post=float(tail_post), kappa_pre=float(k_pre), kappa_post=float(k_post),
         conditioning_start=float(cond0), conditioning_end=float(condf), sensitivity_start=float(sens0),
         sensitivity_end=float(sensf), pins_start=pins0, pins_end=pinsf, drift_rate=drift_rate,

@@ -39,7 +39,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from ..errors import ModelError, PositionOutputError
+from ..errors import ModelError, PositionOutputError, SingularDecouplingError
 
 FORMULATIONS = ("jerk", "baumgarte")
 
@@ -228,3 +228,27 @@ def _check_position_output(model) -> None:
             f"of the configuration q: {'; '.join(bad)}. Such an output cannot be prescribed by the inputs "
             "through the configuration; choose a position output (e.g. a coordinate or a point of a body)",
             diagnostics={"outputs": list(model.y_names), "problems": bad})
+
+
+def check_decoupling(model, Az, times, Q, rcond: float = 1e-10) -> None:
+    """Raise :class:`SingularDecouplingError` where the decoupling matrices ``Az`` (shape
+    ``(k, k, K)`` at ``times``, configurations ``Q``) are singular (smallest over largest singular
+    value below ``rcond``): there the vector relative degree is not (2, ..., 2)."""
+    sv = np.linalg.svd(Az.transpose(2, 0, 1), compute_uv=False)
+    ratio = sv[:, -1] / np.maximum(sv[:, 0], 1e-300)
+    bad = np.flatnonzero(~(ratio >= rcond))
+    if bad.size == 0:
+        return
+    k = bad[0]
+    raise SingularDecouplingError(
+        f"the decoupling matrix A_z = [G; J; h'(q)] M(q)^-1 [G^T J^T B] of the jerk-level index reduction of "
+        f"003 (35) is singular at t = {times[k]:.6g}, q = {np.round(Q[:, k], 6).tolist()} (smallest/largest "
+        f"singular value {ratio[k]:.2g}; singular at {bad.size} of {times.size} points of the quasi-static path): "
+        f"the vector relative degree of the output(s) {list(model.y_names)} of {model.name!r} is not (2, ..., 2) "
+        "there, so the inverse model cannot be solved for the multipliers and inputs. If h'(q) M^-1 B vanishes "
+        "identically near this configuration, the output has a higher relative degree (e.g. a flat output, "
+        "relative degree 2n: its inverse is algebraic in y_ref and its derivatives, use a flatness-based "
+        "feedforward); otherwise the reference passes a singular configuration. Choose another output or a "
+        "reference that avoids it",
+        diagnostics={"t": float(times[k]), "q": Q[:, k].tolist(), "rcond": float(ratio[k]),
+                     "singular_points": int(bad.size)})

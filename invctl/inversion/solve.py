@@ -17,12 +17,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
-from ..errors import (BoundaryConditionError, InversionFailed, NoDichotomyError, ReferenceSignalError,
-                      SingularDecouplingError)
+from ..errors import BoundaryConditionError, InversionFailed, NoDichotomyError, ReferenceSignalError
 from .boundary import EquilibriumSolver, dichotomy, explain_dichotomy, explain_no_dichotomy, resolve_selection
 from .collocation import Transcription, get_scheme
 from .result import Inverse
-from .servo import ServoModel
+from .servo import ServoModel, check_decoupling
 
 _SERVO_CACHE: dict = {}
 _TRANS_CACHE: dict = {}
@@ -212,30 +211,6 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     return np.vstack([Q, V, Z])
 
 
-def check_decoupling(model, Az, times, Q, rcond: float = 1e-10) -> None:
-    """Raise :class:`SingularDecouplingError` where the decoupling matrices ``Az`` (shape
-    ``(k, k, K)`` at ``times``, configurations ``Q``) are singular (smallest over largest singular
-    value below ``rcond``): there the vector relative degree is not (2, ..., 2)."""
-    sv = np.linalg.svd(Az.transpose(2, 0, 1), compute_uv=False)
-    ratio = sv[:, -1] / np.maximum(sv[:, 0], 1e-300)
-    bad = np.flatnonzero(~(ratio >= rcond))
-    if bad.size == 0:
-        return
-    k = bad[0]
-    raise SingularDecouplingError(
-        f"the decoupling matrix A_z = [G; J; h'(q)] M(q)^-1 [G^T J^T B] of the jerk-level index reduction of "
-        f"003 (35) is singular at t = {times[k]:.6g}, q = {np.round(Q[:, k], 6).tolist()} (smallest/largest "
-        f"singular value {ratio[k]:.2g}; singular at {bad.size} of {times.size} points of the quasi-static path): "
-        f"the vector relative degree of the output(s) {list(model.y_names)} of {model.name!r} is not (2, ..., 2) "
-        "there, so the inverse model cannot be solved for the multipliers and inputs. If h'(q) M^-1 B vanishes "
-        "identically near this configuration, the output has a higher relative degree (e.g. a flat output, "
-        "relative degree 2n: its inverse is algebraic in y_ref and its derivatives, use a flatness-based "
-        "feedforward); otherwise the reference passes a singular configuration. Choose another output or a "
-        "reference that avoids it",
-        diagnostics={"t": float(times[k]), "q": Q[:, k].tolist(), "rcond": float(ratio[k]),
-                     "singular_points": int(bad.size)})
-
-
 def _split(N, lengths, weights):
     """Integers >= 1 (for positive lengths) summing to N, proportional to weights."""
     idx = [i for i, L in enumerate(lengths) if L > 1e-12]
@@ -263,38 +238,6 @@ def default_mesh(T0, Tf, t0, tf, N, fraction=0.5):
     counts = _split(N, lengths, weights)
     parts = [np.linspace(a, b, k + 1)[:-1] for a, b, k in zip(knots[:-1], knots[1:], counts) if k > 0]
     return np.concatenate(parts + [[Tf]])
-
-
-def graded_mesh(T0, Tf, t0, tf, N, decay=(0.0, 0.0)):
-    """Mesh of ``[T0, Tf]`` with ``t0``, ``tf`` as mesh points, uniform on ``[t0, tf]`` and
-    graded geometrically outside: at distance ``s`` from the transition the step grows like
-    ``exp(b s)`` (``decay = (b_pre, b_post)``), so the mesh is uniform in the stretched
-    coordinate ``(1 - exp(-b s)) / b``.  The ``N`` intervals are split by stretched length
-    (at least one per non-empty span; a span with ``b = 0`` is at rest and gets one).  For
-    tails decaying like ``exp(-r s)`` and a scheme of order ``p``, ``b = r / (p + 1)``
-    equidistributes the local error (:meth:`InversionPlan.mesh_decay`)."""
-    spans = [max(t0 - T0, 0.0), tf - t0, max(Tf - tf, 0.0)]
-    b = [float(decay[0]), 0.0, float(decay[1])]
-    eff = [(-math.expm1(-bi * L) / bi if bi > 0 else (L if i == 1 else 0.0)) for i, (bi, L) in enumerate(zip(b, spans))]
-    counts = _split(int(N), spans, eff)
-
-    def side(L, bi, k):  # distances from the transition, 0 .. L
-        j = np.arange(k + 1) / k
-        if bi <= 0:
-            return L * j
-        s = -np.log1p(j * math.expm1(-bi * L)) / bi
-        s[-1] = L
-        return s
-
-    parts = []
-    if counts[0]:
-        parts.append((t0 - side(spans[0], b[0], counts[0]))[::-1][:-1])
-    parts.append(np.linspace(t0, tf, counts[1] + 1)[:-1])
-    if counts[2]:
-        parts.append(tf + side(spans[2], b[2], counts[2])[:-1])
-    out = np.concatenate(parts + [[Tf]])
-    out[0] = T0
-    return out
 
 
 def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label, banded=True):
@@ -488,6 +431,8 @@ def invert(model, reference, *, T0: float | None = None, Tf: float | None = None
         if N < 2 or np.any(np.diff(t_mesh) <= 0) or abs(t_mesh[0] - T0) > 1e-12 or abs(t_mesh[-1] - Tf) > 1e-12:
             raise ValueError("mesh must be increasing from T0 to Tf with at least 3 points")
     elif plan is not None and mesh_fraction is None:
+        from .plan import graded_mesh
+
         t_mesh = graded_mesh(T0, Tf, reference.t0, reference.tf, int(N), plan.mesh_decay(sch.order))
     else:
         t_mesh = default_mesh(T0, Tf, reference.t0, reference.tf, int(N), 0.5 if mesh_fraction is None
