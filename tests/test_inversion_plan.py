@@ -186,6 +186,19 @@ def test_zero_length_post_actuation_solves():
     assert inv.diagnostics["residuals"]["position"] < 1e-5
 
 
+def test_no_internal_dynamics_gives_the_transition_as_horizon():
+    # fully actuated arm, tip output (m = n = 2): no internal dynamics, both spans zero, all at T0
+    md = arm.build_tip()
+    t = ca.SX.sym("t")
+    q1, q2 = 0.3, 0.7  # away from the singular stretched arm
+    p0 = [0.5 * math.sin(q1) + 0.4 * math.sin(q1 + q2), -0.5 * math.cos(q1) - 0.4 * math.cos(q1 + q2)]
+    ref = Reference(t, ca.vertcat(p0[0] - 0.1 * poly9_timing_law(t, 0, 1), p0[1]), 0, 1, smoothness=4, name="tip")
+    inv = invert(md, ref, q_guess=np.array([q1, q2]), backend="newton", N=60)
+    plan = inv.diagnostics["plan"]
+    assert (inv.T0, inv.Tf) == (0.0, 1.0) and plan["eigenvalues_start"] == [] and plan["end"] == {}
+    assert_inverts(md, inv, ref, tol=1e-6)  # measured 2.3e-8
+
+
 # ----------------------------------------------------------------------------- meshes
 def test_graded_mesh_is_uniform_in_the_stretched_coordinate():
     b0, bf = 24.4 / 5, 19.6 / 5

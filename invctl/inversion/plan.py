@@ -144,7 +144,8 @@ class InversionPlan:
                 f"{self.rate_post:.4g}/s at the end equilibrium, neglected tail {self.tail_post:.1e}, factor "
                 f"{self.kappa_post:.3g})" if self.rate_post is not None
                 else f"post-actuation {self.post_actuation:.4g} s ({how('Tf')}; no stable internal mode)")
-        drift = "" if self.drift_rate is None else f"; constraint drift decays at {self.drift_rate:.4g}/s"
+        drift = ("" if self.drift_rate is None else f"; constraint drift decays at {self.drift_rate:.4g}/s"
+                 if self.drift_rate > 1e-4 else "; constraint drift is neutral (no stabilization)")
         return "\n".join([
             f"selection {how('start')} at T0: {sel(self.start)} ({n0} condition(s), conditioning "
             f"{self.conditioning_start:.3g}, truncation sensitivity {self.sensitivity_start:.3g}); selection "
