@@ -221,7 +221,7 @@ def test_graded_mesh_is_uniform_in_the_stretched_coordinate():
 
 
 # ----------------------------------------------------------------------------- the selection criterion
-def test_choose_rows_is_optimal_and_prefers_blind_rows():
+def test_choose_rows_is_optimal_and_prefers_blind_rows(monkeypatch):
     import itertools
 
     rng = np.random.default_rng(1)
@@ -233,6 +233,17 @@ def test_choose_rows_is_optimal_and_prefers_blind_rows():
         assert sig >= 0.5 * best - 1e-12  # within the stated factor of the optimum
         assert sig == pytest.approx(np.linalg.svd(Z[list(rows)], compute_uv=False)[-1], rel=1e-10)
         assert sens == pytest.approx(np.linalg.norm(np.linalg.solve(Z[list(rows)], W[list(rows)]), 2), rel=1e-10)
+    # many candidates: column-pivoted QR instead of enumeration (seeded case, brute force as reference;
+    # pivoted QR has no tight worst-case bound; here it finds the optimum)
+    import invctl.inversion.plan as plan_mod
+
+    Z = np.linalg.qr(rng.standard_normal((10, 5)))[0]
+    best = max(np.linalg.svd(Z[list(S)], compute_uv=False)[-1] for S in itertools.combinations(range(10), 5))
+    monkeypatch.setattr(plan_mod, "MAX_ENUMERATION", 10)
+    rows, sig, _ = choose_rows(Z, np.zeros((10, 0)))
+    assert len(set(rows)) == 5 and sig == pytest.approx(np.linalg.svd(Z[list(rows)], compute_uv=False)[-1])
+    assert sig > 0.5 * best
+    monkeypatch.undo()
     # rows 0 and 1 fix Z equally well; row 1 also sees the wrong-end mode W, row 0 is blind to it
     Z = np.array([[1.0], [1.0], [0.0]]) / math.sqrt(2)
     W = np.array([[0.0], [1.0], [0.0]])

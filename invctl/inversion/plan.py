@@ -359,28 +359,25 @@ def _by_name(servo, rows) -> dict:
     return out
 
 
-def _block_scales(servo, G, scale=None) -> np.ndarray:
-    """Per-entry scale: per block the largest range of its entries along the quasi-static path
-    (entries measured against how much their block moves in the transition); ``scale`` (dict
-    block -> value) overrides."""
+def _block_scales(servo, G, tau: float, scale=None) -> np.ndarray:
+    """Per-entry scales: per block the largest range of its entries along the quasi-static path
+    ``G`` of the transition (entries measured against how much their block moves).  A block that
+    does not move falls back to ``1`` (``q``), ``scale_q / tau`` (``v``) or the largest multiplier
+    or input range (``lam``, ``mu``, ``u``); ``scale`` (dict block -> value) overrides."""
     L = servo.layout
     rng = np.ptp(G, axis=1)
-    d = np.ones(L.nx)
-    fallback = {"q": 1.0}
-    for b in BLOCKS:
-        sl = L.blocks[b]
-        if sl.stop > sl.start:
-            d[sl] = float(np.max(rng[sl]))
-    zmax = max([float(np.max(rng[L.blocks[b]])) for b in ("lam", "mu", "u")
-                if L.blocks[b].stop > L.blocks[b].start] + [0.0])
-    for b in BLOCKS:
-        sl = L.blocks[b]
-        if sl.stop > sl.start and not d[sl][0] > 0:
-            d[sl] = fallback.get(b, zmax if b != "v" else 0.0) or 1.0
+    blocks = {b: L.blocks[b] for b in BLOCKS if L.blocks[b].stop > L.blocks[b].start}
+    s = {b: float(np.max(rng[sl])) for b, sl in blocks.items()}
     for b, val in (scale or {}).items():
         if b not in BLOCKS or not float(val) > 0:
             raise ValueError(f"scale: expected block -> positive value for blocks {BLOCKS}, got {b!r}: {val!r}")
-        d[L.blocks[b]] = float(val)
+        s[b] = float(val)
+    s["q"] = s["q"] if s.get("q", 0.0) > 0 else 1.0
+    s["v"] = s["v"] if s.get("v", 0.0) > 0 else s["q"] / tau
+    zmax = max([s[b] for b in ("lam", "mu", "u") if b in blocks] + [0.0]) or 1.0
+    d = np.ones(L.nx)
+    for b, sl in blocks.items():
+        d[sl] = s[b] if s[b] > 0 else zmax
     return d
 
 
@@ -482,7 +479,7 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
         raise NoDichotomyError(explain_no_dichotomy(it0, itf, f" for {model.name!r}"), diagnostics={
             "eigenvalues_internal_start": it0.tolist(), "eigenvalues_internal_end": itf.tolist()})
     # scaled coordinates X = D Xs
-    d = _block_scales(servo, G, scale)
+    d = _block_scales(servo, G, tau, scale)
     nx = d.size
     A0s, Afs = A0 * d[None, :] / d[:, None], Af * d[None, :] / d[:, None]
     r0 = float(np.min(it0.real[it0.real > thr0])) if ku0 else 0.0
