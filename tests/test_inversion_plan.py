@@ -175,6 +175,11 @@ def test_partial_overrides(manip):
         plan_inversion(md, ref, q_guess=q0, end={"q": ["gamma"], "u": "all"})
     with pytest.raises(ValueError, match="either plan"):
         invert(md, ref, plan=plan, plan_options={"tol": 1e-6})
+    # everything given: a plan made only for the report changes nothing (same mesh and solution)
+    a = invert(md, ref, q_guess=q0, backend="newton", **{**scene.INVERSION, "N": 40})
+    b = invert(md, ref, q_guess=q0, backend="newton", plan_options={}, **{**scene.INVERSION, "N": 40})
+    assert b.diagnostics["plan"]["derived"] == [] and b.diagnostics["mesh"] == "piecewise uniform"
+    np.testing.assert_allclose(a.X_mesh, b.X_mesh, rtol=0, atol=1e-9)  # Newton tolerance 1e-10
 
 
 def test_zero_length_post_actuation_solves():

@@ -344,10 +344,11 @@ def invert(model, reference, *, T0: float | None = None, Tf: float | None = None
     N, mesh : int or array
         Number of intervals, or the mesh itself.  The default mesh has ``t0`` and ``tf``
         as mesh points (the fourth derivative of a C^4 reference jumps there; inside an
-        interval it costs an order of magnitude in accuracy).  Given a horizon, it is
+        interval it costs an order of magnitude in accuracy).  With a given horizon it is
         piecewise uniform with ``mesh_fraction`` (default 0.5) of the intervals on
-        ``[t0, tf]``; with a plan (and ``mesh_fraction=None``) it is uniform on
-        ``[t0, tf]`` and graded outside by the decay of the tails (:func:`graded_mesh`).
+        ``[t0, tf]``; when ``T0`` or ``Tf`` is derived (and ``mesh_fraction=None``) it is
+        uniform on ``[t0, tf]`` and graded outside by the decay of the tails
+        (:func:`invctl.inversion.plan.graded_mesh`).
     scheme : str
         ``hermite-simpson`` (default), ``legendre<d>``, ``radau<d>``.
     formulation, omega : str, float
@@ -430,7 +431,7 @@ def invert(model, reference, *, T0: float | None = None, Tf: float | None = None
         N = t_mesh.size - 1
         if N < 2 or np.any(np.diff(t_mesh) <= 0) or abs(t_mesh[0] - T0) > 1e-12 or abs(t_mesh[-1] - Tf) > 1e-12:
             raise ValueError("mesh must be increasing from T0 to Tf with at least 3 points")
-    elif plan is not None and mesh_fraction is None:
+    elif plan is not None and mesh_fraction is None and {"T0", "Tf"} & set(plan.derived):
         from .plan import graded_mesh
 
         t_mesh = graded_mesh(T0, Tf, reference.t0, reference.tf, int(N), plan.mesh_decay(sch.order))
@@ -508,7 +509,7 @@ def invert(model, reference, *, T0: float | None = None, Tf: float | None = None
         "dichotomy": None if dich is None else {k: v for k, v in dich.items() if not k.startswith("eigenvalues")},
         "plan": None if plan is None else plan.to_dict(),
         "mesh": "given" if mesh is not None else ("graded" if plan is not None and mesh_fraction is None
-                                                  else "piecewise uniform"),
+                                                  and {"T0", "Tf"} & set(plan.derived) else "piecewise uniform"),
     })
     if not info["success"]:
         raise InversionFailed(
