@@ -288,10 +288,16 @@ def test_neutral_zero_dynamics_no_dichotomy():
     assert "neutral: 2" in str(exc.value) and f"{w:.4g}i" in str(exc.value)
     ev = np.array(exc.value.diagnostics["eigenvalues_internal_start"])
     assert np.max(np.abs(np.abs(ev) - w)) < 1e-8
-    # a hand selection does not get the generic "refine the mesh" either
+    # a hand selection with conditions at Tf does not get the generic "refine the mesh" either
     with pytest.raises(NoDichotomyError, match="no exponential dichotomy"):
         invert(md, ref, backend="newton", T0=-3.0, Tf=5.0, start={"q": "all", "v": ["x"], "u": "all"},
                end={"v": ["theta"]})
+    # the initial value problem the message offers (everything at T0 = t0) needs no dichotomy: the
+    # pendulum keeps oscillating after tf, the output is tracked (forward check measured 8e-7)
+    assert "initial value problem" in str(exc.value)
+    inv = invert(md, ref, T0=0.0, Tf=3.0, start={"q": "all", "v": "all", "u": "all"}, end={}, backend="newton")
+    assert inv.diagnostics["dichotomy"]["neutral_internal"] == 2
+    assert_inverts(md, inv, ref, tol=1e-5)
 
 
 @pytest.mark.parametrize("output,words", [("const", "does not depend on q"), ("velocity", "depends on the velocities")])

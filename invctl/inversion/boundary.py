@@ -209,14 +209,17 @@ def explain_no_dichotomy(eig_start, eig_end, where: str = "") -> str:
         cause = (f"{max(n0, nf)} internal eigenvalue(s) lie on the imaginary axis (neutral: {n0} at the start, "
                  f"{nf} at the end equilibrium): the zero dynamics oscillate or drift without decay, so the "
                  "inverse has no exponential dichotomy and no bounded stable inverse that settles at the "
-                 "equilibria; no boundary selection or horizon can fix that")
+                 "equilibria; no horizon and no selection with conditions at Tf can fix that")
     else:
         cause = (f"the number of unstable internal modes changes along the reference ({u0} at the start, {uf} at "
                  "the end equilibrium): 003 (36) needs the same split at both ends")
+    ivp = ("" if u0 or uf else "; or, if an inverse whose internal motion keeps oscillating after tf is "
+           "acceptable, fix every entry at T0 (start with all of q, v, lam, mu, u; end={}) and give T0 = t0 and Tf: "
+           "that initial value problem needs no dichotomy")
     return (f"no exponential dichotomy{where}: internal (zero-dynamics) eigenvalues of the inverse model "
             f"{fmt(eig_start)} at the start and {fmt(eig_end)} at the end equilibrium; {cause}. Choose another "
             "output (one whose zero dynamics are hyperbolic, e.g. with damping or a different output "
-            "combination) or another reference (end points where the zero dynamics are hyperbolic)")
+            "combination) or another reference (end points where the zero dynamics are hyperbolic)" + ivp)
 
 
 def explain_dichotomy(d: dict, selection: Selection) -> str:

@@ -468,7 +468,7 @@ def invert(model, reference, *, T0: float | None = None, Tf: float | None = None
     if not under:
         Yends = servo.reference_samples(reference, np.array([T0, Tf]))
         dich = dichotomy(servo, sel, E0, Yends[:, :1], Ef, Yends[:, 1:], model.theta_values)
-        if dich["neutral_internal"]:
+        if dich["neutral_internal"] and sel.end:  # all at T0: an initial value problem, no dichotomy needed
             raise NoDichotomyError(explain_no_dichotomy(dich["eigenvalues_internal_start"],
                                                         dich["eigenvalues_internal_end"], f" for {model.name!r}"),
                                    diagnostics={k: v for k, v in dich.items() if not k.startswith("eigenvalues")})
