@@ -107,13 +107,31 @@ class FeedbackDesignError(InvctlError):
     """An automatic feedback design is impossible ((A1) cannot hold, a funnel cannot contain the start)."""
 
 
-__all__ = [
-    "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError",
-    "RelativeDegreeError", "CoordinateError", "ReferenceSignalError",
-    "BoundaryConditionError", "InversionFailed", "SimulationFailed", "FunnelViolation",
-    "StabilityError", "ContactError", "PreloadInfeasible", "ResultFileError", "OutputPathError",
-    "AnimationError", "DrawingError", "FeedbackDesignError",
-]
+class PositionOutputError(ModelError):
+    """An output is not a function ``h(q)`` that depends on the configuration (it is
+    constant or depends on velocities): servo constraints ``h(q) = y_ref`` need one."""
+
+
+class SingularDecouplingError(RelativeDegreeError):
+    """The decoupling matrix ``A_z`` of the jerk-level index reduction is singular at a
+    point of the inversion: the vector relative degree is not (2, ..., 2) there (e.g. a
+    flat output of relative degree 4)."""
+
+
+class ReferenceSmoothnessError(ReferenceSignalError):
+    """A reference is less smooth than the inversion needs: declared smoothness too low, or a
+    derivative that jumps (measured) although more smoothness is declared."""
+
+
+class NoDichotomyError(BoundaryConditionError):
+    """The internal (zero) dynamics at an equilibrium of the inverse model have eigenvalues on
+    the imaginary axis, or different numbers of unstable modes at the two ends: no
+    exponential dichotomy, so no bounded stable inverse and no boundary selection 003 (36)."""
+
+
+class HorizonTooLongError(BoundaryConditionError):
+    """The pre-/post-actuation needed for the requested truncation error exceeds the cap
+    (a slow internal mode)."""
 
 
 class LinearizationError(InvctlError):
@@ -124,4 +142,11 @@ class ZeroError(InvctlError):
     """System zeros cannot be computed or classified (degenerate system matrix, inconsistent tests)."""
 
 
-__all__ += ["LinearizationError", "ZeroError"]
+__all__ = [
+    "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError", "RelativeDegreeError",
+    "CoordinateError", "ReferenceSignalError", "BoundaryConditionError", "InversionFailed", "SimulationFailed",
+    "FunnelViolation", "StabilityError", "ContactError", "PreloadInfeasible", "ResultFileError",
+    "OutputPathError", "AnimationError", "DrawingError", "FeedbackDesignError", "PositionOutputError",
+    "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
+    "LinearizationError", "ZeroError",
+]

@@ -110,6 +110,30 @@ def resolve_selection(servo, start, end, *, allow_underdetermined: bool = False)
     return Selection(tuple(s), tuple(e), labels)
 
 
+def tangent_dynamics(servo, X, Y, theta):
+    """The linearized inverse model at ``X`` and its restriction to the constraint manifold.
+
+    Returns ``(A, T, A_T)``: ``A = dF/dX``, an orthonormal basis ``T`` of the null space of the
+    Jacobian of the position, velocity and acceleration residuals (the tangent space of the
+    invariant manifold on which (35) holds) and ``A_T = T^T A T``.  At an equilibrium ``A`` maps
+    ``T`` into itself, and the eigenvalues of ``A_T`` are those of the linearized internal
+    (zero) dynamics (003 Sect. 2-3); the other ``nx - dim T`` eigenvalues of ``A`` belong to
+    the constraint drift (``-omega`` with Baumgarte stabilization, ``0`` without).
+    """
+    import scipy.linalg as sla
+
+    A = np.array(servo.rhs_jac(X, Y, theta)[1])
+    C = np.array(servo.constraint_jacobian(X, Y, theta))
+    T = sla.null_space(C) if C.size else np.eye(A.shape[0])
+    return A, T, T.T @ A @ T
+
+
+def neutral_tolerance(eigenvalues, neutral: float = 1e-6) -> float:
+    """Real parts with ``|Re| <= neutral * max(1, max |lambda|)`` count as on the imaginary axis."""
+    ev = np.asarray(eigenvalues)
+    return neutral * max(1.0, float(np.max(np.abs(ev))) if ev.size else 1.0)
+
+
 def dichotomy(servo, selection: Selection, X0, Y0, Xf, Yf, theta, *, neutral: float = 1e-3) -> dict:
     """Check a boundary selection against the modes of the index-reduced inverse model.
 
@@ -135,18 +159,24 @@ def dichotomy(servo, selection: Selection, X0, Y0, Xf, Yf, theta, *, neutral: fl
         ``Xf``), ``tangent_dim``, ``rank_end_tangent`` (rank of the ``Tf`` conditions on
         the tangent space of the invariant manifold at ``Xf``), ``well_posed`` (``None``
         when neutral modes make the criterion inapplicable, e.g. unstabilized
-        index reduction), ``eigenvalues_start``, ``eigenvalues_end``.
+        index reduction), ``neutral_internal`` (internal eigenvalues on the imaginary
+        axis at either end, :func:`neutral_tolerance`: no dichotomy whatever the
+        selection), ``eigenvalues_start``, ``eigenvalues_end``,
+        ``eigenvalues_internal_start``, ``eigenvalues_internal_end``.
     """
     import scipy.linalg as sla
 
     nx = servo.layout.nx
     S0 = np.eye(nx)[list(selection.start)]
     Sf = np.eye(nx)[list(selection.end)]
-    A0 = np.array(servo.rhs_jac(X0, Y0, theta)[1])
-    Af = np.array(servo.rhs_jac(Xf, Yf, theta)[1])
+    A0, _T0, AT0 = tangent_dynamics(servo, X0, Y0, theta)
+    Af, T, ATf = tangent_dynamics(servo, Xf, Yf, theta)
     ev0, evf = np.linalg.eigvals(A0), np.linalg.eigvals(Af)
+    it0, itf = np.linalg.eigvals(AT0), np.linalg.eigvals(ATf)
     dec, grow = int(np.sum(ev0.real < -neutral)), int(np.sum(evf.real > neutral))
     neut = int(max(np.sum(np.abs(ev0.real) <= neutral), np.sum(np.abs(evf.real) <= neutral)))
+    neut_int = int(max(np.sum(np.abs(it0.real) <= neutral_tolerance(it0)),
+                       np.sum(np.abs(itf.real) <= neutral_tolerance(itf))))
     Zs = sla.schur(A0, output="real", sort=lambda re, im: re < -neutral)[1][:, :dec]
     Zu = sla.schur(Af, output="real", sort=lambda re, im: re > neutral)[1][:, :grow]
 
@@ -156,16 +186,41 @@ def dichotomy(servo, selection: Selection, X0, Y0, Xf, Yf, theta, *, neutral: fl
         sv = np.linalg.svd(M, compute_uv=False)
         return int(np.sum(sv > 1e-8 * max(1.0, sv[0])))
 
-    Xs = ca.SX.sym("X", nx)
-    pos, vel, acc = servo.residuals(Xs, Yf, theta)
-    C = np.array(ca.Function("inv_jac", [Xs], [ca.jacobian(ca.vertcat(pos, vel, acc), Xs)])(Xf))
-    T = sla.null_space(C) if C.size else np.eye(nx)
     out = {"decaying": dec, "growing": grow, "neutral": neut, "n_start": S0.shape[0], "n_end": Sf.shape[0],
            "rank_start": rank(S0 @ Zs), "rank_end": rank(Sf @ Zu), "tangent_dim": T.shape[1],
-           "rank_end_tangent": rank(Sf @ T), "eigenvalues_start": ev0, "eigenvalues_end": evf}
+           "rank_end_tangent": rank(Sf @ T), "neutral_internal": neut_int, "eigenvalues_start": ev0,
+           "eigenvalues_end": evf, "eigenvalues_internal_start": it0, "eigenvalues_internal_end": itf}
     out["well_posed"] = None if neut else bool(
         out["n_start"] == dec and out["n_end"] == grow and out["rank_start"] == dec and out["rank_end"] == grow)
     return out
+
+
+def explain_no_dichotomy(eig_start, eig_end, where: str = "") -> str:
+    """Message of :class:`~invctl.errors.NoDichotomyError` for internal eigenvalues ``eig_start``
+    (at the start equilibrium) and ``eig_end`` (at the end equilibrium)."""
+    def fmt(ev):
+        return ", ".join(f"{z.real:+.4g}{z.imag:+.4g}i" if abs(z.imag) > 1e-12 else f"{z.real:+.4g}"
+                         for z in np.asarray(ev))
+
+    n0 = int(np.sum(np.abs(np.real(eig_start)) <= neutral_tolerance(eig_start)))
+    nf = int(np.sum(np.abs(np.real(eig_end)) <= neutral_tolerance(eig_end)))
+    u0 = int(np.sum(np.real(eig_start) > neutral_tolerance(eig_start)))
+    uf = int(np.sum(np.real(eig_end) > neutral_tolerance(eig_end)))
+    if n0 or nf:
+        cause = (f"{max(n0, nf)} internal eigenvalue(s) lie on the imaginary axis (neutral: {n0} at the start, "
+                 f"{nf} at the end equilibrium): the zero dynamics oscillate or drift without decay, so the "
+                 "inverse has no exponential dichotomy and no bounded stable inverse that settles at the "
+                 "equilibria; no horizon and no selection with conditions at Tf can fix that")
+    else:
+        cause = (f"the number of unstable internal modes changes along the reference ({u0} at the start, {uf} at "
+                 "the end equilibrium): 003 (36) needs the same split at both ends")
+    ivp = ("" if u0 or uf else "; or, if an inverse whose internal motion keeps oscillating after tf is "
+           "acceptable, fix every entry at T0 (start with all of q, v, lam, mu, u; end={}) and give T0 = t0 and Tf: "
+           "that initial value problem needs no dichotomy")
+    return (f"no exponential dichotomy{where}: internal (zero-dynamics) eigenvalues of the inverse model "
+            f"{fmt(eig_start)} at the start and {fmt(eig_end)} at the end equilibrium; {cause}. Choose another "
+            "output (one whose zero dynamics are hyperbolic, e.g. with damping or a different output "
+            "combination) or another reference (end points where the zero dynamics are hyperbolic)" + ivp)
 
 
 def explain_dichotomy(d: dict, selection: Selection) -> str:

@@ -39,7 +39,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from ..errors import ModelError
+from ..errors import ModelError, PositionOutputError, SingularDecouplingError
 
 FORMULATIONS = ("jerk", "baumgarte")
 
@@ -89,9 +89,7 @@ class ServoModel:
         if model.ny != model.m:
             raise ModelError(f"model {model.name!r}: servo constraints need as many outputs as inputs "
                              f"(m = {model.m}, outputs = {model.ny})")
-        if ca.depends_on(model.h, model.v):
-            raise ModelError(f"model {model.name!r}: the output h depends on v; servo constraints (34) "
-                             "need a position output h(q)")
+        _check_position_output(model)
         self.model = model
         self.formulation = formulation
         self.omega = float(omega)
@@ -189,6 +187,14 @@ class ServoModel:
         return self._fn("servo_residuals", [S["phi_p"], S["phi_v"], S["phi_a"]], ["pos", "vel", "acc"])
 
     @cached_property
+    def constraint_jacobian(self) -> ca.Function:
+        """``(X, Y, theta) -> C``: Jacobian w.r.t. ``X`` of the stacked position, velocity and
+        acceleration residuals; its null space is the tangent space of the constraint manifold."""
+        S = self._sym
+        res = ca.vertcat(S["phi_p"], S["phi_v"], S["phi_a"])
+        return self._fn("servo_constraint_jac", [ca.densify(ca.jacobian(res, S["X"]))], ["C"])
+
+    @cached_property
     def output(self) -> ca.Function:
         """``(X, Y, theta) -> y = h(q)``."""
         return self._fn("servo_output", [self._sym["h"]], ["y"])
@@ -204,3 +210,45 @@ class ServoModel:
         fn = reference.function(3)
         outs = fn.map(t.size)(t[None, :])
         return np.vstack([np.array(o).reshape(reference.m, t.size) for o in outs])
+
+
+def _check_position_output(model) -> None:
+    """Raise :class:`PositionOutputError` unless every output row is a function of ``q`` alone
+    that depends on ``q`` (checked symbolically, before any solve)."""
+    bad = []
+    for i in range(model.ny):
+        hi, name = model.h[i], model.y_names[i]
+        if ca.depends_on(hi, model.v):
+            bad.append(f"output {name!r} (row {i}) depends on the velocities v")
+        elif not ca.depends_on(hi, model.q):
+            bad.append(f"output {name!r} (row {i}) does not depend on q (it is constant)")
+    if bad:
+        raise PositionOutputError(
+            f"model {model.name!r}: servo constraints h(q) = y_ref (003 (34)) need outputs that are functions "
+            f"of the configuration q: {'; '.join(bad)}. Such an output cannot be prescribed by the inputs "
+            "through the configuration; choose a position output (e.g. a coordinate or a point of a body)",
+            diagnostics={"outputs": list(model.y_names), "problems": bad})
+
+
+def check_decoupling(model, Az, times, Q, rcond: float = 1e-10) -> None:
+    """Raise :class:`SingularDecouplingError` where the decoupling matrices ``Az`` (shape
+    ``(k, k, K)`` at ``times``, configurations ``Q``) are singular (smallest over largest singular
+    value below ``rcond``): there the vector relative degree is not (2, ..., 2)."""
+    sv = np.linalg.svd(Az.transpose(2, 0, 1), compute_uv=False)
+    ratio = sv[:, -1] / np.maximum(sv[:, 0], 1e-300)
+    bad = np.flatnonzero(~(ratio >= rcond))
+    if bad.size == 0:
+        return
+    k = bad[0]
+    raise SingularDecouplingError(
+        f"the decoupling matrix A_z = [G; J; h'(q)] M(q)^-1 [G^T J^T B] of the jerk-level index reduction of "
+        f"003 (35) is singular at t = {times[k]:.6g}, q = {np.round(Q[:, k], 6).tolist()} (smallest/largest "
+        f"singular value {ratio[k]:.2g}; singular at {bad.size} of {times.size} points of the quasi-static path): "
+        f"the vector relative degree of the output(s) {list(model.y_names)} of {model.name!r} is not (2, ..., 2) "
+        "there, so the inverse model cannot be solved for the multipliers and inputs. If h'(q) M^-1 B vanishes "
+        "identically near this configuration, the output has a higher relative degree (e.g. a flat output, "
+        "relative degree 2n: its inverse is algebraic in y_ref and its derivatives, use a flatness-based "
+        "feedforward); otherwise the reference passes a singular configuration. Choose another output or a "
+        "reference that avoids it",
+        diagnostics={"t": float(times[k]), "q": Q[:, k].tolist(), "rcond": float(ratio[k]),
+                     "singular_points": int(bad.size)})

@@ -17,11 +17,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
-from ..errors import BoundaryConditionError, InversionFailed, ReferenceSignalError
-from .boundary import EquilibriumSolver, dichotomy, explain_dichotomy, resolve_selection
+from ..errors import BoundaryConditionError, InversionFailed, NoDichotomyError, ReferenceSignalError
+from .boundary import EquilibriumSolver, dichotomy, explain_dichotomy, explain_no_dichotomy, resolve_selection
 from .collocation import Transcription, get_scheme
 from .result import Inverse
-from .servo import ServoModel
+from .servo import ServoModel, check_decoupling
 
 _SERVO_CACHE: dict = {}
 _TRANS_CACHE: dict = {}
@@ -206,7 +206,8 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     _pos, _vel, acc = servo.residuals.map(times.size)(X, Y, th)
     Az = np.array(servo.decoupling.map(times.size)(X, Y, th)).reshape(l + p + m, l + p + m, times.size, order="F")
     acc = np.array(acc)
-    Z = np.stack([np.linalg.solve(Az[:, :, k], -acc[:, k]) for k in range(times.size)], axis=1)
+    check_decoupling(model, Az, times, Q)
+    Z = np.linalg.solve(Az.transpose(2, 0, 1), -acc.T[:, :, None])[:, :, 0].T
     return np.vstack([Q, V, Z])
 
 
@@ -310,15 +311,16 @@ def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label, banded=
                "max_constraint_violation": float(np.max(np.abs(g))), "factorizations": n_fact}
 
 
-def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N: int = 200,
+def invert(model, reference, *, T0: float | None = None, Tf: float | None = None, start: dict | None = None,
+           end: dict | None = None, N: int = 200,
            mesh: np.ndarray | None = None, scheme: str = "hermite-simpson", formulation: str = "baumgarte",
            omega: float = 10.0, backend: str = "ipopt", ipopt_options: dict | None = None,
            max_iter: int = 100, max_wall_time: float = 120.0, newton_tol: float = 1e-10,
            warm_start: Inverse | None = None, q_guess=None, objective: float | None = None,
            allow_underdetermined: bool = False, residual_tol: float = 1e-4, tol: float | None = None,
            max_refinements: int = 6, max_N: int = 4000, forward_options: dict | None = None,
-           progress: bool = False, continuation: bool = True, mesh_fraction: float = 0.5,
-           compiled: bool | str = "auto") -> Inverse:
+           progress: bool = False, continuation: bool = True, mesh_fraction: float | None = None,
+           compiled: bool | str = "auto", plan=None, plan_options: dict | None = None) -> Inverse:
     """Stable inversion by servo constraints (003 (35)) with boundary conditions (36).
 
     Parameters
@@ -327,15 +329,26 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
         The reference model (003 (1)); ``h`` must depend on ``q`` only.
     reference : Reference
         ``y_ref``; needs three continuous derivatives (jerk-level index reduction).
-    T0, Tf : float
-        The BVP horizon, ``T0 < t0`` and ``Tf > tf`` (pre- and post-actuation).
-    start, end : dict
-        Boundary selection by name (:mod:`invctl.inversion.boundary`).
+    T0, Tf : float, optional
+        The BVP horizon, ``T0 <= t0`` and ``Tf >= tf`` (pre- and post-actuation).
+    start, end : dict, optional
+        Boundary selection by name (:mod:`invctl.inversion.boundary`).  Whatever of
+        ``T0, Tf, start, end`` is ``None`` is derived by
+        :func:`invctl.inversion.plan.plan_inversion` (from the modes of the linearized
+        inverse model at the equilibria, with ``plan_options``); given ones are kept.
+        The plan goes to ``diagnostics["plan"]``.
+    plan : InversionPlan, optional
+        A plan computed before (fills what is ``None``; e.g. reused across a sweep).
+    plan_options : dict, optional
+        Keywords of ``plan_inversion`` (``tol``, ``max_horizon``, ``neutral``, ``scale``).
     N, mesh : int or array
-        Number of intervals, or the mesh itself.  The default mesh is piecewise
-        uniform with ``t0`` and ``tf`` as mesh points (the fourth derivative of a C^4
-        reference jumps there; inside an interval it costs an order of magnitude in
-        accuracy) and ``mesh_fraction`` of the intervals on ``[t0, tf]``.
+        Number of intervals, or the mesh itself.  The default mesh has ``t0`` and ``tf``
+        as mesh points (the fourth derivative of a C^4 reference jumps there; inside an
+        interval it costs an order of magnitude in accuracy).  With a given horizon it is
+        piecewise uniform with ``mesh_fraction`` (default 0.5) of the intervals on
+        ``[t0, tf]``; when ``T0`` or ``Tf`` is derived (and ``mesh_fraction=None``) it is
+        uniform on ``[t0, tf]`` and graded outside by the decay of the tails
+        (:func:`invctl.inversion.plan.graded_mesh`).
     scheme : str
         ``hermite-simpson`` (default), ``legendre<d>``, ``radau<d>``.
     formulation, omega : str, float
@@ -373,8 +386,27 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
     Raises
     ------
     BoundaryConditionError, ReferenceSignalError, InversionFailed
-        ``InversionFailed.partial`` is the last iterate as an :class:`Inverse`.
+        ``InversionFailed.partial`` is the last iterate as an :class:`Inverse`;
+        subclasses name the cause: ``NoDichotomyError`` (internal eigenvalues on the
+        imaginary axis), ``HorizonTooLongError``, ``ReferenceSmoothnessError``,
+        ``SingularDecouplingError`` (a ``RelativeDegreeError``), ``PositionOutputError``
+        (a ``ModelError``).
     """
+    if plan is not None and plan_options is not None:
+        raise ValueError("invert: give either plan (computed before) or plan_options (to compute one), not both")
+    if plan is None and (plan_options is not None or None in (T0, Tf, start, end)):
+        from .plan import plan_inversion
+
+        plan = plan_inversion(model, reference, start=start, end=end, T0=T0, Tf=Tf, formulation=formulation,
+                              omega=omega, q_guess=q_guess, **(plan_options or {}))
+    if plan is not None:
+        if (plan.formulation, plan.omega) != (formulation, float(omega)):
+            raise ValueError(f"invert: the plan was made for formulation={plan.formulation!r}, omega={plan.omega}, "
+                             f"not {formulation!r}, {omega}")
+        T0 = plan.T0 if T0 is None else T0
+        Tf = plan.Tf if Tf is None else Tf
+        start = plan.start if start is None else start
+        end = plan.end if end is None else end
     if tol is not None:
         return _refine(model, reference, T0=T0, Tf=Tf, start=start, end=end, N=N, mesh=mesh, scheme=scheme,
                        formulation=formulation, omega=omega, backend=backend, ipopt_options=ipopt_options,
@@ -383,8 +415,10 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
                        allow_underdetermined=allow_underdetermined, residual_tol=residual_tol, tol=tol,
                        max_refinements=max_refinements, max_N=max_N, forward_options=forward_options,
                        progress=progress, continuation=continuation, mesh_fraction=mesh_fraction,
-                       compiled=compiled)
-    reference.require(3, "servo-constraint inversion (jerk-level index reduction of 003 (35))")
+                       compiled=compiled, plan=plan)
+    from .plan import check_reference
+
+    check_reference(reference, 3)
     if not (T0 <= reference.t0 and Tf >= reference.tf and Tf > T0):
         raise ReferenceSignalError(f"the horizon [T0, Tf] = [{T0}, {Tf}] must contain [t0, tf] = "
                                    f"[{reference.t0}, {reference.tf}] (pre- and post-actuation)")
@@ -397,8 +431,13 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
         N = t_mesh.size - 1
         if N < 2 or np.any(np.diff(t_mesh) <= 0) or abs(t_mesh[0] - T0) > 1e-12 or abs(t_mesh[-1] - Tf) > 1e-12:
             raise ValueError("mesh must be increasing from T0 to Tf with at least 3 points")
+    elif plan is not None and mesh_fraction is None and {"T0", "Tf"} & set(plan.derived):
+        from .plan import graded_mesh
+
+        t_mesh = graded_mesh(T0, Tf, reference.t0, reference.tf, int(N), plan.mesh_decay(sch.order))
     else:
-        t_mesh = default_mesh(T0, Tf, reference.t0, reference.tf, int(N), mesh_fraction)
+        t_mesh = default_mesh(T0, Tf, reference.t0, reference.tf, int(N), 0.5 if mesh_fraction is None
+                              else mesh_fraction)
     under = len(sel.start) + len(sel.end) < servo.layout.nx
     weight = float(objective) if objective is not None else (1.0 if under else 0.0)
     tr = transcription(servo, sel, sch, N, weight, compiled=compiled if not under else False)
@@ -429,6 +468,10 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
     if not under:
         Yends = servo.reference_samples(reference, np.array([T0, Tf]))
         dich = dichotomy(servo, sel, E0, Yends[:, :1], Ef, Yends[:, 1:], model.theta_values)
+        if dich["neutral_internal"] and sel.end:  # all at T0: an initial value problem, no dichotomy needed
+            raise NoDichotomyError(explain_no_dichotomy(dich["eigenvalues_internal_start"],
+                                                        dich["eigenvalues_internal_end"], f" for {model.name!r}"),
+                                   diagnostics={k: v for k, v in dich.items() if not k.startswith("eigenvalues")})
         if dich["well_posed"] is False:
             raise BoundaryConditionError(explain_dichotomy(dich, sel), diagnostics={
                 k: v for k, v in dich.items() if not k.startswith("eigenvalues")})
@@ -464,6 +507,9 @@ def invert(model, reference, *, T0: float, Tf: float, start: dict, end: dict, N:
         "selection": sel.describe(), "T0": T0, "Tf": Tf, "residuals": res, "continuation": cont_info,
         "compiled": tr.compiled,
         "dichotomy": None if dich is None else {k: v for k, v in dich.items() if not k.startswith("eigenvalues")},
+        "plan": None if plan is None else plan.to_dict(),
+        "mesh": "given" if mesh is not None else ("graded" if plan is not None and mesh_fraction is None
+                                                  and {"T0", "Tf"} & set(plan.derived) else "piecewise uniform"),
     })
     if not info["success"]:
         raise InversionFailed(
