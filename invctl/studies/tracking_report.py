@@ -156,8 +156,8 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
         f"  boundary conditions (003 (36)): {d['selection']}",
     ]
     plan = d.get("plan")
-    if isinstance(plan, dict) and plan.get("text"):
-        lines.append("  " + plan["text"].replace("\n", "\n  "))
+    if isinstance(plan, dict) and plan.get("describe"):
+        lines.append("  automatic setup: " + plan["describe"].replace("\n", "\n  "))
     lines += [
         f"  build {d['build_s']:.3f} s, solve {d['solve_s']:.3f} s, total {wall:.2f} s",
         f"  residuals: position {d['residuals']['position']:.2e}, velocity "
