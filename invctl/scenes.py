@@ -346,6 +346,12 @@ class Scene:
     @property
     def commands(self) -> tuple[str, ...]:
         """The commands this scene offers."""
+        offered = self._commands()
+        if self.studies and "study" not in offered:
+            offered += ("study",)
+        return offered
+
+    def _commands(self) -> tuple[str, ...]:
         kind = self.kind
         if kind == "tracking":
             if self.tracking.reference is None:

@@ -10,52 +10,51 @@ from invctl.cli import main
 from invctl.studies.tradeoff import TradeoffResult, TradeoffSpec, run_tradeoff
 
 SCENE = textwrap.dedent('''
-    """Exponential decay x' = -a x, x(0) = 1, integrated by explicit Euler."""
-    import time
+    """A mass on a spring, position output; a user study: explicit Euler on x' = -a x against exp(-a T)."""
     import math
-    import numpy as np
-    from invctl.scenes import CommandResult
+    import time
+
+    import casadi as ca
+
+    from invctl.model import Model, ParamSet
+    from invctl.scenes import Scene, Tracking
     from invctl.studies.tradeoff import TradeoffSpec
 
-    PARAMS = {"a": 2.0, "T": 1.0}
+    PARAMS = {"m": 1.0, "k": 4.0}
 
     def build(**overrides):
-        p = dict(PARAMS); p.update(overrides); return p
+        P = ParamSet(list(PARAMS))
+        q, v = ca.SX.sym("q", 1), ca.SX.sym("v", 1)
+        return Model("spring_mass", q, v, P, PARAMS, M=ca.reshape(P["m"], 1, 1), f=-P["k"] * q,
+                     B=ca.DM([[1.0]]), h=q, overrides=overrides)
 
-    def euler(p, h):
-        n = int(round(p["T"] / h))
-        return (1 - p["a"] * h) ** n
+    def euler_study(scene, params, settings, smoke):
+        a, T = settings["a"], settings["T"]
+        exact = math.exp(-a * T)
 
-    def _simulate(params, *, controller=None, plant_set=(), t_end=None, out=None, plot=None):
-        p = build(**params)
-        x = euler(p, 1e-3)
-        return CommandResult(f"x(T) = {x:.6f}", {"x_T": x, "params": p})
-
-    def tradeoff_spec(params, smoke=False):
-        p = build(**params)
-        exact = math.exp(-p["a"] * p["T"])
         def run(h):
-            t0 = time.perf_counter(); x = euler(p, h)
-            return {"error": abs(x - exact), "time_s": time.perf_counter() - t0 + h * 0}
+            t0 = time.perf_counter()
+            x = (1 - a * h) ** int(round(T / h))
+            return {"error": abs(x - exact), "time_s": time.perf_counter() - t0 + 1e-9}
+
         return TradeoffSpec("h", [0.1, 0.01, 0.001], run, "closed form exp(-a T)", "|x(T) - exact|")
 
-    COMMANDS = {"simulate": _simulate}
+    SCENE = Scene("spring_mass", build, params=PARAMS, settings={"a": 2.0, "T": 1.0}, positive=("m",),
+                  tracking=Tracking(point=[0.0]), studies={"euler": euler_study})
 ''')
 
 
 @pytest.fixture
 def scene_file(tmp_path):
-    path = tmp_path / "decay.py"
+    path = tmp_path / "spring_mass.py"
     path.write_text(SCENE)
     return str(path)
 
 
 def test_json_is_last_line_and_params_apply(scene_file, capsys):
-    assert main(["simulate", scene_file, "--set", "a=1", "--json"]) == 0
+    assert main(["analyze", scene_file, "--set", "k=9", "--json", "--samples", "10"]) == 0
     data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    # explicit Euler with h = 1e-3: error ~ a^2 T h e^{-aT} / 2 ~ 2e-4
-    assert data["x_T"] == pytest.approx(math.exp(-1.0), abs=3e-4)
-    assert data["params"]["a"] == 1.0
+    assert data["params"]["k"] == 9.0 and data["relative_degree"] == [2] and data["internal_dim"] == 0
 
 
 def test_unknown_scene_and_command_are_explained(scene_file, capsys):
@@ -63,16 +62,18 @@ def test_unknown_scene_and_command_are_explained(scene_file, capsys):
     assert "no scene named 'no_such_scene'" in capsys.readouterr().err
     assert main(["design", scene_file]) == 2
     assert "does not offer 'design'" in capsys.readouterr().err
+    assert main(["analyze", scene_file, "--set", "m=-1"]) == 2
+    assert "m must be positive" in capsys.readouterr().err
 
 
 def test_bad_assignment_is_not_evaluated(scene_file, capsys):
-    assert main(["simulate", scene_file, "--set", "a=__import__('os').getcwd()"]) == 2
+    assert main(["analyze", scene_file, "--set", "k=__import__('os').getcwd()"]) == 2
     assert "is not a number" in capsys.readouterr().err
 
 
 def test_study_tradeoff_writes_table_and_figure(scene_file, tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["study", "tradeoff", scene_file, "--out-dir", str(out), "--json"]) == 0
+    assert main(["study", "tradeoff", scene_file, "--out-dir", str(out), "--json", "--job", "euler"]) == 0
     data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert data["reference"] == "closed form exp(-a T)"
     errs = [r["error"] for r in data["rows"]]
@@ -81,8 +82,8 @@ def test_study_tradeoff_writes_table_and_figure(scene_file, tmp_path, capsys):
     np.testing.assert_allclose(slopes, -1.0, atol=0.1)
     assert all(r["knob"] == "h" for r in data["rows"])
     for ext in ("csv", "json", "png"):
-        assert (out / f"tradeoff_decay.{ext}").stat().st_size > 0
-    back = TradeoffResult.from_json(out / "tradeoff_decay.json")
+        assert (out / f"tradeoff_spring_mass.{ext}").stat().st_size > 0
+    back = TradeoffResult.from_json(out / "tradeoff_spring_mass.json")
     assert back.recommend(1e-3)["value"] == 0.001
 
 

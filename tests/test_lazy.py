@@ -106,8 +106,8 @@ def test_analysis_derivations_are_cached_on_first_use(lie_counter):
 
 @pytest.mark.timeout(60)
 def test_loading_every_scene_imports_no_command_implementation():
-    # scene COMMANDS are lazy_command handlers: the analysis/inversion/studies modules are imported
-    # when a command runs, not when a scene is loaded
+    # a scene declares data and model-building functions: the analysis/inversion/studies modules are
+    # imported when a command runs, not when a scene is loaded
     code = textwrap.dedent("""
         import json, sys
         from invctl.scenes import available_scenes, load_scene
@@ -115,7 +115,7 @@ def test_loading_every_scene_imports_no_command_implementation():
         for name in names:
             load_scene(name)
         print(json.dumps([names, sorted(m for m in sys.modules if m.startswith(("invctl.analysis.",
-              "invctl.inversion.", "invctl.studies.", "invctl.simulate.")))]))
+              "invctl.inversion.", "invctl.studies.", "invctl.simulate.", "invctl.control.")))]))
     """)
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=50,
                           env={"MPLBACKEND": "Agg", "PATH": "/usr/bin:/bin"})
@@ -124,11 +124,9 @@ def test_loading_every_scene_imports_no_command_implementation():
     assert len(names) >= 10 and loaded == [], loaded
 
 
-def test_lazy_command_calls_its_target_with_the_scene_module(capsys):
-    from invctl.scenes import lazy_command, load_scene
-
-    scene = load_scene("stiff_wall")
-    handler = scene.COMMANDS["analyze"]
-    assert isinstance(handler, lazy_command) and handler.target == "invctl.studies.switched:analyze_command"
-    res = handler(scene.PARAMS)
-    assert "Lambda" in res.text or "Λ" in res.text
+def test_commands_offered_follow_from_the_declaration():
+    assert load_scene("manipulator").commands == ("analyze", "invert", "design", "simulate", "pipeline", "study")
+    assert load_scene("knife_edge").commands == ("analyze", "study")
+    assert "analyze" in load_scene("gear_backlash").commands  # it declares an analyze report
+    assert "analyze" not in load_scene("bouncing_ball").commands
+    assert load_scene("stiff_wall").commands == ("analyze", "simulate", "design", "pipeline", "study")

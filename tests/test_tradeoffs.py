@@ -12,7 +12,7 @@ import pytest
 from invctl.cli import main
 from invctl.errors import SceneError
 from invctl.scenes import load_scene
-from invctl.studies.tradeoff_specs import REGISTRY, fitted_order, spec_for
+from invctl.studies.tradeoff_specs import fitted_order, jobs_of, spec_for
 
 
 def _study(scene, tmp_path, capsys, monkeypatch, *extra):
@@ -35,7 +35,7 @@ def _knob_error(data):
 
 @pytest.mark.parametrize("scene", ["cartpole", "two_link_arm", "knife_edge"])
 def test_analysis_sampling_tradeoff(scene, tmp_path, capsys, monkeypatch):
-    data = _study(scene, tmp_path, capsys, monkeypatch)
+    data = _study(scene, tmp_path, capsys, monkeypatch, "--job", "analyze")
     n, err = _knob_error(data)
     # the reference is the region's minimum: no sample may undercut it (1e-9: SLSQP tolerance)
     assert err.min() >= -1e-9
@@ -81,8 +81,9 @@ def test_inversion_mesh_tradeoff(tmp_path, capsys, monkeypatch):
 
 
 @pytest.mark.parametrize("scene", ["bouncing_ball", "prismatic_clearance"])
-def test_contact_timestep_tradeoff(scene, tmp_path, capsys, monkeypatch):
-    data = _study(scene, tmp_path, capsys, monkeypatch)
+def test_contact_impacts_tradeoff(scene, tmp_path, capsys, monkeypatch):
+    """Impact times and post-impact velocities against the closed form (ball) or the event-driven run."""
+    data = _study(scene, tmp_path, capsys, monkeypatch, "--job", "impacts")
     h, err = _knob_error(data)
     assert np.all(np.diff(err) < 0)
     # Moreau-Jean is first order in h for impact times and post-impact velocities (000 Sect. 4)
@@ -105,28 +106,30 @@ def test_every_shipped_scene_has_a_study():
 
     import problems
 
-    names = sorted(m.name for m in pkgutil.iter_modules(problems.__path__))
-    missing = [n for n in names if n not in REGISTRY and not hasattr(load_scene(n), "tradeoff_spec")]
+    names = sorted(m.name for m in pkgutil.iter_modules(problems.__path__) if not m.name.startswith("_"))
+    missing = [n for n in names if not jobs_of(load_scene(n))]
     assert not missing
 
 
 def test_scene_without_spec_is_explained(tmp_path):
     path = tmp_path / "plain.py"
-    path.write_text("PARAMS = {}\ndef build(**o):\n    return None\nCOMMANDS = {}\n")
+    path.write_text("from invctl.scenes import Scene\nfrom problems.cartpole import build, PARAMS\n"
+                    "SCENE = Scene('plain', build, params=PARAMS)\n")
     with pytest.raises(SceneError, match="offers no speed-versus-accuracy study"):
-        spec_for(load_scene(str(path)), "plain", {}, smoke=True)
+        spec_for(load_scene(str(path)), {}, {}, smoke=True)
 
 
 def test_unknown_job_is_explained():
     with pytest.raises(SceneError, match="choose one of"):
-        spec_for(load_scene("manipulator"), "manipulator", {}, smoke=True, job="pipeline")
+        spec_for(load_scene("manipulator"), {}, {}, smoke=True, job="pipeline")
 
 
 def test_library_call_returns_the_cli_data(tmp_path, capsys, monkeypatch):
     from invctl.studies.tradeoff import run_tradeoff
 
     data = _study("gear_backlash", tmp_path, capsys, monkeypatch)
-    res = run_tradeoff(spec_for(load_scene("gear_backlash"), "gear_backlash", {}, smoke=True), progress=False)
+    scene = load_scene("gear_backlash")
+    res = run_tradeoff(spec_for(scene, {}, dict(scene.settings), smoke=True), progress=False)
     lib = res.to_dict()
     assert lib["reference"] == data["reference"] and lib["knob"] == data["knob"]
     assert [r["value"] for r in lib["rows"]] == [r["value"] for r in data["rows"]]

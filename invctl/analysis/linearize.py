@@ -427,11 +427,15 @@ def from_matrices(model, internal, Q, P_list, *, split="schur", points=None) -> 
     # matters for r_hat >= 3, see docs/analysis.md)
     F = [-sum((np.linalg.matrix_power(Q, j - 1) @ P_list[l + j] for j in range(1, r - l)), np.zeros_like(P_list[0]))
          for l in range(r)]
-    ev = np.linalg.eigvals(Q)
+    ev = np.linalg.eigvals(Q) if d else np.zeros(0, complex)
     ev = ev[np.argsort(ev.real)]
-    tol = _IMAG_TOL * max(1.0, np.abs(Q).max())
+    tol = _IMAG_TOL * max(1.0, np.abs(Q).max(initial=0.0))
     k = int(np.sum(ev.real >= -tol))
-    if split == "eig":
+    if split not in ("schur", "eig"):
+        raise CoordinateError(f"split must be 'schur' or 'eig', got {split!r}")
+    if d == 0:  # no internal dynamics (flat output): nothing to split
+        T = np.eye(0)
+    elif split == "eig":
         if np.any(np.abs(ev.imag) > 0):
             raise CoordinateError("split='eig' needs real eigenvalues; use split='schur'")
         w, V = np.linalg.eig(Q)
@@ -439,12 +443,10 @@ def from_matrices(model, internal, Q, P_list, *, split="schur", points=None) -> 
         V = np.real(V[:, order])
         V = V / np.where(np.abs(V[-1]) > 1e-12, V[-1], 1.0)
         T = np.linalg.inv(V)
-    elif split == "schur":
+    else:
         _, Z, sdim = sla.schur(Q, output="real", sort=lambda re, im: re < -tol)
         T = Z.T
-    else:
-        raise CoordinateError(f"split must be 'schur' or 'eig', got {split!r}")
-    TQ = T @ Q @ np.linalg.inv(T)
+    TQ = T @ Q @ np.linalg.inv(T) if d else Q
     TP = T @ P
     s = d - k
     lin = LinearizedInternal(

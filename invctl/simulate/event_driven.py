@@ -36,13 +36,14 @@ __all__ = ["simulate_event_driven"]
 def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | None = None, t0: float = 0.0,
                           gains=None, params=None, rtol: float = 1e-12, atol: float = 1e-12,
                           v_rest: float = 1e-7, max_events: int = 10000, dt_out: float | None = None,
-                          potential=None) -> ContactTrajectory:
+                          potential=None, max_impacts: int | None = None) -> ContactTrajectory:
     """Simulate exactly (up to integrator tolerance) from ``(q0, v0)`` to ``t_end``.
 
     Returns a :class:`ContactTrajectory` with ``stats["events"]`` (list of
     ``(t, kind, contact, U_minus, U_plus)``), ``stats["impact_t"]``,
     ``stats["impact_contact"]``, ``stats["impact_pre"]``,
-    ``stats["impact_post"]``, ``stats["impact_v_plus"]``.
+    ``stats["impact_post"]``, ``stats["impact_v_plus"]``. With ``max_impacts`` the run ends at that
+    impact (a reference for the first impacts that does not have to get through later Zeno phases).
     """
     cs = ContactSystem(model)
     law = law or zero_input(potential)
@@ -167,6 +168,8 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
         vs.append(v.copy())
         Up = W.T @ v
         active = settle(t, q, v, closed & (np.abs(Up) <= max(1e-12, 1e-9 * np.abs(U).max(initial=0))))
+        if max_impacts is not None and len(imp["t"]) >= max_impacts:
+            break
     else:
         raise SimulationFailed(f"event-driven: more than {max_events} events before t_end = {t_end}",
                                partial=(np.array(ts), np.array(qs), np.array(vs)))
