@@ -35,13 +35,13 @@ def main(argv=None):
     args = ap.parse_args(argv)
     controllers = ["C2"] if args.no_ff else ["C1", "C2"]
     t0 = time.perf_counter()
-    setup = setup_tracking(scene, invert=not args.no_ff, progress=True)
+    setup = setup_tracking(scene.SCENE, invert=not args.no_ff, progress=True)
     print(f"setup (analysis, controller, inversion): {time.perf_counter() - t0:.2f} s  {setup.timings}")
     rows = []
     for name in controllers:
         loop = setup.loop(name)
         loop_tol = type(loop)(setup.plant, setup.reference, controller=loop.controller, u_ff=loop.u_ff_fn,
-                              endeffector=setup.endeffector, t_end=setup.t_end, dt=setup.dt, name=name,
+                              signals=setup.signals, t_end=setup.t_end, dt=setup.dt, name=name,
                               rtol=args.rtol, atol=args.rtol * 1e-2)
         walls = []
         for _ in range(args.repeat):

@@ -18,7 +18,8 @@ import numpy as np
 from scipy.integrate import solve_bvp, solve_ivp
 
 import problems.manipulator as scene
-from invctl.inversion import forward_check, invert_scene, quasi_static_guess, resolve_selection, servo_model
+from invctl.inversion import forward_check, quasi_static_guess, resolve_selection, servo_model
+from invctl.studies.tracking import invert_tracking
 from invctl.inversion import compiled as _compiled_mod
 from invctl.inversion import solve as _solve_mod
 
@@ -137,7 +138,7 @@ def main():
         for N in Ns:
             clear_caches()
             try:
-                inv = invert_scene(scene, model=model, reference=ref, N=N, scheme=sch, backend="newton",
+                inv = invert_tracking(scene.SCENE, model, ref, N=N, scheme=sch, backend="newton",
                                    residual_tol=1.0)
             except Exception as exc:  # noqa: BLE001
                 print(f"{sch:16s} {N:5d}  failed: {type(exc).__name__}: {str(exc)[:80]}")
@@ -145,7 +146,7 @@ def main():
             d = inv.diagnostics
             # repeated solve on the built problem, warm start from the previous solution
             t = time.perf_counter()
-            inv2 = invert_scene(scene, model=model, reference=ref, N=N, scheme=sch, backend="newton",
+            inv2 = invert_tracking(scene.SCENE, model, ref, N=N, scheme=sch, backend="newton",
                                 warm_start=inv, residual_tol=1.0)
             warm = inv2.diagnostics["solve_s"]
             del t
@@ -167,7 +168,7 @@ def main():
     # forward check: compiled CVODES versus scipy DOP853 with a Python right-hand side
     print("\nforward check of HS N = 160 (rtol = atol = 1e-12), CVODES (default) vs scipy DOP853:")
     clear_caches()
-    inv = invert_scene(scene, model=model, reference=ref, N=160, backend="newton")
+    inv = invert_tracking(scene.SCENE, model, ref, N=160, backend="newton")
     for meth in ("cvodes", "cvodes", "DOP853"):
         t = time.perf_counter()
         rep = forward_check(model, inv, ref, method=meth)
@@ -183,10 +184,10 @@ def main():
     for label, opts in (("previous (L-BFGS Hessian, MUMPS default scaling)", old),
                         ("default (exact zero Hessian, MUMPS unscaled, AMD)", None)):
         clear_caches()
-        base = invert_scene(scene, model=model, reference=ref, N=100, ipopt_options=opts)
+        base = invert_tracking(scene.SCENE, model, ref, N=100, ipopt_options=opts)
         colds, cbs = [], []
         for _ in range(5):
-            b = invert_scene(scene, model=model, reference=ref, N=100, ipopt_options=opts)
+            b = invert_tracking(scene.SCENE, model, ref, N=100, ipopt_options=opts)
             colds.append(b.diagnostics["solve_s"])
         tr = next(iter(_solve_mod._TRANS_CACHE.values()))
         st = list(tr._solvers.values())[-1].stats()
@@ -194,7 +195,7 @@ def main():
         res, its = [], []
         for f in (1.01, 1.02, 0.99, 1.01, 0.98):
             other = model.with_params(m3=f * model.values["m3"])
-            b2 = invert_scene(scene, model=other, reference=ref, N=100, warm_start=base, ipopt_options=opts)
+            b2 = invert_tracking(scene.SCENE, other, ref, N=100, warm_start=base, ipopt_options=opts)
             res.append(b2.diagnostics["solve_s"])
             its.append(b2.diagnostics["iterations"])
         st = list(tr._solvers.values())[-1].stats()
@@ -211,13 +212,13 @@ def main():
         for N in ([160] if QUICK else [160, 320]):
             clear_caches()
             t = time.perf_counter()
-            inv = invert_scene(scene, model=model, reference=ref, N=N, backend="ipopt", compiled=comp)
+            inv = invert_tracking(scene.SCENE, model, ref, N=N, backend="ipopt", compiled=comp)
             wall = time.perf_counter() - t
             d = inv.diagnostics
             err = forward_check(model, inv, ref)["error"]
             # repeated solve: other parameter (m3 + 1 %), same NLP, warm start
             other = model.with_params(m3=1.01 * model.values["m3"])
-            inv2 = invert_scene(scene, model=other, reference=ref, N=N, backend="ipopt", compiled=comp,
+            inv2 = invert_tracking(scene.SCENE, other, ref, N=N, backend="ipopt", compiled=comp,
                                 warm_start=inv)
             print(f"  N={N:4d} compiled={comp!s:5s}: first call {wall:.3f} s (build {d['build_s']:.3f} s, solve "
                   f"{d['solve_s']:.3f} s, {d['iterations']} it), error {err:.2e}, rss {rss_mb():.0f} MB; "
@@ -225,7 +226,7 @@ def main():
 
     print("\nNewton backend (simplified Newton, LU reused), HS N = 100 (error <= 1e-6):")
     clear_caches()
-    inv = invert_scene(scene, model=model, reference=ref, N=100, backend="newton")
+    inv = invert_tracking(scene.SCENE, model, ref, N=100, backend="newton")
     d = inv.diagnostics
     err = forward_check(model, inv, ref)["error"]
     print(f"  first: build {d['build_s']:.3f} s, solve {d['solve_s'] * 1e3:.1f} ms ({d['iterations']} it, "
@@ -234,14 +235,14 @@ def main():
     for _ in range(5):  # solve only on the built problem, from the quasi-static guess, no factorization kept
         for tr in _solve_mod._TRANS_CACHE.values():
             tr._lu = None
-        colds.append(invert_scene(scene, model=model, reference=ref, N=100, backend="newton").diagnostics["solve_s"])
+        colds.append(invert_tracking(scene.SCENE, model, ref, N=100, backend="newton").diagnostics["solve_s"])
     newton_cold = float(np.median(colds))
     print(f"  solve only on the built problem (quasi-static guess, fresh factorizations), median of 5: "
           f"{newton_cold * 1e3:.1f} ms")
     newton_resolve = []
     for f in (1.01, 1.02, 0.99):
         other = model.with_params(m3=f * model.values["m3"])
-        inv2 = invert_scene(scene, model=other, reference=ref, N=100, backend="newton", warm_start=inv)
+        inv2 = invert_tracking(scene.SCENE, other, ref, N=100, backend="newton", warm_start=inv)
         e2 = forward_check(other, inv2, ref)["error"]
         newton_resolve.append(inv2.diagnostics["solve_s"])
         print(f"  re-solve m3 x {f}: {inv2.diagnostics['solve_s'] * 1e3:.1f} ms ({inv2.diagnostics['iterations']} it, "
@@ -250,7 +251,7 @@ def main():
     print("\nfirst solve at the scene default (HS, N = 200, IPOPT), caches cleared, imports excluded:")
     clear_caches()
     t = time.perf_counter()
-    first = invert_scene(scene, model=model, reference=ref)
+    first = invert_tracking(scene.SCENE, model, ref)
     first_wall = time.perf_counter() - t
     first_err = forward_check(model, first, ref)["error"]
     print(f"  {first_wall:.3f} s (build {first.diagnostics['build_s']:.3f} s, guess {first.diagnostics['guess_s']:.3f} s, "
@@ -258,7 +259,7 @@ def main():
 
     clear_caches()
     t = time.perf_counter()
-    first_n = invert_scene(scene, model=model, reference=ref, backend="newton")
+    first_n = invert_tracking(scene.SCENE, model, ref, backend="newton")
     first_n_wall = time.perf_counter() - t
     first_n_err = forward_check(model, first_n, ref)["error"]
     print(f"  Newton backend: {first_n_wall:.3f} s (build {first_n.diagnostics['build_s']:.3f} s, solve "
@@ -270,7 +271,7 @@ def main():
     for tol in (1e-6, 1e-7):
         clear_caches()
         t = time.perf_counter()
-        inv = invert_scene(scene, model=model, reference=ref, N=60, tol=tol)
+        inv = invert_tracking(scene.SCENE, model, ref, N=60, tol=tol)
         wall = time.perf_counter() - t
         d = inv.diagnostics
         ours[tol] = {"wall": wall, "solve": d["total_solve_s"], "build": d["total_build_s"],
@@ -279,7 +280,7 @@ def main():
               f"wall {wall:.3f} s (build {d['total_build_s']:.3f} s, solve {d['total_solve_s']:.3f} s, "
               f"rest = guesses + forward checks)")
         other = model.with_params(m3=1.01 * model.values["m3"])
-        again = invert_scene(scene, model=other, reference=ref, mesh=inv.t_mesh, N=inv.N, warm_start=inv)
+        again = invert_tracking(scene.SCENE, other, ref, mesh=inv.t_mesh, N=inv.N, warm_start=inv)
         ours[tol]["resolve"] = again.diagnostics["solve_s"]
         print(f"    re-solve with m3 + 1 % on the built problem (warm start): "
               f"{again.diagnostics['solve_s'] * 1e3:.1f} ms, {again.diagnostics['iterations']} it")

@@ -15,6 +15,7 @@ import pytest
 
 import problems.cartpole as cartpole
 import problems.manipulator as scene
+from invctl.studies.tracking import tracking_linearization
 import problems.two_link_arm as arm
 from invctl.analysis import internal_dynamics, linearize_internal, schur_complement
 from invctl.control.funnel_design import DesignRules, design_funnel_feedback, reference_time_scale
@@ -136,16 +137,16 @@ def test_uncontrollable_unstable_mode_is_reported():
 def manip():
     model = scene.build()
     ref = scene.reference(model)
-    lin = scene.manipulator_linearization(model, ref)
+    lin = tracking_linearization(scene.SCENE, model, ref)
     return model, ref, lin, scene.initial_configuration(model)
 
 
 @pytest.fixture(scope="module")
 def manip_inverse(manip):
-    from invctl.inversion import invert_scene
+    from invctl.studies.tracking import invert_tracking
 
     model, ref, _, _ = manip
-    return invert_scene(scene, {}, model=model, reference=ref)
+    return invert_tracking(scene.SCENE, model, ref)
 
 
 @pytest.fixture(scope="module")
@@ -162,7 +163,7 @@ def test_feedback_overrides_reproduce_todays_controller_bit_for_bit(manip):
     opts = d.controller_options()
     assert all(opts[key] is scene.FEEDBACK[key] for key in scene.FEEDBACK) and "pairing" not in opts
     mine = NMPFunnelController(model, lin, ref, **opts)
-    today = scene.funnel_controller(model, ref, lin)
+    today = NMPFunnelController(model, lin, ref, t_end=2.0, **scene.FEEDBACK)
     rng = np.random.default_rng(4)
     for _ in range(10):
         q, v, t = q0 + rng.normal(scale=0.05, size=5), rng.normal(scale=0.5, size=5), rng.uniform(0, 2)
@@ -193,8 +194,8 @@ def test_manipulator_design_is_high_gain_with_positive_margins(manip, manip_desi
     assert "high-gain" in text and "kappa_bar" in text and "expected error" in text
 
 
-def _run(plant, ref, ctrl, q0, t_end=2.0, u_ff=None, endeffector=None):
-    return ClosedLoop(plant, ref, controller=ctrl, t_end=t_end, u_ff=u_ff, endeffector=endeffector).run(q0)
+def _run(plant, ref, ctrl, q0, t_end=2.0, u_ff=None, signals=None):
+    return ClosedLoop(plant, ref, controller=ctrl, t_end=t_end, u_ff=u_ff, signals=signals).run(q0)
 
 
 def test_manipulator_c1_and_c2_inside_the_funnels_on_the_mismatched_plant(manip, manip_design, manip_inverse):
@@ -207,7 +208,7 @@ def test_manipulator_c1_and_c2_inside_the_funnels_on_the_mismatched_plant(manip,
     d = manip_design
     out = {}
     for label, feedback in (("auto", d.controller_options()), ("hand", {})):
-        s = setup_tracking(scene, inverse=manip_inverse, feedback=feedback)
+        s = setup_tracking(scene.SCENE, inverse=manip_inverse, feedback=feedback)
         out[label] = {name: run_controller(s, name) for name in ("C1", "C2")}
     for name, r in out["auto"].items():
         assert r.status == "ok" and r.t[-1] == pytest.approx(2.0) and r.max_funnel_ratio < 1
@@ -215,7 +216,7 @@ def test_manipulator_c1_and_c2_inside_the_funnels_on_the_mismatched_plant(manip,
         assert a1_margin_along(d, model.scaled(**scene.PLANT_FACTORS), r.q, r.v).min_eig > 0
     for label, runs in out.items():
         print(f"{label}: " + ", ".join(f"{n} cum. y {r.cumulative_output_error:.4f} cum. r "
-                                       f"{r.cumulative_endeffector_error:.4f} margin {r.funnel_margin:.3f} "
+                                       f"{r.cumulative_errors['end effector']:.4f} margin {r.funnel_margin:.3f} "
                                        f"peaks {np.round(r.input_peaks, 2).tolist()}" for n, r in runs.items()))
     # the feedforward still pays off with the designed feedback (the paper: 40 %)
     assert out["auto"]["C1"].cumulative_output_error < 0.7 * out["auto"]["C2"].cumulative_output_error
@@ -224,7 +225,7 @@ def test_manipulator_c1_and_c2_inside_the_funnels_on_the_mismatched_plant(manip,
 def test_a1_margin_along_matches_check_a1_and_the_study(manip):
     """a1_margin_along (new output module) vs LinearizedInternal.check_A1 (analysis) at random states."""
     model, ref, lin, q0 = manip
-    ctrl = scene.funnel_controller(model, ref, lin)
+    ctrl = NMPFunnelController(model, lin, ref, t_end=2.0, **scene.FEEDBACK)
     rng = np.random.default_rng(6)
     q = q0[:, None] + rng.normal(scale=0.05, size=(5, 7))
     v = rng.normal(scale=0.3, size=(5, 7))
