@@ -77,7 +77,7 @@ def drawing(model: Model):
     """The ball above the ground line."""
     from invctl.plot.animate import Drawing
 
-    return Drawing(points={"ball": ca.vertcat(0, model.q[0])}, links=[], fixed=[((-0.5, 0.0), (0.5, 0.0))])
+    return Drawing(points={"ball": ca.vertcat(0, model.q[0])}, links=[], segments=[((-0.5, 0.0), (0.5, 0.0))])
 
 
 def _check(v: dict) -> None:

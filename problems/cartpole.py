@@ -70,7 +70,7 @@ def drawing(model: Model):
     x, th = model.q[0], model.q[1]
     l = model.params["l"]
     return Drawing(points={"cart": ca.vertcat(x, 0), "tip": ca.vertcat(x + 2 * l * ca.sin(th), 2 * l * ca.cos(th))},
-                   links=[("cart", "tip")], fixed=[((-1.0, 0.0), (1.5, 0.0))])
+                   links=[("cart", "tip")], segments=[((-1.0, 0.0), (1.5, 0.0))])
 
 
 SCENE = Scene(

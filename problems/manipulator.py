@@ -254,7 +254,7 @@ def drawing(model: Model):
     pts = {"A": ca.vertcat(0, s1), "B": ca.vertcat(L1 * ca.cos(al), s1 + L1 * ca.sin(al)), "C": C,
            "F": C - 0.5 * L2 * u, "D": D, "E": D + L3 * ca.vertcat(ca.cos(be + ga), -ca.sin(be + ga))}
     return Drawing(points=pts, links=[("A", "B"), ("F", "D"), ("D", "E")],
-                   fixed=[((0.0, -1.0), (0.0, 1.0)), ((0.0, 0.0), (2.5, 0.0))])
+                   segments=[((0.0, -1.0), (0.0, 1.0)), ((0.0, 0.0), (2.5, 0.0))])
 
 
 SCENE = Scene(

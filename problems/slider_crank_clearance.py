@@ -104,7 +104,7 @@ def drawing(model: Model):
     A = r * ca.vertcat(ca.cos(th), ca.sin(th))
     B = ca.vertcat(s - Lr * ca.cos(ph), Lr * ca.sin(ph))
     return Drawing(points={"O": ca.vertcat(0, 0), "A": A, "B": B, "C": ca.vertcat(s, 0)},
-                   links=[("O", "A"), ("B", "C")], fixed=[((-0.15, -0.02), (0.5, -0.02))])
+                   links=[("O", "A"), ("B", "C")], segments=[((-0.15, -0.02), (0.5, -0.02))])
 
 
 SCENE = Scene(

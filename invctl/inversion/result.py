@@ -182,6 +182,13 @@ class Inverse:
             fig.savefig(path, dpi=120)
         return fig
 
+    def animate(self, path, **options):
+        """Draw the mechanism along the inverse's state trajectory (pre-actuation included); see
+        :func:`invctl.plot.animate.animate_result` (the scene defaults to ``meta["scene"]``)."""
+        from ..plot.animate import animate_result
+
+        return animate_result(self, path, **options)
+
     def to_npz(self, path, dt: float | None = None, meta: dict | None = None):
         """Save ``t, q, v, lam, mu, u, y_ref`` on a uniform grid of step ``dt`` plus the
         collocation data (``t_mesh, X_mesh, dX_mesh, X_col``) needed by :meth:`load`;
@@ -195,7 +202,7 @@ class Inverse:
         X = self.X(t)
         yr = self.y_ref(t)
         info = {"scheme": self.scheme, "sizes": self.sizes, "t0": self.t0, "tf": self.tf, "names": self.names,
-                "diagnostics": jsonable(self.diagnostics), **(meta or {})}
+                "diagnostics": jsonable(self.diagnostics), **self.meta, **(meta or {})}
         return save_npz(path, "Inverse", dict(
             t=t, q=X[self._slice("q")], v=X[self._slice("v")], lam=X[self._slice("lam")], mu=X[self._slice("mu")],
             u=X[self._slice("u")], u_causal=self.u_causal(t), y_ref=np.zeros((0, t.size)) if yr is None else yr,

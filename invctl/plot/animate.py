@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import AnimationError, DimensionError, DrawingError, ParameterError
 
-__all__ = ["Drawing", "animate", "positions", "snapshot"]
+__all__ = ["Drawing", "animate", "animate_result", "positions", "snapshot"]
 
 LINK_STYLE = {"color": "tab:blue", "lw": 3.0, "solid_capstyle": "round"}
 POINT_STYLE = {"marker": "o", "ms": 5.0, "color": "k", "ls": "none"}
@@ -386,3 +386,30 @@ def snapshot(model, drawing: Drawing, t, q, path, *, times=None, n: int = 5, tra
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     return path
+
+
+def animate_result(result, path, *, scene=None, params=None, fps: float = 25, speed: float = 1.0,
+                   title: str | None = None, **options) -> Path:
+    """Draw a run of a scene (``ClosedLoopResult``, ``ContactTrajectory`` or ``Inverse``) to ``path``.
+
+    The scene and its parameters default to what the result records (``result.meta``, filled by the
+    commands and kept in its file); the scene's ``drawing(model)`` says what to draw.
+    """
+    from ..scenes import Scene, load_scene
+
+    meta = dict(getattr(result, "meta", None) or {})
+    scene = scene if scene is not None else meta.get("scene")
+    if scene is None:
+        raise AnimationError("the result does not record its scene: pass scene= (a Scene, name or path)")
+    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    if scene.drawing is None:
+        raise AnimationError(f"scene {scene.name!r} declares no drawing(model) (points and links to draw)")
+    model = scene.model(meta.get("params", {}) if params is None else params)
+    if hasattr(result, "X_mesh"):  # an inverse: its state trajectory over the horizon
+        t = np.linspace(result.T0, result.Tf, 600)
+        q = result.q(t)
+    else:
+        t, q = np.asarray(result.t, float), np.asarray(result.q, float)
+    label = getattr(result, "controller", "") or meta.get("controller", "")
+    return animate(model, scene.drawing(model), t, q, path, fps=fps, speed=speed,
+                   title=title or (scene.name + (f" ({label})" if label else "")), **options)

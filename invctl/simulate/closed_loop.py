@@ -67,6 +67,7 @@ class ClosedLoopResult:
     y_names: list = field(default_factory=list)
     u_names: list = field(default_factory=list)
     stats: dict = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
 
     @property
     def success(self) -> bool:
@@ -128,11 +129,11 @@ class ClosedLoopResult:
         from ..io import save_npz
 
         data = {f.name: getattr(self, f.name) for f in fields(self)
-                if f.name not in ("signals", "signals_ref", "cumulative_errors", "stats")}
+                if f.name not in ("signals", "signals_ref", "cumulative_errors", "stats", "meta")}
         for name, arr in self.signals.items():
             data[f"signal:{name}"] = arr
             data[f"signal_ref:{name}"] = self.signals_ref[name]
-        info = {"cumulative_errors": self.cumulative_errors, "stats": self.stats, **(meta or {})}
+        info = {"cumulative_errors": self.cumulative_errors, "stats": self.stats, **self.meta, **(meta or {})}
         return save_npz(path, "ClosedLoopResult", data, info)
 
     def to_csv(self, path) -> None:
@@ -160,7 +161,8 @@ class ClosedLoopResult:
 
         arrays, info = load_npz(path, "ClosedLoopResult")
         kw = {"signals": {}, "signals_ref": {}, "cumulative_errors": dict(info.get("cumulative_errors", {})),
-              "stats": dict(info.get("stats", {}))}
+              "stats": dict(info.get("stats", {})),
+              "meta": {k: v for k, v in info.items() if k not in ("cumulative_errors", "stats")}}
         for key, a in arrays.items():
             if key.startswith("signal:"):
                 kw["signals"][key[7:]] = a
@@ -185,6 +187,13 @@ class ClosedLoopResult:
         from ..plot.tracking import plot_run
 
         return plot_run(self, path)
+
+    def animate(self, path, **options):
+        """Draw the mechanism along the run (GIF/MP4) from the scene's drawing; see
+        :func:`invctl.plot.animate.animate_result` (the scene defaults to ``meta["scene"]``)."""
+        from ..plot.animate import animate_result
+
+        return animate_result(self, path, **options)
 
 
 def plant_acceleration(model, alpha: float = 20.0, beta: float = 20.0) -> ca.Function:

@@ -1,4 +1,4 @@
-"""Animations of saved runs: ``invctl animate RUN.npz`` and ``animate_result``.
+"""Animations of saved runs: ``invctl animate RUN.npz``.
 
 The run file records the scene (name or path) and its parameters; the scene's ``drawing(model)``
 says which points and links to draw (:class:`invctl.plot.animate.Drawing`).
@@ -7,24 +7,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import ResultFileError, SceneError
 from ..io import check_output_path, read_meta
 from ..scenes import CommandResult, load_scene
 
-__all__ = ["animate_run", "animate_result", "trajectory_of"]
-
-
-def trajectory_of(result) -> tuple[np.ndarray, np.ndarray]:
-    """``(t, q)`` with ``q`` of shape (n, N) from any invctl result (closed loop, contact, inverse)."""
-    if hasattr(result, "X_mesh"):  # Inverse
-        t = np.linspace(result.T0, result.Tf, 600)
-        return t, result.q(t)
-    t, q = np.asarray(result.t, float), np.asarray(result.q, float)
-    if q.ndim == 2 and q.shape[0] == t.size and q.shape[1] != t.size:
-        q = q.T
-    return t, q
+__all__ = ["animate_run"]
 
 
 def _load(path):
@@ -45,20 +32,6 @@ def _load(path):
     raise ResultFileError(f"{path}: a {kind} has no mechanism to draw (animate closed-loop, contact or inverse runs)")
 
 
-def animate_result(scene, result, path, *, params=None, fps: float = 25, speed: float = 1.0, title=None) -> Path:
-    """Draw ``result`` (a run of ``scene`` with parameter overrides ``params``) to ``path``."""
-    from ..plot.animate import animate
-
-    if scene.drawing is None:
-        raise SceneError(f"scene {scene.name!r} declares no drawing(model) (points and links to draw)")
-    model = scene.model(params or {})
-    drawing = scene.drawing(model)
-    t, q = trajectory_of(result)
-    return animate(model, drawing, t, q, path, fps=fps, speed=speed,
-                   title=title or f"{scene.name}" + (f" ({result.controller})" if getattr(result, "controller", "")
-                                                     else ""))
-
-
 def animate_run(run_path, *, out=None, fps=25, speed=1.0, force=False) -> CommandResult:
     """``invctl animate RUN.npz [--out FILE.gif]``."""
     try:
@@ -77,5 +50,7 @@ def animate_run(run_path, *, out=None, fps=25, speed=1.0, force=False) -> Comman
     out = check_output_path(out, force=force)
     if out.suffix.lower() not in (".gif", ".mp4"):
         raise SceneError(f"--out {out}: use .gif or .mp4")
-    written = animate_result(scene, result, out, params=info.get("params"), fps=fps, speed=speed)
+    from ..plot.animate import animate_result
+
+    written = animate_result(result, out, scene=scene, params=info.get("params", {}), fps=fps, speed=speed)
     return CommandResult(f"animation written to {written}", {"out": str(written), "scene": scene.name})

@@ -81,6 +81,7 @@ OPTIONS: dict[str, Option] = {
     "job": Option(str, "which job's trade-off (default: the scene's first; see docs/tradeoffs.md)", ("study",)),
     "force": Option(bool, "replace existing output files", ("invert", "simulate", "design"), False, flag=True),
     "quiet": Option(bool, "no progress output", ("invert", "simulate", "pipeline", "study"), False, flag=True),
+    "no_animation": Option(bool, "do not write animations of the runs", ("pipeline",), False, flag=True),
 }
 
 _FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
@@ -206,7 +207,8 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     out_dir = check_output_dir(o["out_dir"])
     params, settings = scene.split(values)
     return _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
-                                 plant_params=_plant_params(o["plant_set"]), quiet=o["quiet"])
+                                 plant_params=_plant_params(o["plant_set"]), quiet=o["quiet"],
+                                 animate=not o["no_animation"])
 
 
 def study(scene, kind: str, values=None, **options) -> CommandResult:

@@ -269,7 +269,7 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
 
 
 def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
-             quiet=False) -> CommandResult:
+             quiet=False, animate=True) -> CommandResult:
     """Every declared controller of a contact scene: runs, reports, figures (one per controller)."""
     from ..plot import close
 
@@ -288,6 +288,11 @@ def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end
             d["reports"] = rdata
         run.trajectory.save(out / f"run_{name}.npz")
         close(run.trajectory.plot(out / f"run_{name}.png", title=f"{scene.name} ({name})"))
+        if animate and scene.drawing is not None:
+            from ..plot.animate import animate_result
+
+            animate_result(run.trajectory, out / f"anim_{name}.gif", scene=scene, params=params, fps=20,
+                           title=f"{scene.name} ({name})")
         lines += ls + [""]
         data["runs"][name] = d
     files = sorted(p.name for p in out.iterdir())

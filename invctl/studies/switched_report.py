@@ -152,7 +152,7 @@ def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
 
 
 def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
-             quiet=False) -> CommandResult:
+             quiet=False, animate=True) -> CommandResult:
     """Analysis, design and simulation of a switched scene, with their figures in ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

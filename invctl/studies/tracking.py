@@ -254,6 +254,9 @@ def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, inver
         if progress:
             print("inverting the reference model (servo constraints) ...", file=sys.stderr)
         inverse = invert_tracking(scene, model, ref, **dict(inversion_options or {}))
+        from ..scenes import scene_reference
+
+        inverse.meta = {"scene": scene_reference(scene), "params": dict(params)}
         timings["inversion"] = time.perf_counter() - t0
     return TrackingSetup(scene, model, plant, ref, lin, ctrl, inverse, design, q0, t_end, float(dt),
                          _signals(scene, model), params, timings)
@@ -269,8 +272,14 @@ def a1_along(setup: TrackingSetup, res: ClosedLoopResult, stride: int = 10) -> d
 
 
 def run_controller(setup: TrackingSetup, name: str, *, raise_on_violation=True, v0=None) -> ClosedLoopResult:
-    """One closed-loop run of controller ``name`` on ``setup``."""
-    return setup.loop(name).run(setup.q0, v0, controller_label=name, raise_on_violation=raise_on_violation)
+    """One closed-loop run of controller ``name`` on ``setup`` (its ``meta`` records the scene)."""
+    try:
+        res = setup.loop(name).run(setup.q0, v0, controller_label=name, raise_on_violation=raise_on_violation)
+    except FunnelViolation as exc:
+        exc.partial.meta = {**setup.meta(), "controller": name}
+        raise
+    res.meta = {**setup.meta(), "controller": name}
+    return res
 
 
 @dataclass

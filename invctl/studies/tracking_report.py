@@ -18,6 +18,9 @@ from .tracking import (CONTROLLERS, design_configuration, invert_tracking, run_c
 
 __all__ = ["analyze", "invert", "design", "simulate", "pipeline"]
 
+#: frames per second of the animations the pipeline writes (GIF delays are whole 1/100 s: 10, 20, 25, 50 are exact)
+ANIMATION_FPS = 20
+
 
 def _fmt(M) -> str:
     M = np.atleast_2d(M)
@@ -259,6 +262,9 @@ def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end
     from ..plot import close
 
     close(study.plot(out))
+    if animate and scene.drawing is not None:
+        for name, run in study.runs.items():
+            run.animate(out / f"anim_{name}.gif", scene=scene, params=params, fps=ANIMATION_FPS)
     files = sorted(p.name for p in out.iterdir())
     wall = time.perf_counter() - t0
     text = "\n".join([study.table(), f"figures and data in {out}/ ({', '.join(files)}); total {wall:.1f} s"])
