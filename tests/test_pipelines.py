@@ -1,0 +1,92 @@
+"""The generic commands on every kind of scene: pipelines, animations, scene files given by path.
+
+What is checked is what the commands promise for any scene (runs inside their funnels, files written,
+the same numbers whether a scene is shipped or given by path), with the numbers of the scenes' own
+tests elsewhere.
+"""
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from invctl.cli import main
+from invctl.simulate.closed_loop import ClosedLoopResult
+
+
+def _json(capsys):
+    return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("scene", ["cartpole", "two_link_arm"])
+def test_tracking_pipeline_on_a_scene_without_hand_picked_numerics(scene, tmp_path, capsys):
+    """No boundary selection, horizon, gains or funnels declared: all derived; C1 and C2 stay inside
+    their funnels on the declared plant mismatch and the feedforward helps (C1 < C2 < C3)."""
+    assert main(["pipeline", scene, "--out-dir", str(tmp_path), "--quiet", "--json"]) == 0
+    data = _json(capsys)
+    runs = data["runs"]
+    for name in ("C1", "C2"):
+        assert runs[name]["status"] == "ok" and runs[name]["max_funnel_ratio"] < 1
+    e = [runs[c]["cumulative_output_error"] for c in ("C1", "C2", "C3")]
+    assert e[0] < e[1] < e[2]
+    for name in ("C1", "C2", "C3"):
+        assert (tmp_path / f"run_{name}.npz").exists() and (tmp_path / f"anim_{name}.gif").stat().st_size > 0
+    for fig in ("states", "errors", "inputs", "funnel"):
+        assert (tmp_path / f"{fig}.png").exists()
+
+
+def test_animate_a_saved_run(tmp_path, capsys):
+    from PIL import Image
+
+    assert main(["simulate", "cartpole", "--controller", "C2", "--quiet", "--out", str(tmp_path / "run.npz")]) == 0
+    capsys.readouterr()
+    run = ClosedLoopResult.load(tmp_path / "run.npz")
+    assert run.meta["scene"] == "cartpole" and run.meta["controller"] == "C2"
+    assert main(["animate", str(tmp_path / "run.npz"), "--fps", "10", "--json"]) == 0
+    out = Path(_json(capsys)["out"])
+    with Image.open(out) as im:
+        # frames at uniform times over the run: duration x fps + 1
+        assert im.n_frames == int(round(run.t[-1] * 10)) + 1
+    assert main(["animate", str(tmp_path / "run.npz")]) == 2  # exists: --force needed
+    assert "exists" in capsys.readouterr().err
+
+
+def test_contact_and_switched_pipelines(tmp_path, capsys):
+    assert main(["pipeline", "bouncing_ball", "--set", "t_end=1.5", "--out-dir", str(tmp_path / "b"), "--json"]) == 0
+    data = _json(capsys)
+    none = data["runs"]["none"]
+    assert none["n_impacts"] >= 2 and none["max_energy_increase"] <= 1e-12
+    assert (tmp_path / "b" / "anim_none.gif").exists()
+    assert main(["pipeline", "stiff_wall", "--out-dir", str(tmp_path / "w"), "--json"]) == 0
+    data = _json(capsys)
+    assert data["simulate"]["bounces"] >= 1 and not data["design"]["guas"]
+    assert {"design.png", "run.png", "run.npz"} <= set(data["files"])
+
+
+def test_a_scene_file_given_by_path_works_like_the_shipped_one(tmp_path, capsys):
+    import problems
+
+    copy = tmp_path / "my_cartpole.py"
+    shutil.copy(Path(problems.__file__).parent / "cartpole.py", copy)
+    results = []
+    for scene in ("cartpole", str(copy)):
+        assert main(["invert", scene, "--quiet", "--json", "--N", "80"]) == 0
+        results.append(_json(capsys))
+    a, b = results
+    assert a["selection"] == b["selection"] and a["T0"] == b["T0"] and a["Tf"] == b["Tf"]
+    np.testing.assert_allclose(a["max_output_error"], b["max_output_error"], rtol=1e-12)
+
+
+def test_two_scene_files_with_the_same_name_are_different_scenes(tmp_path):
+    from invctl.scenes import load_scene
+
+    text = ("from invctl.scenes import Scene, Tracking\nfrom problems.cartpole import build, PARAMS\n"
+            "SCENE = Scene('{name}', build, params={{**PARAMS, 'l': {l}}}, tracking=Tracking(point=[0.0, 0.0]))\n")
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "a" / "scene.py").write_text(text.format(name="first", l=0.5))
+    (tmp_path / "b" / "scene.py").write_text(text.format(name="second", l=0.8))
+    first, second = load_scene(str(tmp_path / "a" / "scene.py")), load_scene(str(tmp_path / "b" / "scene.py"))
+    assert (first.name, first.params["l"]) == ("first", 0.5)
+    assert (second.name, second.params["l"]) == ("second", 0.8)
