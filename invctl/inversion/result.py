@@ -173,7 +173,8 @@ class Inverse:
         axes[2].set_xlabel("t [s]")
         for ax in axes:
             ax.axvspan(self.t0, self.tf, color="0.92", zorder=-1)
-            ax.legend(fontsize=7, ncol=3, loc="best")
+            if ax.get_legend_handles_labels()[0]:
+                ax.legend(fontsize=7, ncol=3, loc="best")
             ax.grid(alpha=0.3)
         status = self.diagnostics.get("status", "?")
         axes[0].set_title(f"stable inversion ({self.scheme}, N={self.N}, {status}); shaded: [t0, tf]")
