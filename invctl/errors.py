@@ -87,9 +87,23 @@ class PreloadInfeasible(ContactError):
     """Persistent-contact (pre-loading) control does not exist (000 Lemma 1)."""
 
 
+class ResourceLimitError(InvctlError):
+    """A run would need more memory (or another resource) than its budget allows.
+
+    ``diagnostics`` holds the estimate, the budget and the settings that fit
+    (e.g. ``record_every``); ``partial`` holds what was computed when the
+    limit was hit during the run.
+    """
+
+
+class RecordingError(InvctlError, ValueError):
+    """A quantity needs trajectory steps that were not recorded (decimated or
+    event-only record); the exact run statistics or a full record give it."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError",
     "RelativeDegreeError", "CoordinateError", "ReferenceSignalError",
     "BoundaryConditionError", "InversionFailed", "SimulationFailed", "FunnelViolation",
-    "StabilityError", "ContactError", "PreloadInfeasible",
+    "StabilityError", "ContactError", "PreloadInfeasible", "ResourceLimitError", "RecordingError",
 ]
