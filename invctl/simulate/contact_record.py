@@ -409,7 +409,7 @@ class ChunkRecorder:
         out = {f"impact_{k}": np.asarray(v)[order] for k, v in cat.items()}
         out["impact_step"] = out["impact_step"].astype(np.int64)
         out["impact_contact"] = out["impact_contact"].astype(np.int64)
-        out["impact_t"] = self.t0 + (out["impact_step"] + 0.5) * self.h
+        out["impact_t"] = (self.t0 + out["impact_step"] * self.h) + 0.5 * self.h  # as t[k] + h/2 of a full record
         return out
 
     def rows(self):
