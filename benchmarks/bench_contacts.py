@@ -5,7 +5,7 @@ Rows (each with a peer measured in the same run):
 1. steps/s against the number of contacts (1, 2, 4, 8, 16) on a forced chain of bodies with clearances
    between neighbours and a wall; peers: the same step with the LCPs solved by the numpy solvers
    (Lemke) in a Python loop, and the same compiled step with projected Gauss-Seidel (inexact);
-   for <= 4 contacts also enumeration against block principal pivoting;
+   for <= 4 contacts also enumeration and Lemke against block principal pivoting;
 2. steps/s against the number of bodies (4 contacts);
 3. a bounded-memory long run (elastic bouncing ball, decimated and event records) with its peak RSS,
    measured in a child process, against a short run of the same kind.
@@ -99,7 +99,7 @@ def contacts_rows(counts, steps, ref_steps, h=1e-3):
     for c in counts:
         model, law, U = chain(c)
         q0, v0 = piled_up(c)
-        methods = ["enumeration", "pivoting"] if c <= 4 else ["pivoting"]
+        methods = ["enumeration", "lemke", "pivoting"] if c <= 4 else ["pivoting"]
         for meth in methods:
             tic = time.perf_counter()
             mj = MoreauJean(model, law, potential=U, lcp=meth)
@@ -182,9 +182,13 @@ def long_run(steps: int, h: float, kw: dict):
 
 
 def long_rows(long_steps: int, h=1e-4):
-    print(f"\n3. bounded memory: elastic ball (e = 1, theta = 1/2), h = {h}, generated C, peak RSS of a child process")
+    print(f"\n3. bounded memory: elastic ball (e = 1, theta = 1/2), h = {h}, generated C, peak RSS of a child process\n"
+          "   (RSS before = after imports, build and a warm-up run); full record = estimate for record_every=1;\n"
+          "   impacts: counted in the loop over every step; exact = count of the exact motion (period\n"
+          "   2 sqrt(2 H / g); the discrete period is longer by < 2 h); max dE/E0 = largest one-step energy\n"
+          "   increase over every step")
     print(f"{'steps':>10} {'record':>22} {'rows':>8} {'wall s':>8} {'steps/s':>9} {'RSS before':>10} {'peak RSS MiB':>12} "
-          f"{'full record':>12} {'impacts':>8} {'expected':>8} {'max dE/E0':>9}")
+          f"{'full record':>12} {'impacts':>8} {'exact':>8} {'max dE/E0':>9}")
     out = []
     T = 2 * np.sqrt(2 * 1.0 / 9.81)  # period of the elastic bounce from H = 1
     for steps in (10**6, long_steps):

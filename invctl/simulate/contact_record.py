@@ -441,7 +441,8 @@ def check_budget(*, N: int, h: float, t0: float, every: int, events: bool, row_b
     rec = (f"every step" if every == 1 else f"every {every}-th step") if not events else "events"
     alt = []
     if "record_every" in fits:
-        alt.append(f"record_every={fits['record_every']} ({_fmt_bytes(2 + N / fits['record_every'] * row_bytes)})")
+        k = fits["record_every"]
+        alt.append(f"record_every={k} ({_fmt_bytes(ChunkRecorder.rows_needed(N, k, False) * row_bytes + buffer_bytes)})")
     if not events:
         alt.append('record="events" (impacts and contact changes only, plus first and last step)')
     if "t_end" in fits:

@@ -49,7 +49,7 @@ from ..contact.mechanics import ContactSystem
 from ..control.pdplus import FeedbackLaw, zero_input
 from ..errors import ContactError, ParameterError, ResourceLimitError, SimulationFailed
 from .codegen import Layout, c_compiler, compile_function, cse, small_solve
-from .contact_record import ChunkRecorder, ContactTrajectory, RowLayout, check_budget, resolve_memory_budget
+from .contact_record import ChunkRecorder, ContactTrajectory, RowLayout, check_budget
 
 __all__ = ["MoreauJean", "ContactTrajectory", "DEFAULT_ACTIVATION_TOL", "c_compiler"]
 
@@ -462,9 +462,9 @@ class MoreauJean:
         L = self.rows
         events = record == "events"
         buffer_bytes = 8 * (self.ny * size + self.nx * (size // S) + L.ncols * size)
-        limit, _ = resolve_memory_budget(memory_budget)
         est = check_budget(N=N, h=h, t0=t0, every=every, events=events, row_bytes=ChunkRecorder.row_bytes_of(L),
-                           buffer_bytes=buffer_bytes, budget=limit)
+                           buffer_bytes=buffer_bytes, budget=memory_budget)
+        limit = est["budget_bytes"]
         loop = self._loop(backend, size, S)
         rec = ChunkRecorder(L, N, every, events, t0, h)
         Xacc = np.zeros((self.nx, size // S), order="F")
