@@ -6,13 +6,13 @@ Two families of solvers:
   (000 (4)): complete enumeration of active sets (``m <= 12``) and Lemke's
   complementary pivoting (any size), with a uniqueness check (P-matrix test;
   000 Assumption 2 makes the Delassus matrix positive definite, hence P);
-* a branch-free symbolic solver (:func:`lcp_sx`) for use *inside* a compiled
-  time step: enumeration of the ``2^m`` active sets with ``if_else``
-  selection, exact (no iteration error) for a P-matrix, practical for
-  ``m <= 4`` contacts (16 candidate systems).  For more contacts
-  :func:`lcp_sx` falls back to a fixed number of projected Gauss-Seidel
-  sweeps, whose residual is reported by the stepper; the enumeration is the
-  default and the one tested against the exact solver.
+* exact symbolic solvers for use *inside* a compiled time step, written in
+  CasADi SX as straight-line code (fixed iteration budget, ``if_else``
+  selection, no branches) with a convergence flag: enumeration of the
+  ``2^m`` active sets (tiny ``m``), block principal pivoting
+  (:func:`pivot_sx`, any ``m``) and Lemke with the lexicographic ratio test
+  (:func:`lemke_sx`); :func:`lcp_sx` chooses.  Projected Gauss-Seidel is
+  kept for comparisons (inexact).
 """
 from __future__ import annotations
 
