@@ -122,13 +122,15 @@ def contacts_rows(counts, steps, ref_steps, h=1e-3):
             out.append(row)
             pgs = (f"{row['pgs_steps_per_s']:12.3g} {row['pgs_dq']:9.1e}" if "pgs_dq" in row else f"{'':>12} {'':>9}")
             print(f"{c:8d} {meth:>12} {row['instructions']:7d} {build:8.1f} {sps:10.3g} {ref_sps:12.3g} "
-                  f"{sps / ref_sps:6.0f}x {dq:13.1e} {multi:6d} {pgs} {row['impacts']:8d} {row['recomputed']:6d}", flush=True)
+                  f"{sps / ref_sps:6.0f}x {dq:13.1e} {multi:6d} {pgs} {row['impacts']:8d} {row['recomputed']:6d}",
+                  flush=True)
     return out
 
 
 def bodies_rows(ns, contacts, steps, ref_steps, h=1e-3):
     print(f"\n2. steps/s against bodies: forced chain with {contacts} contacts, h = {h}, generated C")
-    print(f"{'bodies':>8} {'instr':>7} {'build s':>8} {'steps/s':>10} {'numpy Lemke':>12} {'ratio':>7} {'|dq| vs numpy':>13}")
+    print(f"{'bodies':>8} {'instr':>7} {'build s':>8} {'steps/s':>10} {'numpy Lemke':>12} {'ratio':>7} "
+          f"{'|dq| vs numpy':>13}")
     out = []
     for n in ns:
         model, law, U = chain(n, contacts)
@@ -187,7 +189,8 @@ def long_rows(long_steps: int, h=1e-4):
           "   impacts: counted in the loop over every step; exact = count of the exact motion (period\n"
           "   2 sqrt(2 H / g); the discrete period is longer by < 2 h); max dE/E0 = largest one-step energy\n"
           "   increase over every step")
-    print(f"{'steps':>10} {'record':>22} {'rows':>8} {'wall s':>8} {'steps/s':>9} {'RSS before':>10} {'peak RSS MiB':>12} "
+    print(f"{'steps':>10} {'record':>22} {'rows':>8} {'wall s':>8} {'steps/s':>9} {'RSS before':>10} "
+          f"{'peak RSS MiB':>12} "
           f"{'full record':>12} {'impacts':>8} {'exact':>8} {'max dE/E0':>9}")
     out = []
     T = 2 * np.sqrt(2 * 1.0 / 9.81)  # period of the elastic bounce from H = 1

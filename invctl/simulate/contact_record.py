@@ -442,7 +442,8 @@ def check_budget(*, N: int, h: float, t0: float, every: int, events: bool, row_b
     alt = []
     if "record_every" in fits:
         k = fits["record_every"]
-        alt.append(f"record_every={k} ({_fmt_bytes(ChunkRecorder.rows_needed(N, k, False) * row_bytes + buffer_bytes)})")
+        need_k = ChunkRecorder.rows_needed(N, k, False) * row_bytes + buffer_bytes
+        alt.append(f"record_every={k} ({_fmt_bytes(need_k)})")
     if not events:
         alt.append('record="events" (impacts and contact changes only, plus first and last step)')
     if "t_end" in fits:
