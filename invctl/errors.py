@@ -142,11 +142,25 @@ class ZeroError(InvctlError):
     """System zeros cannot be computed or classified (degenerate system matrix, inconsistent tests)."""
 
 
+class ResourceLimitError(InvctlError):
+    """A run would need more memory (or another resource) than its budget allows.
+
+    ``diagnostics`` holds the estimate, the budget and the settings that fit
+    (e.g. ``record_every``); ``partial`` holds what was computed when the
+    limit was hit during the run.
+    """
+
+
+class RecordingError(InvctlError, ValueError):
+    """A quantity needs trajectory steps that were not recorded (decimated or
+    event-only record); the exact run statistics or a full record give it."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError", "RelativeDegreeError",
     "CoordinateError", "ReferenceSignalError", "BoundaryConditionError", "InversionFailed", "SimulationFailed",
     "FunnelViolation", "StabilityError", "ContactError", "PreloadInfeasible", "ResultFileError",
     "OutputPathError", "AnimationError", "DrawingError", "FeedbackDesignError", "PositionOutputError",
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
-    "LinearizationError", "ZeroError",
+    "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError",
 ]
