@@ -97,8 +97,22 @@ class ContactTrajectory:
     names: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
     impact_vel_tol: float = 1e-8
+    meta: dict = field(default_factory=dict)
+    status: str = "ok"
+    message: str = ""
+
+    _ARRAYS = ("t", "q", "v", "P", "active", "gaps", "energy", "V")
 
     # ---------------------------------------------------------- derived data
+    @property
+    def success(self) -> bool:
+        return self.status == "ok"
+
+    def sample(self, t) -> dict:
+        """``q, v`` at times ``t`` (linear interpolation between the recorded steps)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        return {k: np.array([np.interp(t, self.t, col) for col in getattr(self, k).T]) for k in ("q", "v")}
+
     @property
     def complete(self) -> bool:
         """True when every step is recorded."""
@@ -203,29 +217,45 @@ class ContactTrajectory:
         return float(self.t[bad[-1] + 1])
 
     # ------------------------------------------------------------ save / plot
-    def save(self, path) -> Path:
-        """Write to ``.npz``."""
-        path = Path(path)
-        extra = {f"stats_{k}": np.asarray(v) for k, v in self.stats.items()
-                 if isinstance(v, (int, float, np.ndarray, np.floating, np.integer, str))}
-        np.savez(path, t=self.t, q=self.q, v=self.v, P=self.P, active=self.active, gaps=self.gaps,
-                 energy=self.energy, V=self.V, h=self.h, impact_vel_tol=self.impact_vel_tol,
-                 names=np.array(repr(self.names)), **extra)
-        return path
+    def to_npz(self, path, meta: dict | None = None) -> Path:
+        """Write to ``.npz`` (read back with :meth:`load`); ``meta`` (JSON-able) records where the run
+        came from (scene, parameters) for ``invctl animate``. Returns the path written."""
+        from ..io import save_npz
+
+        arrays = {k: getattr(self, k) for k in self._ARRAYS}
+        stats = {}
+        for k, v in self.stats.items():
+            if isinstance(v, np.ndarray) and v.dtype != object:
+                arrays[f"stats:{k}"] = v
+            elif isinstance(v, (int, float, str, bool, np.floating, np.integer, np.bool_)) or v is None:
+                stats[k] = v
+        info = {"h": self.h, "impact_vel_tol": self.impact_vel_tol, "names": self.names, "stats": stats,
+                "status": self.status, "message": self.message, **self.meta, **(meta or {})}
+        return save_npz(path, "ContactTrajectory", arrays, info)
 
     @classmethod
     def load(cls, path) -> "ContactTrajectory":
-        """Read a file written by :meth:`save`."""
-        import ast
+        """Read a file written by :meth:`to_npz` (format and version checked)."""
+        from ..io import load_npz
 
-        d = np.load(path, allow_pickle=False)
-        stats = {}
-        for k in d.files:
-            if k.startswith("stats_"):
-                val = d[k]
-                stats[k[6:]] = val.item() if val.ndim == 0 else val
-        return cls(d["t"], d["q"], d["v"], d["P"], d["active"], d["gaps"], d["energy"], d["V"], float(d["h"]),
-                   ast.literal_eval(str(d["names"])), stats, float(d["impact_vel_tol"]))
+        d, info = load_npz(path, "ContactTrajectory")
+        missing = [k for k in cls._ARRAYS if k not in d] + [k for k in ("h", "stats") if k not in info]
+        if missing:
+            raise RecordingError(f"{path}: incomplete contact trajectory (missing {missing})")
+        stats = dict(info["stats"])
+        stats.update({k[6:]: v for k, v in d.items() if k.startswith("stats:")})
+        meta = {k: v for k, v in info.items()
+                if k not in ("h", "impact_vel_tol", "names", "stats", "status", "message")}
+        return cls(*(d[k] for k in cls._ARRAYS), float(info["h"]), dict(info.get("names", {})), stats,
+                   float(info.get("impact_vel_tol", 1e-8)), meta, str(info.get("status", "ok")),
+                   str(info.get("message", "")))
+
+    def animate(self, path, **options):
+        """Draw the mechanism along the run (GIF/MP4) from the scene's drawing; see
+        :func:`invctl.plot.animate.animate_result` (the scene defaults to ``meta["scene"]``)."""
+        from ..plot.animate import animate_result
+
+        return animate_result(self, path, **options)
 
     def plot(self, path=None, **kw):
         """Phase portrait, gaps, impulses, energy and V (see :mod:`invctl.plot.contact`)."""

@@ -140,7 +140,7 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
         lines.append(f"V: {rep.V0:.4g} -> {rep.V_end:.4g}, max increase {rep.max_increase:.2e} "
                      f"(impacts {rep.max_increase_impacts:.2e}, elsewhere {rep.max_increase_smooth:.2e})")
     if law.name == "open_loop":
-        dE = float(np.max(np.diff(tr.energy), initial=0.0))
+        dE = max(0.0, tr.max_energy_increase)
         data["max_energy_increase"] = dE
         lines.append(f"mechanical energy {tr.energy[0]:.6g} -> {tr.energy[-1]:.6g}, largest one-step increase "
                      f"{dE:.2e}")
@@ -176,7 +176,7 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
                      "tracking_error_last_half": float(np.max(np.abs(err[:, half])))})
         lines.append(f"tracking error of {[run.model.q_names[i] for i in idx]}: max {data['tracking_error_max']:.3e}, "
                      f"last half {data['tracking_error_last_half']:.3e}")
-        if law.name == "pd_plus":
+        if law.name == "pd_plus" and tr.complete:
             data.update(_prop3_conditions(run, idx, q_d))
             lines.append(f"(52) violated at {data['impacts_violating_52']} of {data['impacts_checked']} impacts "
                          f"(largest V jump where it holds {data['max_V_jump_where_52_holds']:.2e}, where violated "
@@ -257,7 +257,7 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
         lines.append(rtext)
         data["reports"] = rdata
     if out:
-        data["out"] = str(run.trajectory.save(out))
+        data["out"] = str(run.trajectory.to_npz(out, meta=run.meta()))
         lines.append(f"trajectory written to {data['out']}")
     if plot:
         from ..plot import close
@@ -286,7 +286,7 @@ def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end
         if rtext:
             ls.append(rtext)
             d["reports"] = rdata
-        run.trajectory.save(out / f"run_{name}.npz")
+        run.trajectory.to_npz(out / f"run_{name}.npz", meta=run.meta())
         close(run.trajectory.plot(out / f"run_{name}.png", title=f"{scene.name} ({name})"))
         if animate and scene.drawing is not None:
             from ..plot.animate import animate_result

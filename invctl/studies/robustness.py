@@ -161,12 +161,14 @@ def contact_point(*, scene: str, controller=None, t_end=None, base=(), **values)
     sc = _scene(scene)
     params, settings = sc.split({**dict(base), **values})
     run = run_contact(contact_setup(sc, params, settings, controller=controller), t_end=t_end, progress=False)
+    from ..stability.lyapunov import lyapunov_report
+
     tr = run.trajectory
-    k = np.nonzero(tr.impact_mask().any(axis=1))[0]
-    dV = tr.V[k + 1] - tr.V[k] if k.size else np.zeros(0)
+    jumps = lyapunov_report(tr).impact_jumps
     _, law = law_report(run)
     out = {"n_impacts": float(tr.impact_times.size), "max_gap_violation": tr.max_gap_violation,
-           "max_V_jump_at_impacts": float(dV.max()) if dV.size else 0.0, "steps_per_s": float(tr.stats["steps_per_s"])}
+           "max_V_jump_at_impacts": float(jumps.max()) if jumps.size else 0.0,
+           "steps_per_s": float(tr.stats["steps_per_s"])}
     if "regulation_error_final" in law:
         out["regulation_error_final"] = float(np.max(np.abs(law["regulation_error_final"])))
     if "tracking_error_last_half" in law:
