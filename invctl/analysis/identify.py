@@ -297,7 +297,8 @@ def identify(model, free: Sequence[str], targets: Sequence[Target], evaluate: Ca
     ------
     ParameterError
         Unknown or repeated parameter names, no targets, a start or bound outside the domain, or an
-        evaluator that fails at the first start or returns features of the wrong shape.
+        evaluator that fails at the first start or returns features of the wrong shape.  (Fewer target
+        entries than parameters is allowed: the result reports the undetermined directions.)
     """
     from scipy.optimize import least_squares
 
@@ -311,9 +312,8 @@ def identify(model, free: Sequence[str], targets: Sequence[Target], evaluate: Ca
     if not targets or not all(isinstance(t, Target) for t in targets):
         raise ParameterError("identify: give at least one Target (invctl.analysis.identify.Target/printed)")
     m = sum(int(t.mask.sum()) for t in targets)
-    if m < len(names):
-        raise ParameterError(f"identify: {m} target entries cannot determine {len(names)} parameters; "
-                             "give more targets or fit fewer parameters")
+    if m == 0:
+        raise ParameterError("identify: every target entry is NaN (unknown); nothing to fit")
     start = {k: float((start or {}).get(k, model.values[k])) for k in names}
     logs = [bool(log.get(k, True) if isinstance(log, Mapping) else log) and start[k] > 0 for k in names]
     bounds = dict(bounds or {})
