@@ -445,3 +445,41 @@ def test_every_binary_selection_fixes_both_internal_modes_at_T0(inverse_modes):
           f"plan {absorbed(auto.start):.4g}")
     assert absorbed(auto.start) < 0.2 * absorbed(hand.start)
     assert min(absorbed(c) for c in itertools.combinations(range(nx), nx - 1)) > 1.0
+
+
+def test_printed_58_has_two_signs_that_conflict_with_52_and_phi10():
+    """(58) prints Psi(x) = [0,1] T^-1 (x5; +(m3 L3/2) sin(x4+x5) x7 + kappa (x9+x10) + (m3 L2 L3/4) cos(x5) x9)
+    + [0,1] T^-1 P2 (x2; x4 + delta x5).  (i) The eta2 entry must be phi~10(q) v = e5^T M v, whose s2_dot
+    coefficient is -(m3 L3/2) sin(beta+gamma) (as printed before (54)); only that sign satisfies L_K phi = 0,
+    phi~10 M^-1 [G^T B] = 0, the condition of Lemma 3.1.  (ii) (52) subtracts P2 y: at rest (v = 0, gamma = 0)
+    Psi must be the equilibrium -Q~^-1 P~ y of (40), which -[0,1] T^-1 P2 y is and the printed + is not.
+    invctl's Psi is the consistent form.  Tolerances: exact formulas, round-off (1e-10 relative)."""
+    model = scene.build(**scene.PRESETS["paper"])
+    ref = scene.reference(model)
+    lin = tracking_linearization(scene.SCENE, model, ref)
+    p = model.values
+    L2, L3, m3, c, D, kap, dl = consts(p)
+    th = model.theta_values
+    rng = np.random.default_rng(7)
+    q0 = scene.initial_configuration(model)
+    for _ in range(4):
+        q, v = consistent_state(model, q0 + rng.uniform(-0.1, 0.1, 5), rng.uniform(-1, 1, 5))
+        be, ga = q[3], q[4]
+        M = model.evaluate("M", q)
+        GB = np.hstack([model.evaluate("G", q).T, model.evaluate("B", q)])
+        row = {s: np.array([0, s * m3 * L3 / 2 * np.sin(be + ga), 0, kap + m3 * L2 * L3 / 4 * np.cos(ga), kap])
+               for s in (-1, +1)}
+        np.testing.assert_allclose(row[-1], M[4], rtol=1e-12, atol=1e-12)
+        scale = np.abs(np.linalg.solve(M, GB)).max() * np.abs(M[4]).max()
+        assert np.abs(row[-1] @ np.linalg.solve(M, GB)).max() < 1e-12 * scale
+        assert np.abs(row[+1] @ np.linalg.solve(M, GB)).max() > 1e-2 * scale
+    psi = lin.psi_function()
+    for t in (ref.t0, ref.tf):
+        y = ref(t).ravel()
+        q = np.array(lin.internal.state(y_0=y, y_1=[0, 0], eta=[0, 0], theta=th)["q"]).ravel()
+        consistent = -(lin.T[1] @ lin.P_list[1] @ y)
+        as_printed = +(lin.T[1] @ lin.P_list[1] @ y)
+        equilibrium = -np.linalg.solve(lin.Q_tilde, lin.P_tilde @ y)[0]
+        assert consistent == pytest.approx(equilibrium, rel=1e-10)
+        assert float(psi(q, np.zeros(5), th)) == pytest.approx(consistent, rel=1e-10)
+        assert abs(as_printed - equilibrium) > 0.5 * abs(equilibrium)
