@@ -210,3 +210,14 @@ def test_a1_for_the_printed_K(setup, study):
     for name, a1 in study.info["a1_along_trajectory"].items():
         print(name, a1)
         assert a1["min_eig"] < 0 < a1["fraction_positive"] < 1, name
+
+
+def test_controller_names_ignore_case_and_the_extension_inverts_on_demand():
+    """--controller c1-inv (any case) runs the extension; a setup made without the inverse inverts when a
+    controller needs it (the command glue may ask for invert=False)."""
+    from invctl.studies.tracking import CONTROLLERS, check_controller, run_controller
+
+    assert check_controller("c1-INV") == "C1-inv" and "c2" in CONTROLLERS and CONTROLLERS["c3"] == CONTROLLERS["C3"]
+    s = setup_tracking(scene.SCENE, PAPER, invert=False, t_end=0.2)
+    r = run_controller(s, "C1-INV")
+    assert s.inverse is not None and r.controller == "C1-inv" and r.status == "ok"

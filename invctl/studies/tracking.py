@@ -31,12 +31,33 @@ import numpy as np
 from ..errors import FunnelViolation, ParameterError, SceneError
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
-__all__ = ["CONTROLLERS", "NEEDS_INVERSE", "check_controller", "TrackingSetup", "TrackingStudy", "setup_tracking", "run_controller",
-           "run_tracking_study", "tracking_model", "tracking_linearization", "equilibrium_configuration",
-           "invert_tracking", "plant_of", "a1_along", "feedback_design"]
+__all__ = ["CONTROLLERS", "NEEDS_INVERSE", "check_controller", "TrackingSetup", "TrackingStudy", "setup_tracking",
+           "run_controller", "run_tracking_study", "tracking_model", "tracking_linearization",
+           "equilibrium_configuration", "invert_tracking", "plant_of", "a1_along", "feedback_design"]
 
-CONTROLLERS = {"C1": "ff + funnel, ref. (42)", "C2": "funnel only", "C3": "feedforward only",
-               "C1-inv": "ff + funnel, ref. inverse"}
+
+class _Names(dict):
+    """Controller name -> description; lookups ignore case (``--controller c1-inv`` and ``C1-INV`` work)."""
+
+    def _key(self, name):
+        if isinstance(name, str) and not dict.__contains__(self, name):
+            for k in self:
+                if k.lower() == name.lower():
+                    return k
+        return name
+
+    def __getitem__(self, name):
+        return dict.__getitem__(self, self._key(name))
+
+    def __contains__(self, name):
+        return dict.__contains__(self, self._key(name))
+
+    def get(self, name, default=None):
+        return dict.get(self, self._key(name), default)
+
+
+CONTROLLERS = _Names({"C1": "ff + funnel, ref. (42)", "C2": "funnel only", "C3": "feedforward only",
+                      "C1-inv": "ff + funnel, ref. inverse"})
 #: controllers that need the servo-constraint inverse (feedforward or its state trajectory)
 NEEDS_INVERSE = ("C1", "C3", "C1-inv")
 #: names used before issue 12, with what they are called now
@@ -44,11 +65,13 @@ RENAMED = {"C1-42": "C1 (the paper's C1, new reference (42))"}
 
 
 def check_controller(name: str) -> str:
-    """``name`` if it is one of :data:`CONTROLLERS`, else a :class:`SceneError` naming the choices (and the
-    new name of a renamed controller)."""
+    """The name of :data:`CONTROLLERS` that ``name`` spells (any case), else a :class:`SceneError` naming the
+    choices (and the new name of a renamed controller)."""
     if name in CONTROLLERS:
-        return name
-    if name in RENAMED:
+        return CONTROLLERS._key(name)
+    renamed = {k.lower(): k for k in RENAMED}
+    if isinstance(name, str) and name.lower() in renamed:
+        name = renamed[name.lower()]
         raise SceneError(f"controller {name!r} is now called {RENAMED[name]}; the former 'C1' (new reference "
                          "from the inverse's states) is 'C1-inv'")
     raise SceneError(f"unknown controller {name!r}: choose one of {sorted(CONTROLLERS)} "
@@ -212,7 +235,7 @@ class TrackingSetup:
 
     def controller_for(self, name: str):
         """The feedback of controller ``name`` (None for the feedforward alone)."""
-        check_controller(name)
+        name = check_controller(name)
         return {"C1": self.c1_controller, "C2": lambda: self.controller, "C3": lambda: None,
                 "C1-inv": self.inverse_reference_controller}[name]()
 
@@ -233,7 +256,7 @@ class TrackingSetup:
         return t, u
 
     def loop(self, name: str) -> ClosedLoop:
-        check_controller(name)
+        name = check_controller(name)
         if name not in self._loops:
             if name in NEEDS_INVERSE:
                 self._require_inverse(name)
@@ -306,6 +329,7 @@ def a1_along(setup: TrackingSetup, res: ClosedLoopResult, stride: int = 10) -> d
 
 def run_controller(setup: TrackingSetup, name: str, *, raise_on_violation=True, v0=None) -> ClosedLoopResult:
     """One closed-loop run of controller ``name`` on ``setup``."""
+    name = check_controller(name)
     return setup.loop(name).run(setup.q0, v0, controller_label=name, raise_on_violation=raise_on_violation)
 
 
@@ -405,8 +429,7 @@ def run_tracking_study(scene, params=None, plant_params=None, *, controllers=Non
     A run that leaves its funnel is kept (``status == "funnel_violation"``, truncated) and reported.
     """
     controllers = tuple(controllers or scene.tracking.controllers)
-    for c in controllers:
-        check_controller(c)
+    controllers = tuple(check_controller(c) for c in controllers)
     setup = setup if setup is not None else setup_tracking(scene, params, plant_params, progress=progress,
                                                            invert=bool(set(NEEDS_INVERSE) & set(controllers)),
                                                            **setup_options)
