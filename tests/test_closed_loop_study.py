@@ -111,9 +111,9 @@ def test_c1_inv_on_the_reference_model_is_nearly_exact_and_c1_is_not(setup):
     from invctl.simulate.closed_loop import ClosedLoop
 
     uff = setup.u_ff_samples()
-    runs = {name: ClosedLoop(setup.model, setup.reference, controller=ctrl, u_ff=uff, signals=setup.signals).run(setup.q0)
-            for name, ctrl in (("C1-inv", setup.inverse_reference_controller()), ("C1", setup.c1_controller()),
-                               ("C3", None))}
+    ctrls = (("C1-inv", setup.inverse_reference_controller()), ("C1", setup.c1_controller()), ("C3", None))
+    runs = {name: ClosedLoop(setup.model, setup.reference, controller=ctrl, u_ff=uff,
+                             signals=setup.signals).run(setup.q0) for name, ctrl in ctrls}
     # after the start (t > 0.2 s), where the feedback has removed what the clipped pre-actuation left
     late = {k: float(np.abs(r.u_fb[:, r.t > 0.2]).max()) for k, r in runs.items() if k != "C3"}
     print("reference model: " + ", ".join(f"{k} {r.cumulative_output_error:.3g}" for k, r in runs.items())
