@@ -483,3 +483,23 @@ def test_printed_58_has_two_signs_that_conflict_with_52_and_phi10():
         assert consistent == pytest.approx(equilibrium, rel=1e-10)
         assert float(psi(q, np.zeros(5), th)) == pytest.approx(consistent, rel=1e-10)
         assert abs(as_printed - equilibrium) > 0.5 * abs(equilibrium)
+
+
+def test_scene_presets_apply_before_set_and_are_checked():
+    from invctl.errors import ParameterError
+    from invctl.scenes import Scene
+
+    params, _ = scene.SCENE.split({"m3": 4.0}, preset="paper")
+    assert params == {"m3": 4.0, "c": 50.0, "D": 0.25}          # --set overrides the preset
+    assert scene.SCENE.split({}, preset=None) == scene.SCENE.split({})
+    with pytest.raises(ParameterError, match="no preset 'x'; presets: paper"):
+        scene.SCENE.split({}, preset="x")
+    with pytest.raises(ParameterError, match="positive"):        # preset values go through the same checks
+        Scene("s", scene.build, params=scene.PARAMS, positive=("m3",), presets={"bad": {"m3": -1.0}}).split(
+            {}, preset="bad")
+    with pytest.raises(SceneError, match="unknown values"):
+        Scene("s", scene.build, params=scene.PARAMS, presets={"p": {"nope": 1.0}})
+    with pytest.raises(SceneError, match="non-numbers"):
+        Scene("s", scene.build, params=scene.PARAMS, presets={"p": {"m3": float("nan")}})
+    with pytest.raises(SceneError, match="identifier-like"):
+        Scene("s", scene.build, params=scene.PARAMS, presets={"a b": {"m3": 1.0}})
