@@ -84,8 +84,8 @@ class Tracking:
     linearize_at : {"ends", "start"}
         Where the internal dynamics are linearized: the mean of the Jacobians at the start and end
         equilibria of the reference (as 003 Sect. 6 does) or at the start only.
-    split : {"schur", "eig"}
-        How ``T`` of 003 (39) is built.
+    split : {"schur", "eig", "eig-unit"}
+        How ``T`` of 003 (39) is built (:func:`invctl.analysis.linearize.from_matrices`).
     signals : dict
         Extra signals computed from the output, ``name -> (model -> (y -> SX))``, reported with
         their cumulative tracking error (e.g. the end effector).
@@ -127,8 +127,9 @@ class Tracking:
         if self.linearize_at not in ("ends", "start"):
             raise SceneError(f"scene {scene!r}: tracking.linearize_at must be 'ends' or 'start', "
                              f"got {self.linearize_at!r}")
-        if self.split not in ("schur", "eig"):
-            raise SceneError(f"scene {scene!r}: tracking.split must be 'schur' or 'eig', got {self.split!r}")
+        if self.split not in ("schur", "eig", "eig-unit"):
+            raise SceneError(f"scene {scene!r}: tracking.split must be 'schur', 'eig' or 'eig-unit', "
+                             f"got {self.split!r}")
         for k, v in self.plant.items():
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise SceneError(f"scene {scene!r}: tracking.plant[{k!r}] must be a positive factor, got {v!r}")
@@ -265,6 +266,9 @@ class Scene:
         What the scene is for (:class:`Tracking`, :class:`Contact`, :class:`Switched`).
     drawing : callable, optional
         ``drawing(model) -> invctl.plot.animate.Drawing`` (points and links of the mechanism).
+    presets : dict
+        Named parameter sets, ``name -> {parameter or setting: value}`` (``--preset NAME``), applied
+        before the ``--set`` values; e.g. a parameter set identified from a paper's printed numbers.
     reports : tuple of Report
         Numbers the scene wants to see in ``analyze``/``simulate``.
     studies : dict
@@ -285,6 +289,7 @@ class Scene:
     contact: Contact | None = None
     switched: Switched | None = None
     drawing: Callable | None = None
+    presets: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     reports: tuple = ()
     studies: Mapping[str, Callable] = field(default_factory=dict)
     description: str = ""
@@ -313,6 +318,19 @@ class Scene:
             if unknown:
                 raise SceneError(f"scene {name!r}: {what} names unknown values {unknown}")
             object.__setattr__(self, what, names)
+        presets = {}
+        for pname, pvalues in _frozen(self.presets, "presets", name).items():
+            if not isinstance(pname, str) or not pname.isidentifier():
+                raise SceneError(f"scene {name!r}: preset names must be identifier-like strings, got {pname!r}")
+            pvalues = _frozen(pvalues, f"presets[{pname!r}]", name)
+            unknown = sorted(set(pvalues) - set(self.params) - set(self.settings))
+            bad = {k: v for k, v in pvalues.items()
+                   if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)}
+            if unknown or bad:
+                raise SceneError(f"scene {name!r}: preset {pname!r} "
+                                 + (f"names unknown values {unknown}" if unknown else f"has non-numbers {bad}"))
+            presets[pname] = pvalues
+        object.__setattr__(self, "presets", MappingProxyType(presets))
         kinds = [k for k in ("tracking", "contact", "switched") if getattr(self, k) is not None]
         if len(kinds) > 1:
             raise SceneError(f"scene {name!r} declares {kinds}; a scene is one of tracking, contact, switched")
@@ -380,15 +398,21 @@ class Scene:
                          f"{', '.join(self.commands) or 'none'} ({command} needs {need})")
 
     # ------------------------------------------------------------- parameters
-    def split(self, values: Mapping[str, float] | None) -> tuple[dict, dict]:
-        """Split ``--set`` values into (parameter overrides, full settings), checked.
+    def split(self, values: Mapping[str, float] | None, preset: str | None = None) -> tuple[dict, dict]:
+        """Split ``--set`` values into (parameter overrides, full settings), checked; the values of
+        the named ``preset`` (``--preset``) come first and ``values`` override them.
 
         Raises
         ------
         ParameterError
-            Unknown names, non-finite values, non-integers where integers are required, values
-            that must be positive and are not, or what ``validate`` rejects.
+            Unknown preset or names, non-finite values, non-integers where integers are required,
+            values that must be positive and are not, or what ``validate`` rejects.
         """
+        if preset is not None:
+            if preset not in self.presets:
+                raise ParameterError(f"{self.name}: no preset {preset!r}; presets: "
+                                     f"{', '.join(sorted(self.presets)) or 'none'}")
+            values = {**self.presets[preset], **dict(values or {})}
         values = dict(values or {})
         unknown = sorted(set(values) - set(self.params) - set(self.settings))
         if unknown:

@@ -62,6 +62,8 @@ def _scheme(v):
 
 #: every option of every command (name as in Python; the CLI spells ``_`` as ``-``)
 OPTIONS: dict[str, Option] = {
+    "preset": Option(str, "start from the scene's named parameter set (then --set overrides)",
+                     ("analyze", "invert", "design", "simulate", "pipeline", "study")),
     "samples": Option(int, "sample points for the checks", ("analyze",), 200, _at_least(1)),
     "N": Option(int, "number of collocation intervals (default: automatic)", ("invert",), None, _at_least(4)),
     "scheme": Option(str, "collocation scheme: hermite-simpson, legendre<d>, radau<d>", ("invert",), None, _scheme),
@@ -69,7 +71,7 @@ OPTIONS: dict[str, Option] = {
     "backend": Option(str, "solver of the collocation equations (default ipopt)", ("invert",), None,
                       choices=("ipopt", "newton")),
     "dt": Option(float, "sampling step of the saved trajectory (with --out)", ("invert",), None, _positive),
-    "controller": Option(str, "controller to run (tracking: C1, C2, C3, C1-42; contact: the scene's)",
+    "controller": Option(str, "controller to run (tracking: C1, C2, C3, C1-inv; contact: the scene's)",
                          ("simulate",)),
     "plant_set": Option(str, "override a parameter of the simulated plant only (repeatable)",
                         ("simulate", "pipeline"), None, repeat=True, metavar="NAME=VALUE"),
@@ -150,7 +152,7 @@ def analyze(scene, values=None, **options) -> CommandResult:
     scene = _scene(scene)
     scene.require("analyze")
     o = check_options("analyze", options)
-    params, settings = scene.split(values)
+    params, settings = scene.split(values, preset=o["preset"])
     return _kind(scene).analyze(scene, params, settings, samples=o["samples"])
 
 
@@ -162,7 +164,7 @@ def invert(scene, values=None, **options) -> CommandResult:
     if o["dt"] is not None and not o["out"]:
         raise ParameterError("--dt sets the sampling of the saved trajectory; give --out FILE.npz too")
     out = str(check_output_path(o["out"], suffix=".npz", force=o["force"])) if o["out"] else None
-    params, settings = scene.split(values)
+    params, settings = scene.split(values, preset=o["preset"])
     return _kind(scene).invert(scene, params, settings, N=o["N"], scheme=o["scheme"], tol=o["tol"],
                                backend=o["backend"], out=out, dt=o["dt"], quiet=o["quiet"])
 
@@ -173,7 +175,7 @@ def design(scene, values=None, **options) -> CommandResult:
     scene.require("design")
     o = check_options("design", options)
     plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
-    params, settings = scene.split(values)
+    params, settings = scene.split(values, preset=o["preset"])
     return _kind(scene).design(scene, params, settings, plot=plot)
 
 
@@ -187,7 +189,7 @@ def simulate(scene, values=None, **options) -> CommandResult:
         suffix = ".csv" if str(o["out"]).lower().endswith(".csv") else ".npz"
         out = str(check_output_path(o["out"], suffix=suffix, force=o["force"]))
     plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
-    params, settings = scene.split(values)
+    params, settings = scene.split(values, preset=o["preset"])
     kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"]), t_end=o["t_end"], out=out,
               plot=plot, quiet=o["quiet"])
     if o["inverse"]:
@@ -205,7 +207,7 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     scene.require("pipeline")
     o = check_options("pipeline", options)
     out_dir = check_output_dir(o["out_dir"])
-    params, settings = scene.split(values)
+    params, settings = scene.split(values, preset=o["preset"])
     return _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
                                  plant_params=_plant_params(o["plant_set"]), quiet=o["quiet"],
                                  animate=not o["no_animation"])
@@ -222,7 +224,7 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
         raise SceneError(f"unknown study {kind!r}; available: tradeoff")
     o = check_options("study", options)
     out = check_output_dir(o["out_dir"])
-    params, settings = scene.split(values)
+    params, settings = scene.split(values, preset=o["preset"])
     smoke = os.environ.get("INVCTL_SMOKE") == "1"
     spec = spec_for(scene, params, settings, smoke=smoke, job=o["job"])
     result = run_tradeoff(spec, progress=not o["quiet"])
