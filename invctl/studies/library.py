@@ -29,11 +29,9 @@ from __future__ import annotations
 
 import hashlib
 import heapq
-import inspect
 import json
 import math
 import os
-import re
 import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, Executor, ProcessPoolExecutor, wait
@@ -43,130 +41,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import InvctlError, LibraryError, ParameterError, SceneError
-from .library_data import Library, LibraryStore
+from ..errors import InvctlError, ParameterError
+from .library_data import Axis, Library, LibraryStore, parse_grid, reference_arguments, resolve_axes
 
 __all__ = ["Axis", "Library", "generate", "parse_grid", "reference_arguments", "resolve_axes"]
-
-_AXIS = re.compile(r"^(?:(param|ref):)?([A-Za-z_]\w*)(?:\[(\d+)\])?$")
-
-
-@dataclass(frozen=True)
-class Axis:
-    """One grid axis: ``name`` as written (``m3``, ``rf[0]``), ``kind`` ``"param"`` or ``"reference"``,
-    the parameter or argument ``key``, the component ``index`` of a sequence argument, the ``values``."""
-
-    name: str
-    kind: str
-    key: str
-    index: int | None
-    values: tuple
-
-
-def parse_grid(item: str) -> tuple[str, np.ndarray]:
-    """``NAME=START:STOP:COUNT`` (inclusive, evenly spaced), ``NAME=V1,V2,...`` or ``NAME=V`` -> (name, values).
-    Numbers are parsed with ``float`` (never evaluated)."""
-    name, sep, spec = str(item).partition("=")
-    name, spec = name.strip(), spec.strip()
-    if not sep or not name or not spec:
-        raise ParameterError(f"--grid {item!r}: expected NAME=START:STOP:COUNT or NAME=V1,V2,... (e.g. m3=0.4:0.6:3)")
-
-    def num(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise ParameterError(f"--grid {item!r}: {text.strip()!r} is not a number") from None
-        if not math.isfinite(v):
-            raise ParameterError(f"--grid {item!r}: values must be finite, got {text.strip()!r}")
-        return v
-
-    if ":" in spec:
-        parts = spec.split(":")
-        if len(parts) != 3:
-            raise ParameterError(f"--grid {item!r}: a range is START:STOP:COUNT (three fields), got {spec!r}")
-        a, b = num(parts[0]), num(parts[1])
-        try:
-            count = int(parts[2])
-        except ValueError:
-            raise ParameterError(f"--grid {item!r}: COUNT {parts[2]!r} is not an integer") from None
-        if count < 1 or (count == 1 and a != b) or (count > 1 and a == b):
-            raise ParameterError(f"--grid {item!r}: COUNT must be >= 2 for START != STOP (1 only when equal), "
-                                 f"got {count}")
-        values = np.linspace(a, b, count)
-    else:
-        values = np.array([num(v) for v in spec.split(",")])
-    if np.unique(values).size != values.size:
-        raise ParameterError(f"--grid {item!r}: repeated values {values.tolist()}")
-    return name, values
-
-
-def reference_arguments(scene) -> dict[str, Any]:
-    """The grid-able arguments of the scene's reference function: keyword arguments (after
-    ``model``) whose default is a number or a sequence of numbers, with their defaults."""
-    ref = scene.tracking.reference if scene.tracking is not None else None
-    if ref is None:
-        return {}
-    out: dict[str, Any] = {}
-    for i, p in enumerate(inspect.signature(ref).parameters.values()):
-        if i == 0 or p.kind not in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) or p.default is p.empty:
-            continue
-        d = p.default
-        if isinstance(d, (int, float)) and not isinstance(d, bool):
-            out[p.name] = float(d)
-        elif (isinstance(d, (tuple, list)) and d
-              and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in d)):
-            out[p.name] = tuple(float(v) for v in d)
-    return out
-
-
-def resolve_axes(scene, grid) -> list[Axis]:
-    """Check grid axes against the scene (``grid``: dict name -> values, or ``NAME=...`` strings).
-
-    Raises
-    ------
-    ParameterError
-        Unknown or ambiguous names, a component index out of range, repeated axes.
-    """
-    items = [parse_grid(g) for g in grid] if not isinstance(grid, dict) else list(grid.items())
-    if not items:
-        raise ParameterError("a library needs at least one grid axis, e.g. --grid m3=0.4:0.6:3")
-    refargs = reference_arguments(scene)
-    params = set(scene.params)
-    able = sorted(params) + [f"{k}[i]" if isinstance(v, tuple) else k for k, v in refargs.items()]
-    axes, seen = [], set()
-    for name, values in items:
-        mt = _AXIS.match(str(name).strip())
-        if not mt:
-            raise ParameterError(f"grid axis {name!r}: expected NAME, NAME[INDEX], param:NAME or ref:NAME")
-        prefix, key, idx = mt.group(1), mt.group(2), mt.group(3)
-        in_p, in_r = key in params, key in refargs
-        if prefix is None and in_p and in_r:
-            raise ParameterError(f"grid axis {name!r} is both a scene parameter and an argument of the reference; "
-                                 f"write param:{key} or ref:{key}")
-        kind = "param" if (prefix == "param" or (prefix is None and in_p)) else "reference"
-        if (kind == "param" and not in_p) or (kind == "reference" and not in_r):
-            raise ParameterError(f"grid axis {name!r}: not a parameter of scene {scene.name!r} nor a numeric "
-                                 f"keyword argument of its reference; grid-able: {', '.join(able) or 'none'} "
-                                 "(docs/trajectories.md: how a scene declares reference arguments)")
-        index = None
-        if kind == "reference" and isinstance(refargs[key], tuple):
-            if idx is None:
-                raise ParameterError(f"grid axis {name!r}: reference argument {key} is a sequence "
-                                     f"{refargs[key]}; grid one component, e.g. {key}[0]")
-            index = int(idx)
-            if index >= len(refargs[key]):
-                raise ParameterError(f"grid axis {name!r}: {key} has {len(refargs[key])} components")
-        elif idx is not None:
-            raise ParameterError(f"grid axis {name!r}: {key} is a number, not a sequence (no [index])")
-        label = key if index is None else f"{key}[{index}]"
-        if (kind, label) in seen:
-            raise ParameterError(f"grid axis {label!r} given twice")
-        seen.add((kind, label))
-        vals = np.atleast_1d(np.asarray(values, float))
-        if vals.size == 0 or not np.all(np.isfinite(vals)):
-            raise ParameterError(f"grid axis {label!r}: values must be finite numbers, got {vals.tolist()}")
-        axes.append(Axis(label, kind, key, index, tuple(float(v) for v in vals)))
-    return axes
 
 
 # ------------------------------------------------------------------ the work of one point
@@ -346,8 +224,9 @@ class _Progress:
         rate = new / el if el > 0 else 0.0
         eta = (self.total - done) / rate if rate > 0 else math.inf
         bar = "#" * int(frac * 30) + "." * (30 - int(frac * 30))
+        left = f", {eta:.0f} s left" if math.isfinite(eta) and done < self.total else ""
         text = (f"{self.label} [{bar}] {done}/{self.total}" + (f" ({failed} failed)" if failed else "")
-                + f"  {rate:.1f} points/s" + (f", {eta:.0f} s left" if math.isfinite(eta) and done < self.total else ""))
+                + f"  {rate:.1f} points/s{left}")
         print(("\r" + text) if self.tty else text, end="" if self.tty and done < self.total else "\n",
               file=sys.stderr, flush=True)
 
