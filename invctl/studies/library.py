@@ -65,8 +65,10 @@ class _Context:
 _STATE: dict = {}
 
 
-def _state(ctx: _Context):
-    """Per process: the scene, the base model and the base solution with its collocation system."""
+def _state(ctx: _Context, scene=None, model=None):
+    """Per process: the scene, the base model and the base solution with its collocation system (built
+    here from ``ctx``, or from the ``scene`` and ``model`` of the calling process: a process pool forked
+    afterwards inherits them)."""
     st = _STATE.get(ctx.key)
     if st is None:
         from ..inversion import Inverse
@@ -74,8 +76,9 @@ def _state(ctx: _Context):
         from ..scenes import load_scene
         from .tracking import tracking_model
 
-        scene = load_scene(ctx.scene)
-        model, _ = tracking_model(scene, dict(ctx.params))
+        if scene is None or model is None:
+            scene = load_scene(ctx.scene)
+            model, _ = tracking_model(scene, dict(ctx.params))
         ref = scene.tracking.reference(model, **dict(ctx.ref_kwargs))
         b = ctx.base
         inv = Inverse(b["scheme"], b["t_mesh"], b["X_mesh"], b["dX_mesh"], b["X_col"], b["sizes"], b["t0"], b["tf"],
@@ -419,6 +422,7 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
     ctx_base["warm"] = _warm(dict(ctx_base), -1)
     ctx = _Context(key, scene_reference(scene), tuple(sorted(params.items())), tuple(ref_kwargs.items()),
                    tuple(axes), ctx_base, backend, tol)
+    _state(ctx, scene, model)
     base_t = time.perf_counter() - t_start
     # where the base lies in the grid (normalized by the axis spans)
     span = np.array([max(a.values) - min(a.values) or 1.0 for a in axes])
