@@ -472,44 +472,58 @@ class ParametricInverse:
             Rw, Rt = (np.array(a) for a in dR(self._w(E), np.ravel(y), th))
             dw = -np.linalg.solve(Rw, Rt)
             dE.append(np.vstack([dw[:n], np.zeros((n, nth)), dw[n:]]))
-        # dg/dp along the parameter directions (theta, E0, Ef blocks of p), forward mode through the
-        # transcription graph without compiled code
+        # dg/dtheta (total: through the equilibria too) from the transcription's own interval function
         trs = self.transcription(compiled=False)
-        S = np.zeros((trs.np, nth))
-        o = trs.N + trs.m4 * trs.nY
-        S[o:o + nth] = np.eye(nth)
-        S[o + nth:o + nth + nx] = dE[0]
-        S[o + nth + nx:] = dE[1]
-        gp = np.array(_dg_dp(trs)(self.x, self.p, S))
+        N, o = self.t_mesh.size - 1, trs.N + trs.m4 * trs.nY
+        h = np.diff(self.t_mesh)
+        Y = np.asarray(self.p[N:o]).reshape(trs.m4, trs.nY, order="F")
+        Xm, Xc = trs.unpack(self.x)
+        fn = _interval_theta(trs)
+        if self.scheme.is_hs:
+            F = np.array(servo.rhs.map(N + 1)(Xm, Y[:, :N + 1], th))
+            Ft = np.array(dF.map(N + 1)(Xm, Y[:, :N + 1], th))
+            D = fn.map(N)(Xm[:, :N], Xm[:, 1:], F[:, :N], F[:, 1:], Ft[:, :nth * N], Ft[:, nth:], h[None, :],
+                          Y[:, N + 1:], th)
+        else:
+            D = fn.map(N)(Xm[:, :N], Xc, Xm[:, 1:], h[None, :], Y, th)
+        D = np.array(D)
+        r = D.shape[0]
+        sel = self.selection
+        gp = np.vstack([D.reshape(r, N, nth).transpose(1, 0, 2).reshape(N * r, nth),
+                        -dE[0][list(sel.start)], -dE[1][list(sel.end)]])
         lu = self.jacobian_factor()
         if hasattr(lu, "pattern"):  # banded LU: one back-substitution per parameter
             dx = -np.column_stack([lu.solve(gp[:, j]) for j in range(nth)])
         else:
             dx = -lu.solve(gp)
         tr = self.transcription()
-        N = self.t_mesh.size - 1
         dXm = np.stack([tr.unpack(dx[:, j])[0] for j in range(nth)])
         dXc = np.stack([tr.unpack(dx[:, j])[1] for j in range(nth)])
         ddX = np.zeros_like(dXm)
         if self.scheme.is_hs:  # slopes of the Hermite pieces: dF = F_X dX + F_theta (y_ref fixed)
-            Xm = self.inverse.X_mesh
-            Yn = np.asarray(self.p[N:o]).reshape(trs.m4, trs.nY, order="F")[:, :N + 1]
-            _F, JF = servo.rhs_jac.map(N + 1)(Xm, Yn, th)
+            _F, JF = servo.rhs_jac.map(N + 1)(Xm, Y[:, :N + 1], th)
             JF = np.array(JF).reshape(nx, N + 1, nx).transpose(1, 0, 2)
-            Ft = np.array(dF.map(N + 1)(Xm, Yn, th)).reshape(nx, N + 1, nth).transpose(2, 0, 1)
-            ddX = np.einsum("kij,pjk->pik", JF, dXm) + Ft
+            ddX = np.einsum("kij,pjk->pik", JF, dXm) + Ft.reshape(nx, N + 1, nth).transpose(2, 0, 1)
         return Sensitivities(self, names, np.array([md.values[k] for k in names]), chain, dXm, ddX, dXc,
                              dE[0], dE[1], time.perf_counter() - t_start)
 
 
-def _dg_dp(trs) -> ca.Function:
-    """``(x, p, S) -> dg/dp S`` on an uncompiled transcription (forward mode, ``ntheta`` directions)."""
-    fns = _FUN.get(trs)
-    if fns is None:
-        x, p = trs._x, trs._p
-        S = ca.MX.sym("S", trs.np, trs.ntheta)
-        fns = _FUN[trs] = ca.Function("g_dp", [x, p, S], [ca.jtimes(trs.g, p, S)], ["x", "p", "S"], ["dg"])
-    return fns
+def _interval_theta(trs) -> ca.Function:
+    """``d(defect of one interval)/dtheta`` from the (uncompiled) transcription's interval function:
+    Hermite-Simpson also through the node slopes, ``+ d/dF_a F_theta(a) + d/dF_b F_theta(b)``."""
+    fn = _FUN.get(trs)
+    if fn is None:
+        iv, nx, nth = trs.interval, trs.nx, trs.ntheta
+        ins = [ca.SX.sym(iv.name_in(i), iv.sparsity_in(i)) for i in range(iv.n_in())]
+        defect = iv(*ins)[0]
+        th = ins[-1]
+        D = ca.jacobian(defect, th)
+        if trs.scheme.is_hs:  # inputs Xa, Xb, Fa, Fb, h, Ym, theta
+            Fta, Ftb = ca.SX.sym("Fta", nx, nth), ca.SX.sym("Ftb", nx, nth)
+            D = D + ca.mtimes(ca.jacobian(defect, ins[2]), Fta) + ca.mtimes(ca.jacobian(defect, ins[3]), Ftb)
+            ins = ins[:4] + [Fta, Ftb] + ins[4:]
+        fn = _FUN[trs] = ca.Function("interval_dtheta", ins, [ca.densify(D)])
+    return fn
 
 
 @dataclass
