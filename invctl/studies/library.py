@@ -111,7 +111,7 @@ def point_setup(scene, model, params: dict, ref_kwargs: dict, axes, values):
 
 def solve_point(ctx: _Context, index: int, values: tuple, warm: dict | None, verify: bool) -> dict:
     """Solve one grid point (runs in a worker); never raises for a failed point (``status``)."""
-    t_start = time.perf_counter()
+    t_start, c_start = time.perf_counter(), time.process_time()
     rec: dict[str, Any] = {"index": index, "status": "failed", "message": "", "initial_guess": "",
                            "error": math.nan, "source": -2 if warm is None else int(warm["source"])}
     try:
@@ -135,7 +135,7 @@ def solve_point(ctx: _Context, index: int, values: tuple, warm: dict | None, ver
         rec["message"] = f"{type(exc).__name__}: {exc}"
     except Exception as exc:  # a failed point is data, not a crash of the library
         rec["message"] = f"{type(exc).__name__}: {exc}"
-    rec["wall_s"] = time.perf_counter() - t_start
+    rec["wall_s"], rec["cpu_s"] = time.perf_counter() - t_start, time.process_time() - c_start
     return rec
 
 
@@ -497,5 +497,5 @@ def _meta(ctx, axes, values, rec) -> dict:
     return {"scene": ctx.scene, "params": {**dict(ctx.params), **pv},
             "library": {"key": ctx.key, "index": int(rec["index"]), "status": rec["status"],
                         "values": {a.name: float(v) for a, v in zip(axes, values)},
-                        "stats": {k: rec.get(k) for k in ("iterations", "factorizations", "wall_s", "residual",
+                        "stats": {k: rec.get(k) for k in ("iterations", "factorizations", "wall_s", "cpu_s", "residual",
                                                           "error", "initial_guess", "source", "message")}}}

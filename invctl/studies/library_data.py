@@ -153,7 +153,7 @@ def resolve_axes(scene, grid) -> list[Axis]:
     return axes
 
 
-_STATS = ("iterations", "factorizations", "wall_s", "residual", "error", "source")
+_STATS = ("iterations", "factorizations", "wall_s", "cpu_s", "residual", "error", "source")
 
 
 @dataclass
@@ -168,7 +168,8 @@ class Library:
     status, messages : lists of str per point
     t_mesh, X_mesh, dX_mesh, X_col : stacked collocation data, NaN for failed points
     t0, tf : (P,) transition of every point's reference
-    stats : dict name -> (P,) array: ``iterations``, ``factorizations``, ``wall_s``, ``residual``,
+    stats : dict name -> (P,) array: ``iterations``, ``factorizations``, ``wall_s``, ``cpu_s`` (CPU time of
+        the process that solved the point), ``residual``,
         ``error`` (forward check; NaN where not verified), ``source`` (the point whose solution
         started this one: -1 the base, -2 none) and ``initial_guess`` (list of str)
     info : dict, settings and timings
