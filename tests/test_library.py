@@ -163,3 +163,14 @@ def test_library_on_a_dask_cluster():
         lib = generate("manipulator", {"rf[0]": [0.88, 0.92]}, executor=client, N=60, verify="none",
                        progress=False)
     assert lib.counts()["solved"] == 2
+
+
+def test_ipopt_backend_agrees_with_newton():
+    # backend="ipopt": every point through invert() (warm-started, the mesh carried to the point's
+    # transition): the same discrete solutions as the Newton continuation (both to ~1e-10 residual)
+    grid = {"tf": [0.9, 1.1]}
+    a = generate("manipulator", grid, executor="serial", N=60, backend="ipopt", verify="none", progress=False)
+    b = generate("manipulator", grid, executor="serial", N=60, verify="none", progress=False)
+    t = np.linspace(-1, 2.1, 401)
+    for i in range(2):
+        assert np.max(np.abs(a.inverse(i).u(t) - b.inverse(i).u(t))) < 1e-7

@@ -323,7 +323,7 @@ class ParametricInverse:
         return mapped_mesh(self.t_mesh, src, dst)
 
     def resolve(self, model=None, reference=None, *, x0=None, guess=None, tol: float | None = None,
-                max_iter: int = 30, residual_tol: float = 1e-4, check_dichotomy: bool = True,
+                max_iter: int = 30, residual_tol: float = 1e-4, check_modes: bool = True,
                 warm: bool = True) -> "ParametricInverse":
         """Solve the same collocation system for other parameters (``model``: same structure,
         e.g. ``model.with_params(m3=0.6)``) and/or another reference (same number of outputs),
@@ -368,7 +368,7 @@ class ParametricInverse:
             g0, gf = G[:, 0], G[:, -1]
         E0 = eq.solve(yends[:, 0], guess_w=self._w(np.asarray(g0, float)), theta=th, where=f" at T0 = {t_mesh[0]}")[0]
         Ef = eq.solve(yends[:, 1], guess_w=self._w(np.asarray(gf, float)), theta=th, where=f" at Tf = {t_mesh[-1]}")[0]
-        modes = self._check_modes(servo, E0, Ef, yends, th) if check_dichotomy else None
+        modes = self._check_modes(servo, E0, Ef, yends, th) if check_modes else None
         p = tr.parameters(t_mesh, Y, th, E0, Ef)
         x, info, self._lu = _newton(tr, self.x if x0 is None else x0, p, lu=self._lu,
                                     tol=self.newton_tol if tol is None else tol, max_iter=max_iter)

@@ -308,7 +308,7 @@ class Library:
         ok = self.solved
         if ok.any():
             it = self.stats["iterations"][ok]
-            lines.append(f"  Newton iterations per point: median {np.nanmedian(it):.0f}, max {np.nanmax(it):.0f}; "
+            lines.append(f"  solver iterations per point: median {np.nanmedian(it):.0f}, max {np.nanmax(it):.0f}; "
                          f"largest position residual {np.nanmax(self.stats['residual'][ok]):.2g}")
         err = self.stats["error"]
         if np.isfinite(err).any():
