@@ -174,3 +174,11 @@ def test_ipopt_backend_agrees_with_newton():
     t = np.linspace(-1, 2.1, 401)
     for i in range(2):
         assert np.max(np.abs(a.inverse(i).u(t) - b.inverse(i).u(t))) < 1e-7
+
+
+def test_force_starts_over(tmp_path):
+    out = tmp_path / "lib.npz"
+    generate("manipulator", {"tf": [0.9, 1.1]}, executor="serial", N=60, verify="none", out=out, progress=False)
+    lib = generate("manipulator", {"tf": [0.8, 1.0]}, executor="serial", N=60, verify="none", out=out, force=True,
+                   progress=False)
+    assert lib.info["resumed"] == 0 and Library.load(out).points == [{"tf": 0.8}, {"tf": 1.0}]

@@ -102,6 +102,7 @@ for _name in ("N", "scheme", "tol", "backend", "out", "force", "quiet"):
     OPTIONS[_name] = replace(OPTIONS[_name], commands=OPTIONS[_name].commands + ("generate",))
 OPTIONS["out"] = replace(OPTIONS["out"], help=OPTIONS["out"].help + "; generate: a .npz file or a folder (an "
                          "unfinished library of the same settings there is resumed)")
+OPTIONS["force"] = replace(OPTIONS["force"], help=OPTIONS["force"].help + " (generate: start the library over)")
 OPTIONS["backend"] = replace(OPTIONS["backend"], help=OPTIONS["backend"].help.replace(
     "(default ipopt)", "(default ipopt; generate: newton)"))
 

@@ -367,7 +367,8 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
     out : path, optional
         ``*.npz``: one file (points are kept in ``<out>.parts/`` until the end); otherwise a folder
         with one :class:`~invctl.inversion.Inverse` file per point and ``library.json``.  An existing
-        output of the same settings is resumed; of other settings it is replaced only with ``force``.
+        output of the same settings is resumed; of other settings it is refused.  ``force``: discard
+        what the output holds and start over.
     executor : Executor, dask.distributed.Client or "serial", optional
         Where points are solved (default: a process pool of ``max_workers``).
     backend : {"newton", "ipopt"}

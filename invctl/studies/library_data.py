@@ -468,9 +468,6 @@ class LibraryStore:
             raise ResultFileError(f"{f}: cannot read ({exc})") from None
 
     def _mismatch(self, what: str, found) -> None:
-        if self.force:
-            self.clear()
-            return
         raise OutputPathError(f"--out {self.path}: {what} holds a library of other settings (key {found}, this run "
                               f"{self.key}); pass --force to replace it or choose another --out")
 
@@ -491,6 +488,9 @@ class LibraryStore:
         from ..io import load_npz, read_meta
 
         out: dict = {}
+        if self.force and self.key is not None:  # start over
+            self.clear()
+            return out
         if self.file and self.path.exists():
             meta = read_meta(self.path)
             if meta["kind"] != "TrajectoryLibrary":
@@ -512,7 +512,6 @@ class LibraryStore:
                 lib_meta = meta.get("library", {})
                 if self.key is not None and lib_meta.get("key") != self.key:
                     self._mismatch(f"{f.name}", lib_meta.get("key"))
-                    return {}
                 z, _ = load_npz(f, ("Inverse", "LibraryPoint"))
             except ResultFileError:
                 continue  # a file cut off by the interruption: solve that point again
