@@ -164,3 +164,11 @@ __all__ = [
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
     "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError",
 ]
+
+
+class LibraryError(InvctlError):
+    """A trajectory library cannot be generated or read as asked (a point without a trajectory,
+    an unknown axis)."""
+
+
+__all__ += ["LibraryError"]

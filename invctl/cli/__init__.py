@@ -23,6 +23,7 @@ _HELP = {
     "pipeline": "the scene's whole job (tracking: invert, design, C1/C2/C3, compare, figures)",
     "study": "studies: speed-versus-accuracy trade-off",
     "animate": "draw a saved run of a scene as a GIF/MP4",
+    "generate": "a trajectory library: stable inverses over a grid of end points, durations, parameters",
 }
 
 
@@ -40,7 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = _Parser(prog="invctl", description="Model inversion and tracking control of multibody systems.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
-    for name in ("analyze", "invert", "design", "simulate", "pipeline", "study"):
+    for name in ("analyze", "invert", "design", "simulate", "pipeline", "study", "generate"):
         p = sub.add_parser(name, help=_HELP[name], description=_HELP[name])
         if name == "study":
             p.add_argument("kind", help="which study: tradeoff")
@@ -97,7 +98,12 @@ def main(argv: list[str] | None = None) -> int:
 
             options = {k: v for k, v in vars(args).items() if k not in ("command", "scene", "set", "json")}
             values = parse_assignments(args.set)
-            result = run_command(args.command, args.scene, values, **options)
+            if args.command == "generate":
+                from ..studies.commands import generate
+
+                result = generate(args.scene, values, **options)
+            else:
+                result = run_command(args.command, args.scene, values, **options)
     except InvctlError as exc:
         return _error(args.command, target, exc, args.json)
     except Exception as exc:  # a bug: say so, without a traceback unless asked for

@@ -14,7 +14,7 @@ from __future__ import annotations
 import importlib
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 from ..errors import ParameterError, SceneError
@@ -85,6 +85,28 @@ OPTIONS: dict[str, Option] = {
     "quiet": Option(bool, "no progress output", ("invert", "simulate", "pipeline", "study"), False, flag=True),
     "no_animation": Option(bool, "do not write animations of the runs", ("pipeline",), False, flag=True),
 }
+
+#: ``invctl generate`` (trajectory libraries, :mod:`.library`): its own options; it shares N, scheme, tol,
+#: backend, out, force and quiet with the commands above
+OPTIONS.update({
+    "grid": Option(str, "a grid axis: a scene parameter or a numeric argument of the scene's reference, "
+                   "NAME=START:STOP:COUNT or NAME=V1,V2,... (repeatable; sequence arguments by component, "
+                   "e.g. 'rf[0]=0.8:1.0:10')", ("generate",), None, repeat=True, metavar="NAME=START:STOP:COUNT"),
+    "workers": Option(int, "worker processes (default: the CPU count; 1: in this process)", ("generate",), None,
+                      _at_least(1)),
+    "dask": Option(str, "solve on this Dask scheduler (address, e.g. tcp://host:8786)", ("generate",)),
+    "verify": Option(str, "forward-check every point, the grid's corners or none", ("generate",), "corners",
+                     choices=("all", "corners", "none")),
+    "no_continuation": Option(bool, "solve every point from its quasi-static guess (no warm starts)", ("generate",),
+                              False, flag=True),
+})
+for _name in ("N", "scheme", "tol", "backend", "out", "force", "quiet"):
+    OPTIONS[_name] = replace(OPTIONS[_name], commands=OPTIONS[_name].commands + ("generate",))
+OPTIONS["out"] = replace(OPTIONS["out"], help=OPTIONS["out"].help + "; generate: a .npz file or a folder (an "
+                         "unfinished library of the same settings there is resumed)")
+OPTIONS["force"] = replace(OPTIONS["force"], help=OPTIONS["force"].help + " (generate: start the library over)")
+OPTIONS["backend"] = replace(OPTIONS["backend"], help=OPTIONS["backend"].help.replace(
+    "(default ipopt)", "(default ipopt; generate: newton)"))
 
 _FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
@@ -242,6 +264,44 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
     data["files"] = {ext: str(out / f"{stem}.{ext}") for ext in ("csv", "json", "png")}
     return CommandResult(result.table() + f"\nwritten: {out / f'{stem}.csv'}, .json, .png", data)
 
+
+def generate(scene, values=None, **options) -> CommandResult:
+    """``invctl generate``: a trajectory library, the stable inverse at every point of a grid of scene
+    parameters and reference arguments, warm-started from solved neighbours (:mod:`.library`)."""
+    from pathlib import Path
+
+    from .library import generate as generate_library
+
+    scene = _scene(scene)
+    scene.require("invert")
+    o = check_options("generate", options)
+    if not o["grid"]:
+        raise ParameterError("invctl generate needs at least one --grid NAME=START:STOP:COUNT (a scene parameter "
+                             "or a numeric argument of the scene's reference, e.g. --grid 'rf[0]=0.8:1.0:10')")
+    out = o["out"]
+    if out is None:
+        out = str(check_output_dir("invctl-out") / f"library_{scene.name}.npz")
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+    params, _settings = scene.split(values)
+    executor, client = ("serial" if o["workers"] == 1 else None), None
+    if o["dask"]:
+        try:
+            from dask.distributed import Client
+        except ImportError:
+            raise ParameterError("--dask needs dask.distributed (pip install 'dask[distributed]')") from None
+        client = executor = Client(o["dask"])
+    try:
+        lib = generate_library(scene, o["grid"], params=params, out=out, executor=executor, max_workers=o["workers"],
+                               backend=o["backend"] or "newton", N=o["N"], scheme=o["scheme"], tol=o["tol"],
+                               continuation=not o["no_continuation"], verify=o["verify"], force=o["force"],
+                               progress=not o["quiet"])
+    finally:
+        if client is not None:
+            client.close()
+    return CommandResult(lib.table(), lib.to_dict())
+
+
+__all__ += ["generate"]
 
 _COMMANDS = {"analyze": analyze, "invert": invert, "design": design, "simulate": simulate, "pipeline": pipeline}
 
