@@ -156,19 +156,16 @@ class RecordingError(InvctlError, ValueError):
     event-only record); the exact run statistics or a full record give it."""
 
 
+class LibraryError(InvctlError):
+    """A trajectory library cannot be generated or read as asked (a point without a trajectory,
+    an unknown axis)."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError", "RelativeDegreeError",
     "CoordinateError", "ReferenceSignalError", "BoundaryConditionError", "InversionFailed", "SimulationFailed",
     "FunnelViolation", "StabilityError", "ContactError", "PreloadInfeasible", "ResultFileError",
     "OutputPathError", "AnimationError", "DrawingError", "FeedbackDesignError", "PositionOutputError",
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
-    "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError",
+    "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
 ]
-
-
-class LibraryError(InvctlError):
-    """A trajectory library cannot be generated or read as asked (a point without a trajectory,
-    an unknown axis)."""
-
-
-__all__ += ["LibraryError"]
