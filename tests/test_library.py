@@ -12,6 +12,16 @@ from invctl.errors import LibraryError, OutputPathError, ParameterError
 from invctl.inversion import Inverse, invert
 from invctl.studies.library import Library, generate, parse_grid, reference_arguments, resolve_axes
 
+def _plan():
+    from invctl.inversion import plan_inversion
+
+    m = scene.build()
+    return plan_inversion(m, scene.reference(m), q_guess=scene.initial_configuration(m))
+
+
+#: the automatic setup of the scene's default transition: the selection every point of a library shares
+PLAN = _plan()
+
 GRID = ["rf[0]=0.88:0.92:2", "rf[1]=-0.92:-0.88:2"]
 
 
@@ -50,8 +60,8 @@ def test_library_points_equal_cold_inversions(lib):
     for i, pt in enumerate(lib.points):
         ref = scene.reference(model, rf=(pt["rf[0]"], pt["rf[1]"]))
         inv = lib.inverse(i)
-        cold = invert(model, ref, T0=inv.T0, Tf=inv.Tf, mesh=inv.t_mesh, start=scene.BOUNDARY["start"],
-                      end=scene.BOUNDARY["end"], backend="newton", q_guess=scene.initial_configuration(model))
+        cold = invert(model, ref, T0=inv.T0, Tf=inv.Tf, mesh=inv.t_mesh, start=PLAN.start,
+                      end=PLAN.end, backend="newton", q_guess=scene.initial_configuration(model))
         t = np.linspace(inv.T0, inv.Tf, 801)
         assert np.max(np.abs(inv.X(t) - cold.X(t))) < 1e-7 * np.max(np.abs(cold.X(t)))
     # the forward check (an independent simulation) of every point: HS N = 60 measured ~1e-5
@@ -74,7 +84,9 @@ def test_library_over_parameters_and_durations_on_a_process_pool():
     assert par.counts()["solved"] == ser.counts()["solved"] == 4
     for i, pt in enumerate(ser.points):
         a, b = par.inverse(i), ser.inverse(i)
-        assert a.tf == pytest.approx(pt["tf"]) and a.Tf - a.tf == pytest.approx(1.0) and a.t0 - a.T0 == 1.0
+        # the pre- and post-actuation spans of the default point's automatic setup (tf = 1) are kept
+        assert a.tf == pytest.approx(pt["tf"]) and a.Tf - a.tf == pytest.approx(PLAN.Tf - 1.0)
+        assert a.t0 - a.T0 == pytest.approx(-PLAN.T0)
         t = np.linspace(a.T0, a.Tf, 401)
         assert np.max(np.abs(a.u(t) - b.u(t))) < 1e-7 * np.max(np.abs(b.u(t)))
     # the point's model carries the grid value: m3 = 0.55 needs a different feedforward than m3 = 0.45

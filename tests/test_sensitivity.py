@@ -13,6 +13,16 @@ from invctl.model import Model, ParamSet
 from invctl.reference import Reference, poly9_timing_law
 from invctl.studies.tracking import invert_tracking
 
+def _plan():
+    from invctl.inversion import plan_inversion
+
+    m = scene.build()
+    return plan_inversion(m, scene.reference(m), q_guess=scene.initial_configuration(m))
+
+
+#: the automatic setup of the scene's default transition: the selection every point of a library shares
+PLAN = _plan()
+
 
 @pytest.fixture(scope="module")
 def model():
@@ -130,8 +140,8 @@ def test_resolve_after_a_reference_change_matches_a_cold_inversion(model, base):
     # continuation to another end point equals invert() of the same discretization from its own guess
     ref2 = scene.reference(model, rf=(0.95, -0.85))
     warm = base.resolve(reference=ref2).inverse
-    cold = invert(model, ref2, T0=warm.T0, Tf=warm.Tf, mesh=warm.t_mesh, start=scene.BOUNDARY["start"],
-                  end=scene.BOUNDARY["end"], backend="newton", q_guess=scene.initial_configuration(model))
+    cold = invert(model, ref2, T0=warm.T0, Tf=warm.Tf, mesh=warm.t_mesh, start=PLAN.start,
+                  end=PLAN.end, backend="newton", q_guess=scene.initial_configuration(model))
     t = np.linspace(warm.T0, warm.Tf, 1001)
     # both stop at max |g| < 1e-10; the Jacobian's conditioning keeps the solutions within ~1e-8
     assert np.max(np.abs(warm.u(t) - cold.u(t))) < 1e-7 * np.max(np.abs(cold.u(t)))
