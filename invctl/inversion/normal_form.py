@@ -94,7 +94,8 @@ class _PhiInverse:
                 q = rf(G[:n], ca.vertcat(T[rq], TH))
                 x = ca.vertcat(q, vel(q, T[rv], TH))
             else:
-                res = ca.Function("Phi_res", [ca.vertcat(model.q, model.v), ca.vertcat(T, th)], [Phi - T])
+                ts = ca.SX.sym("target", 2 * n)
+                res = ca.Function("Phi_res", [ca.vertcat(model.q, model.v), ca.vertcat(ts, th)], [Phi - ts])
                 x = ca.rootfinder("Phi_inv", plugin, res, opts)(G, ca.vertcat(T, TH))
             self.functions[plugin] = ca.Function(f"Phi_inverse_{plugin}", [T, G, TH], [x],
                                                  ["target", "guess", "theta"], ["x"])
