@@ -62,6 +62,8 @@ _NEWTON_OPTS = {"abstol": 1e-11, "abstolStep": 1e-14, "max_iter": 100}
 _PHI_RESIDUAL = 1e-9
 #: Gamma counts as singular where its smallest singular value is below this fraction of the largest
 _GAMMA_RCOND = 1e-10
+#: mapped Functions kept per normal form (one per function and number of nodes)
+_MAP_CACHE = 48
 #: order of the Hermite interpolant and of solve_bvp's collocation (mesh grading)
 _ORDER = 4
 
@@ -151,6 +153,8 @@ class NormalForm:
         K = args[0].shape[1] if np.ndim(args[0]) == 2 else 1
         key = (name, K)
         if key not in self._maps:
+            if len(self._maps) >= _MAP_CACHE:       # solve_bvp changes its mesh: keep the recent sizes only
+                self._maps.pop(next(iter(self._maps)))
             self._maps[key] = self.fns[name].map(K)
         args = [np.tile(np.asarray(a, float).reshape(-1, 1), (1, K)) if np.ndim(a) == 1 else a for a in args]
         out = self._maps[key](*args)
