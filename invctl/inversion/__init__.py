@@ -13,6 +13,6 @@ from .verify import forward_check
 
 __all__ = [
     "EquilibriumSolver", "Inverse", "InversionPlan", "NormalForm", "dichotomy", "Scheme", "Selection", "ServoModel",
-    "Transcription", "check_reference", "forward_check", "get_scheme", "interval_errors", "invert", "invert_normal_form", "normal_form",
-    "plan_inversion", "quasi_static_guess", "resolve_selection", "servo_model",
+    "Transcription", "check_reference", "forward_check", "get_scheme", "interval_errors", "invert",
+    "invert_normal_form", "normal_form", "plan_inversion", "quasi_static_guess", "resolve_selection", "servo_model",
 ]
