@@ -134,7 +134,7 @@ class NormalForm:
             "phi": ca.Function("phi", [model.q, model.v, th], [phi_expr]),
             "rhs": ca.Function("internal_rhs", [x, th], [ed]),
             "rhs_jac": ca.Function("internal_jac", [x, th], [ed, ca.jacobian(ed, x), dPhi]),
-            "core": ca.Function("normal_form_core", [x, th], [ed, dPhi, chain.gamma, drift, xi]),
+            "core": ca.Function("normal_form_core", [x, th], [ed, dPhi, chain.gamma, drift]),
             "core_dot": ca.Function("normal_form_core_dot", [x, xd, th],
                                     [ca.jtimes(chain.gamma, x, xd), ca.jtimes(drift, x, xd)]),
         }
@@ -199,7 +199,7 @@ class NormalForm:
         n, p, l, m = self.sizes
         r, K, k = self.r_hat, t.size, p + l + m
         x = self.states(t, Y, eta, guess, theta)
-        ed, dP, Gm, b, _xi = self._eval("core", x, theta)
+        ed, dP, Gm, b = self._eval("core", x, theta)
         dP = dP.reshape(2 * n, K, 2 * n).transpose(1, 0, 2)
         Gm = Gm.reshape(k, K, k).transpose(1, 0, 2)
         dtarget = np.vstack([np.zeros((p + 2 * l, K)), Y[m:(r + 1) * m], ed.reshape(self.dim, K)])
