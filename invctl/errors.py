@@ -169,3 +169,12 @@ __all__ = [
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
     "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
 ]
+
+
+class SingularHighGainError(RelativeDegreeError):
+    """The high-gain matrix Gamma of the auxiliary ODE 003 (10) is singular at a point of a
+    normal-form inverse: the relative degree of the outputs does not exist there, so 003 (15)
+    cannot be solved for the multipliers and inputs."""
+
+
+__all__ += ["SingularHighGainError"]
