@@ -161,6 +161,12 @@ class LibraryError(InvctlError):
     an unknown axis)."""
 
 
+class SingularHighGainError(RelativeDegreeError):
+    """The high-gain matrix Gamma of the auxiliary ODE 003 (10) is singular at a point of a
+    normal-form inverse: the relative degree of the outputs does not exist there, so 003 (15)
+    cannot be solved for the multipliers and inputs."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError", "RelativeDegreeError",
     "CoordinateError", "ReferenceSignalError", "BoundaryConditionError", "InversionFailed", "SimulationFailed",
@@ -168,13 +174,5 @@ __all__ = [
     "OutputPathError", "AnimationError", "DrawingError", "FeedbackDesignError", "PositionOutputError",
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
     "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
+    "SingularHighGainError",
 ]
-
-
-class SingularHighGainError(RelativeDegreeError):
-    """The high-gain matrix Gamma of the auxiliary ODE 003 (10) is singular at a point of a
-    normal-form inverse: the relative degree of the outputs does not exist there, so 003 (15)
-    cannot be solved for the multipliers and inputs."""
-
-
-__all__ += ["SingularHighGainError"]
