@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FunnelViolation, ParameterError, SceneError
+from ..errors import CoordinateError, FunnelViolation, ParameterError, SceneError
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
 __all__ = ["CONTROLLERS", "NEEDS_INVERSE", "check_controller", "TrackingSetup", "TrackingStudy", "setup_tracking",
@@ -121,17 +121,41 @@ def design_configuration(scene, model, reference=None) -> np.ndarray:
     return equilibrium_configuration(scene, model, reference(reference.t0))
 
 
+def output_structure(model, q):
+    """The vector relative degree of the outputs at the configuration ``q`` (003 Sect. 2)."""
+    from ..analysis import relative_degree
+
+    return relative_degree(model, samples=0, points=[np.asarray(q, float).ravel()])
+
+
+def has_internal_dynamics(model, q) -> bool:
+    """False when ``r_bar = 2n``: a flat output, the inverse is algebraic."""
+    return output_structure(model, q).r_bar < 2 * model.n
+
+
 def tracking_linearization(scene, model, reference, *, samples: int = 200, internal=None):
     """The linearized internal dynamics (37)-(39) the scene's controllers use: internal coordinates
     of the scene (or the default ones of 003 Sect. 3), linearized at the equilibria of ``y_ref(t0)``
-    and ``y_ref(tf)`` (mean of the Jacobians, as 003 Sect. 6) or at the start only."""
-    from ..analysis import internal_dynamics, linearize_internal
+    and ``y_ref(tf)`` (mean of the Jacobians, as 003 Sect. 6) or at the start only.  ``None`` when the
+    output is flat (no internal dynamics: the funnel controller then works on ``y`` alone)."""
+    from ..analysis import internal_dynamics, is_position_output, linearize_internal
 
     t = scene.tracking
     q_start = design_configuration(scene, model, reference)
     if internal is None:
+        rd = output_structure(model, q_start)
+        if rd.r_bar == 2 * model.n:
+            return None
         phi = t.internal_coordinates(model) if t.internal_coordinates is not None else None
-        internal = internal_dynamics(model, "sect3", phi, point=q_start, samples=samples)
+        if rd.r_hat == 2 and is_position_output(model):
+            internal = internal_dynamics(model, "sect3", phi, point=q_start, samples=samples)
+        elif phi is None:
+            raise CoordinateError(
+                f"scene {scene.name!r}: the outputs have relative degree {rd.r_hat} > 2 and internal dynamics of "
+                f"dimension {2 * model.n - rd.r_bar}; the default coordinates of 003 Sect. 3 need r_hat = 2: "
+                "declare Tracking(internal_coordinates=lambda model: ...) (the eta of 003 (11), with L_K eta = 0)")
+        else:
+            internal = internal_dynamics(model, "sect2", phi, point=q_start, samples=samples)
     times = (reference.t0, reference.tf) if t.linearize_at == "ends" else (reference.t0,)
     points = []
     for tk in times:
@@ -158,17 +182,44 @@ def plant_of(scene, model, plant_params=None, plant_factors=None):
     return plant
 
 
+#: options of :func:`invctl.inversion.invert_normal_form` (the servo route takes those of ``invert``)
+NORMAL_FORM_OPTIONS = ("tol", "N", "T0", "Tf", "phi", "q_guess", "max_horizon", "neutral", "residual_tol",
+                       "max_nodes", "samples")
+
+
+def inversion_method(model, q) -> str:
+    """``"servo"`` (servo constraints 003 (35), jerk-level index reduction) when the outputs are
+    position outputs of relative degree 2, else ``"normal-form"`` (003 Sect. 2, any relative degree)."""
+    from ..analysis import is_position_output
+
+    return "servo" if output_structure(model, q).r_hat == 2 and is_position_output(model) else "normal-form"
+
+
 def invert_tracking(scene, model, reference, *, progress=False, **options):
-    """The servo-constraint inverse of the scene's reference model: the automatic setup of
-    :func:`invctl.inversion.invert` with the scene's declared overrides (``Tracking.inversion``),
-    then ``options``."""
-    from ..inversion import invert
+    """The stable inverse of the scene's reference model: the automatic setup with the scene's declared
+    overrides (``Tracking.inversion``), then ``options``.  ``method`` (``"auto"`` by default) picks the
+    servo-constraint route (:func:`invctl.inversion.invert`) or the normal form
+    (:func:`invctl.inversion.invert_normal_form`, outputs of relative degree above 2, flat outputs)."""
+    from ..inversion import invert, invert_normal_form
 
     cfg = dict(scene.tracking.inversion)
     if "q_guess" not in options and scene.tracking.initial_configuration is not None:
         options["q_guess"] = scene.tracking.initial_configuration(model)
     cfg.update({k: v for k, v in options.items() if v is not None})
-    return invert(model, reference, progress=progress, **cfg)
+    method = cfg.pop("method", "auto")
+    if method == "auto":
+        method = inversion_method(model, design_configuration(scene, model, reference))
+    if method == "servo":
+        return invert(model, reference, progress=progress, **cfg)
+    if method != "normal-form":
+        raise ParameterError(f"inversion method must be 'auto', 'servo' or 'normal-form', got {method!r}")
+    bad = sorted(set(cfg) - set(NORMAL_FORM_OPTIONS))
+    if bad:
+        raise ParameterError(f"scene {scene.name!r}: {bad} apply to the servo-constraint route only; this output "
+                             f"is inverted through the normal form (options: {', '.join(NORMAL_FORM_OPTIONS)})")
+    if "phi" not in cfg and scene.tracking.internal_coordinates is not None:
+        cfg["phi"] = scene.tracking.internal_coordinates(model)
+    return invert_normal_form(model, reference, **cfg)
 
 
 def _signals(scene, model) -> dict:
