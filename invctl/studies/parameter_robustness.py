@@ -95,7 +95,7 @@ def _deviation(res, e0, t0):
     return float(np.trapezoid(de, t0[:k]))
 
 
-def feedforward_robustness(scene="manipulator", params=None, names=None, relative: float = 0.1, *,
+def feedforward_robustness(scene, params=None, names=None, relative: float = 0.1, *,
                            dt: float = 1e-3, t_end: float | None = None, progress: bool = False,
                            inversion_options: dict | None = None) -> RobustnessTable:
     """The robustness table of the module doc for ``names`` (default: every parameter the model carries).

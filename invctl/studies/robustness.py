@@ -94,7 +94,7 @@ def mismatch_point(*, scene: str, controller: str = "C1", t_end=None, params=(),
     return out
 
 
-def plant_mismatch(scene: str = "manipulator", *, controller: str = "C1", t_end=None, params=None, executor=None,
+def plant_mismatch(scene: str, *, controller: str = "C1", t_end=None, params=None, executor=None,
                    max_workers: int | None = None, progress: bool = True, **factors) -> SweepResult:
     """A tracking scene's closed loop over plant mismatches: plant = reference model (``params``) with
     its parameters multiplied by the grid's factors, e.g. ``plant_mismatch("manipulator", m3=[1, 1.2],
@@ -135,7 +135,7 @@ def lambda_map_point(*, scene: str, params=(), **values) -> dict:
     return out
 
 
-def switched_lambda_map(scene: str = "compliant_wrist", *, params=None, executor=None, max_workers: int | None = None,
+def switched_lambda_map(scene: str, *, params=None, executor=None, max_workers: int | None = None,
                         progress: bool = True, **grids) -> SweepResult:
     """Lambda of a switched scene over a grid of two of its parameters (others: the scene's, updated by
     ``params``), e.g. ``switched_lambda_map("compliant_wrist", kt=[...], bt=[...])``; ``Lambda`` is NaN
@@ -176,7 +176,7 @@ def contact_point(*, scene: str, controller=None, t_end=None, base=(), **values)
     return out
 
 
-def contact_grid(scene: str = "prismatic_clearance", *, controller=None, t_end=None, base=None, executor=None,
+def contact_grid(scene: str, *, controller=None, t_end=None, base=None, executor=None,
                  max_workers: int | None = None, progress: bool = True, **grids) -> SweepResult:
     """A contact scene's run over a grid of its parameters and settings, e.g.
     ``contact_grid("prismatic_clearance", e=[0, 0.5, 1], L=[0.1 + 1e-6, 0.11])``."""
