@@ -145,6 +145,24 @@ class Inverse:
     def success(self) -> bool:
         return bool(self.diagnostics.get("success", False))
 
+    @property
+    def status(self) -> str:
+        """The solver's status (``"Solve_Succeeded"``, ...), as the other results' ``status``."""
+        return str(self.diagnostics.get("status", "?"))
+
+    @property
+    def message(self) -> str:
+        return str(self.diagnostics.get("message", ""))
+
+    @property
+    def stats(self) -> dict:
+        """Iterations, times, residuals: the diagnostics (one vocabulary with the other results)."""
+        return self.diagnostics
+
+    def sample(self, t) -> dict:
+        """``q, v, lam, mu, u`` (and ``u_causal``) at times ``t``, shape ``(rows, len(t))``."""
+        return {k: getattr(self, k)(t) for k in ("q", "v", "lam", "mu", "u", "u_causal")}
+
     # ------------------------------------------------------------ output
     def plot(self, path: str | None = None, *, dt: float | None = None):
         """One figure: feedforward (causal dashed), coordinates, multipliers."""
