@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, fields
 import casadi as ca
 import numpy as np
 
-from ..errors import FunnelViolation, ParameterError, SimulationFailed
+from ..errors import FunnelViolation, ParameterError, RunInterrupted, SimulationFailed, watch_sigint
 
 __all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acceleration", "sampled_signal"]
 
@@ -345,9 +345,17 @@ class ClosedLoop:
             ts = c * self.per_chunk * self.dt
             tg = ts + self.dt * np.arange(1, self.per_chunk + 1)
             try:
-                out = self.integrator(x0=x, p=np.concatenate([theta, [ts]]))
+                with watch_sigint() as sigint:  # CVODES turns Ctrl-C into a RuntimeError
+                    out = self.integrator(x0=x, p=np.concatenate([theta, [ts]]))
                 Xc, qf = np.array(out["xf"]), np.array(out["qf"])
-            except RuntimeError as exc:
+            except (RuntimeError, KeyboardInterrupt) as exc:
+                if isinstance(exc, KeyboardInterrupt) or sigint.seen:
+                    T, X = np.concatenate(Ts), np.hstack(Xs)
+                    prefix = self._result(T, X, theta, None, time.perf_counter() - wall0, controller_label or self.name)
+                    prefix.status, prefix.message = "interrupted", f"interrupted at t = {T[-1]:.4g} s"
+                    raise RunInterrupted(f"{prefix.controller or 'closed loop'}: interrupted at t = {T[-1]:.4g} s of "
+                                         f"{self.t_end:g} s; the simulated prefix is in exc.partial",
+                                         partial=prefix, diagnostics={"t": float(T[-1])}) from None
                 Xc, tg, qf, fail = self._steps(x, ts, theta, exc)
             Xs.append(Xc)
             Ts.append(tg)

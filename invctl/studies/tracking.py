@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FunnelViolation, ParameterError, SceneError
+from ..errors import FunnelViolation, ParameterError, RunInterrupted, SceneError
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
 __all__ = ["CONTROLLERS", "TrackingSetup", "TrackingStudy", "setup_tracking", "run_controller",
@@ -373,13 +373,17 @@ def run_tracking_study(scene, params=None, plant_params=None, *, controllers=Non
                                                            invert=bool(set(_NEEDS_INVERSE) & set(controllers)),
                                                            **setup_options)
     runs = {}
-    for name in controllers:
-        if progress:
-            print(f"simulating {name} ({CONTROLLERS.get(name, '?')}) ...", file=sys.stderr)
-        try:
-            runs[name] = run_controller(setup, name)
-        except FunnelViolation as exc:
-            runs[name] = exc.partial
+    try:
+        for name in controllers:
+            if progress:
+                print(f"simulating {name} ({CONTROLLERS.get(name, '?')}) ...", file=sys.stderr)
+            try:
+                runs[name] = run_controller(setup, name)
+            except FunnelViolation as exc:
+                runs[name] = exc.partial
+    except KeyboardInterrupt:  # keep the complete runs
+        note = f"interrupted; complete runs: {', '.join(runs) or 'none'} of {', '.join(controllers)}"
+        raise RunInterrupted(note, partial=TrackingStudy(runs, {"scene": scene.name, "partial": note}, setup)) from None
     a1 = {name: a1_along(setup, r) for name, r in runs.items() if r.t.size > 1}
     info = {"a1_along_trajectory": a1, "params": dict(params or {}),
             "plant": {k: v for k, v in setup.plant.values.items() if v != setup.model.values.get(k)},
