@@ -522,6 +522,8 @@ def load_scene(name_or_path) -> Scene:
     text = str(name_or_path)
     if _is_path(text):
         path = Path(text)
+        if path.is_dir():
+            raise SceneError(f"scene file {text!r} is a folder; give the path to a .py file that defines SCENE")
         if not path.is_file():
             raise SceneError(f"scene file {text!r} does not exist (a shipped scene is given by its name: "
                              f"{', '.join(available_scenes())})")
@@ -580,10 +582,14 @@ def _import_file(path: Path) -> ModuleType:
         spec.loader.exec_module(module)
     except SyntaxError as exc:
         sys.modules.pop(modname, None)
-        raise SceneError(f"scene file {exc.filename}:{exc.lineno}: syntax error: {exc.msg}"
+        where = f"{exc.filename or resolved}" + (f":{exc.lineno}" if exc.lineno else "")
+        raise SceneError(f"scene file {where}: syntax error: {exc.msg}"
                          + (f"\n    {exc.text.rstrip()}" if exc.text else "")) from None
-    except SceneError:
+    except SceneError as exc:  # e.g. Scene(...) rejecting what the file declares: say where
         sys.modules.pop(modname, None)
+        where = _where(exc, str(resolved))
+        if where:
+            raise SceneError(f"{exc}{where}") from None
         raise
     except Exception as exc:
         sys.modules.pop(modname, None)

@@ -22,6 +22,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import FunnelViolation, ParameterError, RunInterrupted, SimulationFailed, watch_sigint
+from ..io import file_loader
 
 __all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acceleration", "sampled_signal"]
 
@@ -155,11 +156,13 @@ class ClosedLoopResult:
         np.savetxt(path, data, delimiter=",", header=",".join(str(c[0]) for c in cols), comments="")
 
     @classmethod
+    @file_loader
     def load(cls, path) -> "ClosedLoopResult":
         """Read a run written by :meth:`save` (format and version checked)."""
-        from ..io import load_npz
+        from ..io import load_npz, require_finite
 
         arrays, info = load_npz(path, "ClosedLoopResult")
+        require_finite(path, arrays, ("t", "q", "v"))
         kw = {"signals": {}, "signals_ref": {}, "cumulative_errors": dict(info.get("cumulative_errors", {})),
               "stats": dict(info.get("stats", {})),
               "meta": {k: v for k, v in info.items() if k not in ("cumulative_errors", "stats")}}

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FunnelViolation, ParameterError, RunInterrupted, SceneError
+from ..io import file_loader, read_json
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
 __all__ = ["CONTROLLERS", "TrackingSetup", "TrackingStudy", "setup_tracking", "run_controller",
@@ -346,9 +347,10 @@ class TrackingStudy:
         (d / "study.json").write_text(json.dumps(jsonable(self.to_dict()), indent=1))
 
     @classmethod
+    @file_loader
     def load(cls, directory) -> "TrackingStudy":
         d = Path(directory)
-        meta = json.loads((d / "study.json").read_text())
+        meta = read_json(d / "study.json", "study summary")
         runs = {name: ClosedLoopResult.load(d / f"run_{name}.npz") for name in meta["runs"]}
         return cls(runs, meta.get("info", {}))
 
