@@ -152,6 +152,11 @@ class ResourceLimitError(InvctlError):
     message names the option that fits (shorter horizon, larger step)."""
 
 
+class NumericalError(InvctlError):
+    """A computation broke down numerically (singular or non-finite matrices, overflow) for the given
+    parameter values: they are outside the range the model can be evaluated in."""
+
+
 class RunInterrupted(KeyboardInterrupt):
     """The user interrupted a run (Ctrl-C, SIGINT).
 
@@ -211,5 +216,5 @@ __all__ = [
     "OutputPathError", "AnimationError", "DrawingError", "FeedbackDesignError", "PositionOutputError",
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
     "LinearizationError", "ZeroError", "WallTimeLimitError", "ResourceLimitError", "RunInterrupted",
-    "watch_sigint",
+    "NumericalError", "watch_sigint",
 ]

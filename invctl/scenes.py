@@ -38,6 +38,8 @@ __all__ = ["Scene", "Tracking", "Contact", "Switched", "Report", "ReportContext"
 
 #: every command of ``invctl`` that acts on a scene
 SCENE_COMMANDS = ("analyze", "invert", "design", "simulate", "pipeline", "study")
+#: the magnitudes a ``--set`` value may have (0 aside): a product of three stays inside double precision
+MAGNITUDE = (1e-100, 1e100)
 
 
 def _frozen(mapping, what: str, scene: str = "") -> Mapping:
@@ -398,6 +400,7 @@ class Scene:
         for k, v in values.items():
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(float(v)):
                 raise ParameterError(f"{self.name}: {k} = {v!r} is not a finite number")
+
         full = {**self.params, **self.settings, **{k: float(v) for k, v in values.items()}}
         self.check_values(full)
         params = {k: float(v) for k, v in values.items() if k in self.params}
@@ -405,7 +408,12 @@ class Scene:
         return params, settings
 
     def check_values(self, full: Mapping[str, float]) -> None:
-        """Apply ``integer``, ``positive`` and ``validate`` to a full set of values."""
+        """Apply the magnitude range, ``integer``, ``positive`` and ``validate`` to a full set of values."""
+        for k, v in full.items():
+            if v != 0 and not MAGNITUDE[0] <= abs(float(v)) <= MAGNITUDE[1]:
+                raise ParameterError(f"{self.name}: {k} = {v!r} is outside [{MAGNITUDE[0]:g}, {MAGNITUDE[1]:g}] in "
+                                     "magnitude: products of a few such values leave double precision (overflow or "
+                                     "underflow to 0); use units in which the value is moderate")
         for k in self.integer:
             if k in full and float(full[k]) != round(float(full[k])):
                 raise ParameterError(f"{self.name}: {k} must be an integer, got {full[k]!r}")
@@ -437,20 +445,21 @@ class Scene:
 
     def _check_model(self, obj) -> None:
         kind = self.kind
+        at = _defined_at(self.build)
         if kind in ("tracking", "contact", "model"):
             from .model import Model
 
             if not isinstance(obj, Model):
                 raise SceneError(f"scene {self.name!r}: build() returned {type(obj).__name__}; a {kind} scene "
-                                 "must return an invctl.model.Model")
+                                 f"must return an invctl.model.Model{at}")
             if kind == "tracking" and self.tracking.reference is not None and obj.ny == 0:
                 raise SceneError(f"scene {self.name!r}: the model has no output h, but the scene declares a "
-                                 "reference; give Model(..., h=...)")
+                                 f"reference; give Model(..., h=...){at}")
             if kind == "contact" and not obj.gaps:
-                raise SceneError(f"scene {self.name!r}: a contact scene's model needs gaps (Model(..., gaps=[...]))")
+                raise SceneError(f"scene {self.name!r}: a contact scene's model needs gaps (Model(..., gaps=[...])){at}")
         elif kind == "switched" and not hasattr(obj, "error_system"):
             raise SceneError(f"scene {self.name!r}: build() returned {type(obj).__name__}; a switched scene "
-                             "must return an invctl.studies.switched.SwitchedProblem")
+                             f"must return an invctl.studies.switched.SwitchedProblem{at}")
 
 
 # ---------------------------------------------------------------- results
@@ -504,6 +513,12 @@ def _where(exc: BaseException, source: str) -> str:
         if Path(fs.filename).resolve() == Path(source).resolve():
             return f" ({fs.filename}:{fs.lineno})"
     return ""
+
+
+def _defined_at(fn) -> str:
+    """`` (file:line)`` where a scene's function is defined, if known."""
+    code = getattr(fn, "__code__", None)
+    return f" ({code.co_filename}:{code.co_firstlineno})" if code is not None else ""
 
 
 def _is_path(text: str) -> bool:

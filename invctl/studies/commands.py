@@ -26,7 +26,8 @@ from typing import Any, Callable
 
 from pathlib import Path
 
-from ..errors import ParameterError, ResourceLimitError, RunInterrupted, SceneError, SimulationFailed
+from ..errors import (NumericalError, ParameterError, ResourceLimitError, RunInterrupted, SceneError,
+                      SimulationFailed)
 from ..io import check_output_dir, check_output_path
 from ..scenes import SCENE_COMMANDS, CommandResult, Scene, load_scene
 
@@ -504,8 +505,16 @@ def run_command(command: str, scene, values=None, **options) -> CommandResult:
     """Run ``command`` (one of :data:`invctl.scenes.SCENE_COMMANDS`) on ``scene``."""
     if command not in SCENE_COMMANDS:
         raise SceneError(f"unknown command {command!r}; commands: {', '.join(SCENE_COMMANDS)}")
-    if command == "study":
-        kind = options.pop("kind", "tradeoff")
-        return study(scene, kind, values, **options)
-    return _COMMANDS[command](scene, values, **options)
+    import numpy as np
+
+    try:
+        if command == "study":
+            kind = options.pop("kind", "tradeoff")
+            return study(scene, kind, values, **options)
+        return _COMMANDS[command](scene, values, **options)
+    except (np.linalg.LinAlgError, FloatingPointError, OverflowError, ZeroDivisionError) as exc:
+        name = scene.name if isinstance(scene, Scene) else scene
+        raise NumericalError(f"{command} {name}: the computation broke down numerically ({type(exc).__name__}: {exc}) "
+                             f"with the values {dict(values or {})}; they are outside the range the model can be "
+                             "evaluated in (or the model is singular there)") from exc
 
