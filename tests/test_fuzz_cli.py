@@ -50,7 +50,7 @@ from invctl.scenes import available_scenes, load_scene  # noqa: E402
 from invctl.studies.commands import options_of  # noqa: E402
 
 LONG = os.environ.get("INVCTL_FUZZ") == "long"
-CI_EXAMPLES = 240
+CI_EXAMPLES = 400
 EXAMPLES = int(os.environ.get("INVCTL_FUZZ_EXAMPLES", 2000 if LONG else CI_EXAMPLES))
 #: per-case wall-time limit: the slowest legitimate CI case (a tracking simulate with a new design,
 #: ~5 s alone, several times that on a 2-core machine shared with other jobs) times 12

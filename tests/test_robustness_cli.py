@@ -553,7 +553,7 @@ REJECTED = {
                                ("projection=2", "switch")],
     "gear_backlash": [("c4=0", "+1 or -1"), ("alpha1=-0.01", "positive"), ("alpha1=1e-12,alpha2=1e-12", "backlash"),
                       ("Kv=-1", "gain")],
-    "stiff_wall": [("b=-1", ">= 0"), ("t_c=0.4", "t_c < t_b"), ("x_ret=0.01", "free space"), ("kp=-1", ">= 0"),
+    "stiff_wall": [("b=-1", ">= 0"), ("t_c=0.4", "t_c < t_b"), ("x_ret=0.01", "free space"), ("be_hat=-1", ">= 0"),
                    ("glue_at_crossing=0.5", "switch")],
     "compliant_wrist": [("kt=0", "positive"), ("switch_on_tip=2", "switch"), ("be=-1", ">= 0")],
 }
