@@ -164,8 +164,7 @@ def check_output_path(path, *, suffix: str | None = None, force: bool = False, o
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         raise OutputPathError(f"{option} {path}: directory {str(parent)!r} does not exist; create it first")
-    if not os.access(parent, os.W_OK):
-        raise OutputPathError(f"{option} {path}: directory {str(parent)!r} is not writable")
+    _probe_write(parent, f"{option} {path}: directory {str(parent)!r}")
     if p.is_dir():
         raise OutputPathError(f"{option} {path}: is a directory; give a file name")
     if p.exists() and not force:
@@ -188,7 +187,8 @@ def _check_name(path, option) -> None:
 
 
 def check_output_dir(path, *, option: str = "--out-dir") -> Path:
-    """Check that a results folder can be created or written (before any computation)."""
+    """Check, before any computation, that a results folder can be written: it is created (with its
+    parents) if missing and a file is written to it and removed."""
     _check_name(path, option)
     p = Path(path)
     probe = p
@@ -196,6 +196,23 @@ def check_output_dir(path, *, option: str = "--out-dir") -> Path:
         probe = probe.parent if str(probe.parent) != str(probe) else Path(".")
     if not probe.is_dir():
         raise OutputPathError(f"{option} {path}: {str(probe)!r} is a file, not a folder")
-    if not os.access(probe, os.W_OK):
-        raise OutputPathError(f"{option} {path}: {str(probe)!r} is not writable")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputPathError(f"{option} {path}: cannot create the folder ({exc.strerror or exc})") from None
+    _probe_write(p, f"{option} {path}: folder")
     return p
+
+
+def _probe_write(folder: Path, what: str) -> None:
+    """Write and remove a file in ``folder`` (permission bits do not tell everything: read-only or
+    virtual file systems, quotas)."""
+    import tempfile
+
+    if not os.access(folder, os.W_OK):
+        raise OutputPathError(f"{what} is not writable")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".invctl-probe-"):
+            pass
+    except OSError as exc:
+        raise OutputPathError(f"{what} is not writable ({exc.strerror or exc})") from None

@@ -483,6 +483,35 @@ def test_memory_estimate_of_contact_runs_against_a_measurement(monkeypatch):
     assert peak <= estimate <= 4 * peak, (peak, estimate)
 
 
+def _peak_rss_of(argv, cwd) -> float:
+    """Peak resident memory (bytes) of ``invctl argv`` in a fresh process."""
+    code = ("import resource, sys\nfrom invctl.cli import main\nrc = main(sys.argv[1:])\n"
+            "print('RSS', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, rc)")
+    p = subprocess.run([sys.executable, "-c", code, *argv], cwd=cwd, capture_output=True, text=True, timeout=600,
+                       env={**os.environ, "PYTHONPATH": str(ROOT)})
+    rss, rc = p.stdout.strip().splitlines()[-1].split()[1:]
+    assert rc == "0", p.stderr[-2000:]
+    return float(rss) * 1024  # Linux: KiB
+
+
+def test_memory_estimate_of_inversions_against_a_measurement(tmp_path, capsys, monkeypatch):
+    """The inversion estimate bounds the measured growth of the peak RSS with the mesh (cartpole,
+    Hermite-Simpson, N = 200 -> 6000) from above: measured 112 MB against 174 MB estimated; the
+    factor 6 allows for the compiled transcription (used when it is in the disk cache), which
+    needs less."""
+    small = _peak_rss_of(["invert", "cartpole", "--N", "200", "--quiet"], tmp_path)
+    large = _peak_rss_of(["invert", "cartpole", "--N", "6000", "--quiet"], tmp_path)
+    model = load_scene("cartpole").model({})
+    nx = 2 * model.n + model.ell + model.p + model.m
+    a, b = commands._INVERSION_BYTES
+    estimate = 5800 * a * (2 * nx) ** b
+    assert large - small <= estimate <= 6 * (large - small), (large - small, estimate)
+    monkeypatch.setenv("INVCTL_MAX_MEMORY", str(estimate / 2))
+    rc, d, _ = run_cli(capsys, "invert", "cartpole", "--N", "6000")
+    assert rc == 2 and d["error"] == "ResourceLimitError" and re.search(r"use --N \d+ or less", d["message"])
+    assert 2000 < d["diagnostics"]["N_that_fits"] < 6000
+
+
 def test_memory_limit_can_be_lowered_by_environment(capsys, monkeypatch):
     monkeypatch.setenv("INVCTL_MAX_MEMORY", "1e6")
     rc, d, _ = run_cli(capsys, "simulate", "bouncing_ball", "--set", "h=1e-5")

@@ -236,6 +236,8 @@ def check_resources(command: str, scene: Scene, params, settings, o) -> None:
     ResourceLimitError
         The estimate exceeds :func:`usable_memory`; the message names the horizon (and step) that fit.
     """
+    if command == "invert":
+        return _check_inversion(scene, params, o)
     size = _run_size(command, scene, params, settings, o)
     if size is None:
         return
@@ -261,6 +263,32 @@ def check_resources(command: str, scene: Scene, params, settings, o) -> None:
         f"({int(100 * _MEMORY_SHARE)} % of the available memory or INVCTL_MAX_MEMORY); {fits}",
         diagnostics={"samples": samples, "runs": runs, "bytes_needed": need, "bytes_usable": limit,
                      "t_end_that_fits": fit_t})
+
+
+#: bytes per collocation interval of an inversion (transcription, IPOPT and MUMPS together):
+#: ``600 (s nx)^1.7`` with ``s`` = 2 (Hermite-Simpson) or d + 1 (d-stage Legendre/Radau); measured peak RSS
+#: growth per interval: manipulator (nx = 14) 108 KB (HS) and 490 KB (radau3), cartpole (nx = 5) 19 KB
+#: (HS); the formula gives 172, 561 and 30 KB
+_INVERSION_BYTES = (600.0, 1.7)
+
+
+def _check_inversion(scene: Scene, params, o) -> None:
+    N = o.get("N")
+    if N is None or N <= 2000:
+        return
+    from ..inversion.collocation import get_scheme
+
+    sch = get_scheme(o.get("scheme") or "hermite-simpson")
+    stages = 2 if sch.is_hs else sch.degree + 1
+    model = scene.model(params)
+    nx = 2 * model.n + model.ell + model.p + model.m
+    per = _INVERSION_BYTES[0] * (stages * nx) ** _INVERSION_BYTES[1]
+    need, limit = N * per, usable_memory()
+    if need > limit:
+        raise ResourceLimitError(
+            f"{scene.name}: invert --N {N} ({sch.name}, {nx} unknowns per node) would need about {_gib(need)} of "
+            f"memory, but {_gib(limit)} is usable; use --N {int(limit / per)} or less (or --tol to refine only "
+            "where needed)", diagnostics={"bytes_needed": need, "bytes_usable": limit, "N_that_fits": int(limit / per)})
 
 
 # ------------------------------------------------------------- after a run
@@ -402,6 +430,7 @@ def invert(scene, values=None, **options) -> CommandResult:
         raise ParameterError("--dt sets the sampling of the saved trajectory; give --out FILE.npz too")
     out = str(check_output_path(o["out"], suffix=".npz", force=o["force"])) if o["out"] else None
     params, settings = scene.split(values)
+    check_resources("invert", scene, params, settings, o)
     from ..scenes import scene_reference
 
     return _interruptible(lambda: _kind(scene).invert(scene, params, settings, N=o["N"], scheme=o["scheme"],
@@ -452,8 +481,8 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     scene = _scene(scene)
     scene.require("pipeline")
     o = check_options("pipeline", options)
-    out_dir = check_output_dir(o["out_dir"])
     params, settings = scene.split(values)
+    out_dir = check_output_dir(o["out_dir"])
     check_resources("pipeline", scene, params, settings, o)
     from ..scenes import scene_reference
 
@@ -477,8 +506,8 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
     if kind != "tradeoff":
         raise SceneError(f"unknown study {kind!r}; available: tradeoff")
     o = check_options("study", options)
-    out = check_output_dir(o["out_dir"])
     params, settings = scene.split(values)
+    out = check_output_dir(o["out_dir"])
     check_resources("study", scene, params, settings, o)
     smoke = os.environ.get("INVCTL_SMOKE") == "1"
     spec = spec_for(scene, params, settings, smoke=smoke, job=o["job"])
