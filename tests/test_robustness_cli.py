@@ -131,6 +131,26 @@ def test_out_without_suffix_reports_the_file_written_and_force_replaces(tmp_path
     assert rc == 0 and Path(d["out"]).stat().st_mtime_ns > before
 
 
+def test_output_formats_are_what_the_name_says(tmp_path, capsys):
+    rc, d, _ = run_cli(capsys, "simulate", "bouncing_ball", "--out", str(tmp_path / "b.csv"))
+    assert rc == 2 and d["error"] == "OutputPathError" and ".npz only" in d["message"]
+    rc, d, _ = run_cli(capsys, "simulate", "stiff_wall", "--out", str(tmp_path / "w.csv"))
+    assert rc == 0 and d["out"] == str(tmp_path / "w.csv")
+    table = np.loadtxt(tmp_path / "w.csv", delimiter=",", skiprows=1)
+    assert table.shape[0] > 100 and np.all(np.diff(table[:, 0]) >= 0)  # one row per sample (events twice)
+    assert not (tmp_path / "w.csv.npz").exists()
+
+
+def test_unwritable_folders_are_found_before_any_work(capsys, tmp_path):
+    for folder in ("/proc/invctl-test", "/proc"):
+        rc, d, _ = run_cli(capsys, "pipeline", "bouncing_ball", "--out-dir", folder)
+        assert rc == 2 and d["error"] == "OutputPathError", d
+    rc, d, _ = run_cli(capsys, "invert", "cartpole", "--out", "/proc/x.npz")
+    assert rc == 2 and d["error"] == "OutputPathError" and "not writable" in d["message"]
+    rc, d, _ = run_cli(capsys, "pipeline", "cartpole", "--set", "nope=1", "--out-dir", str(tmp_path / "new"))
+    assert rc == 2 and not (tmp_path / "new").exists()  # a rejected command leaves no folder behind
+
+
 # ---------------------------------------------------------------- loaders
 @pytest.fixture(scope="module")
 def saved_inverse(tmp_path_factory):
@@ -175,6 +195,16 @@ def test_inverse_load_rejects_bad_files(saved_inverse, tmp_path, capsys, name, c
         Inverse.load(bad)
     rc, d, err = run_cli(capsys, "simulate", "cartpole", "--inverse", str(bad))  # the CLI's loader path
     assert rc == 2 and d["error"] == "ResultFileError" and "Traceback" not in err
+
+
+def test_saved_inverse_must_belong_to_the_scene_and_its_parameters(saved_inverse, tmp_path, capsys):
+    rc, d, _ = run_cli(capsys, "simulate", "two_link_arm", "--inverse", str(saved_inverse))
+    assert rc == 2 and d["error"] == "ResultFileError" and "computed for scene 'cartpole'" in d["message"]
+    rc, d, _ = run_cli(capsys, "simulate", "cartpole", "--set", "mp=0.3", "--inverse", str(saved_inverse))
+    assert rc == 2 and d["error"] == "ResultFileError" and "parameters" in d["message"]
+    rc, d, _ = run_cli(capsys, "simulate", "cartpole", "--controller", "C3", "--t-end", "0.5", "--quiet",
+                       "--inverse", str(saved_inverse))
+    assert rc == 0 and d["controller"] == "C3"
 
 
 def test_saved_inverse_round_trip_is_exact(saved_inverse):

@@ -410,6 +410,27 @@ def _interruptible(run, **where):
         raise ri from None
 
 
+def _load_inverse(path, scene: Scene, params) -> Any:
+    """A saved inverse for ``scene``: its recorded scene and its sizes must be this scene's."""
+    from ..errors import ResultFileError
+    from ..inversion import Inverse
+    from ..scenes import scene_reference
+
+    inv = Inverse.load(path)
+    recorded, here = inv.meta.get("scene"), scene_reference(scene)
+    if recorded is not None and recorded != here:
+        raise ResultFileError(f"--inverse {path}: the inverse was computed for scene {recorded!r}, not {here!r}")
+    model = scene.model(params)
+    sizes = {"n": model.n, "l": model.ell, "p": model.p, "m": model.m}
+    if {k: int(inv.sizes.get(k, -1)) for k in sizes} != sizes:
+        raise ResultFileError(f"--inverse {path}: its sizes {dict(inv.sizes)} are not those of {scene.name!r} {sizes}")
+    saved = {k: float(v) for k, v in dict(inv.meta.get("params") or {}).items()}
+    if saved != {k: float(v) for k, v in params.items()}:
+        raise ResultFileError(f"--inverse {path}: the inverse was computed with the parameters {saved}, this run "
+                              f"uses {dict(params)}; pass the same --set values or invert again")
+    return inv
+
+
 # ------------------------------------------------------------------ commands
 def analyze(scene, values=None, **options) -> CommandResult:
     """``invctl analyze``: what the scene's kind analyses (relative degree and internal dynamics for
@@ -457,6 +478,10 @@ def simulate(scene, values=None, **options) -> CommandResult:
     out = None
     if o["out"]:
         suffix = ".csv" if str(o["out"]).lower().endswith(".csv") else ".npz"
+        if suffix == ".csv" and scene.kind == "contact":
+            from ..errors import OutputPathError
+
+            raise OutputPathError(f"--out {o['out']}: contact runs are written as .npz only; use --out FILE.npz")
         out = str(check_output_path(o["out"], suffix=suffix, force=o["force"]))
     plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
     params, settings = scene.split(values)
@@ -465,9 +490,7 @@ def simulate(scene, values=None, **options) -> CommandResult:
     if o["inverse"]:
         if scene.kind != "tracking":
             raise SceneError("--inverse applies to tracking scenes only")
-        from ..inversion import Inverse
-
-        kw["inverse"] = Inverse.load(o["inverse"])
+        kw["inverse"] = _load_inverse(o["inverse"], scene, params)
     check_resources("simulate", scene, params, settings, o)
     from ..scenes import scene_reference
 
