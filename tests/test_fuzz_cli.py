@@ -326,9 +326,12 @@ def _nan_strings(obj, path=""):
         yield path
 
 
-def run_case(argv: list[str]) -> tuple[int, str, str]:
+def run_case(argv: list[str], cwd: Path) -> tuple[int, str, str]:
+    """``main(argv)`` in ``cwd`` (relative and default output paths land there), with the time limit."""
     out, err = io.StringIO(), io.StringIO()
     old = signal.signal(signal.SIGALRM, _alarm)
+    here = os.getcwd()
+    os.chdir(cwd)
     signal.setitimer(signal.ITIMER_REAL, CASE_LIMIT_S)
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
@@ -338,6 +341,7 @@ def run_case(argv: list[str]) -> tuple[int, str, str]:
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
+        os.chdir(here)
     return rc, out.getvalue(), err.getvalue()
 
 
@@ -365,7 +369,9 @@ def check_property(argv, rc, out, err) -> str:
 
 @pytest.fixture(scope="module")
 def fuzz_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("fuzz")
+    d = tmp_path_factory.mktemp("fuzz")
+    (d / "cwd").mkdir()
+    return d
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -391,7 +397,7 @@ def test_fuzz_cli(fuzz_dir, data):
         argv, _ = data.draw(command_line(fuzz_dir))
         CASES["n"] += 1
         t = time.perf_counter()
-        rc, out, err = run_case(argv)
+        rc, out, err = run_case(argv, fuzz_dir / "cwd")
         dt = time.perf_counter() - t
         CASES["wall"] += dt
         CASES["slowest"] = sorted(CASES["slowest"] + [(round(dt, 2), " ".join(argv))], reverse=True)[:3]

@@ -505,8 +505,8 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     scene.require("pipeline")
     o = check_options("pipeline", options)
     params, settings = scene.split(values)
-    out_dir = check_output_dir(o["out_dir"])
     check_resources("pipeline", scene, params, settings, o)
+    out_dir = check_output_dir(o["out_dir"])
     from ..scenes import scene_reference
 
     result = _interruptible(lambda: _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
@@ -530,8 +530,8 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
         raise SceneError(f"unknown study {kind!r}; available: tradeoff")
     o = check_options("study", options)
     params, settings = scene.split(values)
-    out = check_output_dir(o["out_dir"])
     check_resources("study", scene, params, settings, o)
+    out = check_output_dir(o["out_dir"])
     smoke = os.environ.get("INVCTL_SMOKE") == "1"
     spec = spec_for(scene, params, settings, smoke=smoke, job=o["job"])
     result = _interruptible(lambda: run_tradeoff(spec, progress=not o["quiet"]), out_dir=out)
