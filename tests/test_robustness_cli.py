@@ -380,6 +380,27 @@ def test_sigint_during_a_pipeline_keeps_the_complete_runs(tmp_path):
     assert "PARTIAL" in (tmp_path / "out" / "INTERRUPTED.txt").read_text()
 
 
+_MARKED_CONTACT = textwrap.dedent("""
+    import sys
+    from invctl.simulate import timestepping
+    run = timestepping.MoreauJean.run
+    def marked_run(self, *a, **k):
+        print("CONTACT RUN STARTED", file=sys.stderr, flush=True)
+        return run(self, *a, **k)
+    timestepping.MoreauJean.run = marked_run
+    from invctl.cli import main
+    sys.exit(main(sys.argv[1:]))
+    """)
+
+
+def test_sigint_during_a_contact_run_is_an_interruption(tmp_path):
+    # 1.5e6 Moreau-Jean steps (several seconds) in compiled code, which turns Ctrl-C into its own error
+    p = _child(["simulate", "bouncing_ball", "--set", "h=2e-6", "--json"], code=_MARKED_CONTACT, cwd=tmp_path)
+    rc, out, err = _interrupt_when(p, "CONTACT RUN STARTED", delay=0.5)
+    assert rc == 130, err[-2000:]
+    assert _last_json(out)["error"] == "RunInterrupted" and "internal error" not in err
+
+
 def test_sigint_during_sweeps_and_tradeoffs_in_process():
     """A real SIGINT to this process while a sweep / trade-off runs (the library entry points)."""
     from invctl.studies.sweep import sweep
@@ -515,8 +536,10 @@ def test_memory_estimate_of_contact_runs_against_a_measurement(monkeypatch):
 
 def _peak_rss_of(argv, cwd) -> float:
     """Peak resident memory (bytes) of ``invctl argv`` in a fresh process."""
-    code = ("import resource, sys\nfrom invctl.cli import main\nrc = main(sys.argv[1:])\n"
-            "print('RSS', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, rc)")
+    # VmHWM of this process image (ru_maxrss would carry the parent's size across fork and exec)
+    code = ("import re, sys\nfrom invctl.cli import main\nrc = main(sys.argv[1:])\n"
+            "hwm = re.search(r'VmHWM:\\s+(\\d+)', open('/proc/self/status').read()).group(1)\n"
+            "print('RSS', hwm, rc)")
     p = subprocess.run([sys.executable, "-c", code, *argv], cwd=cwd, capture_output=True, text=True, timeout=600,
                        env={**os.environ, "PYTHONPATH": str(ROOT)})
     rss, rc = p.stdout.strip().splitlines()[-1].split()[1:]

@@ -26,8 +26,8 @@ from typing import Any, Callable
 
 from pathlib import Path
 
-from ..errors import (NumericalError, ParameterError, ResourceLimitError, RunInterrupted, SceneError,
-                      SimulationFailed)
+from ..errors import (InvctlError, NumericalError, ParameterError, ResourceLimitError, RunInterrupted, SceneError,
+                      SimulationFailed, watch_sigint)
 from ..io import check_output_dir, check_output_path
 from ..scenes import SCENE_COMMANDS, CommandResult, Scene, load_scene
 
@@ -398,16 +398,23 @@ def _save_partial(exc: RunInterrupted, *, out=None, out_dir=None, meta=None, dt=
 
 
 def _interruptible(run, **where):
-    """``run()``, saving what is complete on Ctrl-C (see :func:`_save_partial`)."""
-    try:
-        return run()
-    except RunInterrupted as exc:
-        _save_partial(exc, **where)
-        raise
-    except KeyboardInterrupt as exc:
-        ri = RunInterrupted(str(exc) or "interrupted")
-        _save_partial(ri, **where)
-        raise ri from None
+    """``run()``, saving what is complete on Ctrl-C (see :func:`_save_partial`). A failure after a
+    SIGINT is the interruption (compiled solvers turn Ctrl-C into their own errors)."""
+    with watch_sigint() as sigint:
+        try:
+            return run()
+        except RunInterrupted as exc:
+            _save_partial(exc, **where)
+            raise
+        except KeyboardInterrupt as exc:
+            ri = RunInterrupted(str(exc) or "interrupted")
+        except Exception as exc:
+            if not sigint.seen:
+                raise
+            ri = RunInterrupted(f"interrupted (the solver stopped with {type(exc).__name__}: {str(exc)[:200]})",
+                                partial=getattr(exc, "partial", None) if isinstance(exc, InvctlError) else None)
+    _save_partial(ri, **where)
+    raise ri from None
 
 
 def _load_inverse(path, scene: Scene, params) -> Any:

@@ -219,8 +219,13 @@ def sweep(
     finished = [False] * len(pts)
     try:
         if executor == "serial":
+            from ..errors import watch_sigint
+
             for i, p in enumerate(pts):
-                values[i], errors[i] = _call(fn, p)
+                with watch_sigint() as sigint:
+                    values[i], errors[i] = _call(fn, p)
+                if sigint.seen:  # Ctrl-C, possibly turned into a failure of this point by a compiled solver
+                    raise KeyboardInterrupt
                 finished[i] = True
                 report(i + 1)
         else:

@@ -222,19 +222,24 @@ def run_tradeoff(spec: TradeoffSpec, *, progress: bool = True, min_time_s: float
     RunInterrupted
         On Ctrl-C (SIGINT): ``partial`` is the result with the rows complete so far.
     """
+    from ..errors import RunInterrupted, watch_sigint
+
     rows, failures = [], []
     k, value = 0, None
     try:
         for k, value in enumerate(spec.values, 1):
-            _one_setting(spec, value, rows, failures, min_time_s, max_repeats)
+            with watch_sigint() as sigint:
+                _one_setting(spec, value, rows, failures, min_time_s, max_repeats)
+            if sigint.seen:  # a compiled solver turned Ctrl-C into a failure of this setting: not a result
+                if failures and failures[-1]["value"] is value:
+                    failures.pop()
+                raise KeyboardInterrupt
             if progress:
                 last = rows[-1] if rows and rows[-1]["value"] is value else None
                 msg = "failed" if last is None else f"error {last['error']:.3e} in {last['time_s']:.3f} s"
                 print(f"tradeoff {spec.scene} {spec.knob}={_fmt(value)}: {msg} ({k}/{len(spec.values)})",
                       file=sys.stderr)
     except KeyboardInterrupt:
-        from ..errors import RunInterrupted
-
         note = (f"interrupted at {spec.knob}={_fmt(value)} ({k}/{len(spec.values)}); {len(rows)} of "
                 f"{len(spec.values)} settings complete")
         raise RunInterrupted(note, partial=TradeoffResult(spec.knob, rows, spec.reference, spec.error_name,
