@@ -498,11 +498,29 @@ def jsonable(obj):
 
 
 # ---------------------------------------------------------------- loading
+def _problems() -> ModuleType:
+    """The shipped ``problems`` package (installed next to ``invctl``), never a folder of that name that
+    comes first on ``sys.path`` (``python -m invctl.cli`` puts the working directory there)."""
+    here = Path(__file__).resolve().parents[1] / "problems"
+    mod = sys.modules.get("problems")
+    if mod is None and (here / "__init__.py").is_file():
+        spec = importlib.util.spec_from_file_location("problems", here / "__init__.py",
+                                                      submodule_search_locations=[str(here)])
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules["problems"] = mod
+        spec.loader.exec_module(mod)
+    elif mod is None:
+        import problems as mod
+    paths = [Path(p).resolve() for p in getattr(mod, "__path__", [])]
+    if here.is_dir() and here not in paths:
+        raise SceneError(f"a package 'problems' in {', '.join(map(str, paths))} hides the shipped scenes in {here}; "
+                         "rename that folder or run invctl from another one")
+    return mod
+
+
 def available_scenes() -> list[str]:
     """Names of the scenes shipped in ``problems/``."""
-    import problems
-
-    return sorted(m.name for m in pkgutil.iter_modules(problems.__path__) if not m.name.startswith("_"))
+    return sorted(m.name for m in pkgutil.iter_modules(_problems().__path__) if not m.name.startswith("_"))
 
 
 def _where(exc: BaseException, source: str) -> str:
@@ -547,6 +565,7 @@ def load_scene(name_or_path) -> Scene:
     else:
         if not text.isidentifier():
             raise SceneError(f"{text!r} is neither a scene name nor a path to a .py file")
+        _problems()
         try:
             module = importlib.import_module(f"problems.{text}")
         except ModuleNotFoundError as exc:
@@ -554,16 +573,18 @@ def load_scene(name_or_path) -> Scene:
                 raise SceneError(f"scene {text!r} imports a missing module {exc.name!r}") from None
             raise SceneError(f"no scene named {text!r}; shipped scenes: {', '.join(available_scenes())} "
                              "(or give a path to a scene file)") from None
+        except SceneError:
+            raise
+        except Exception as exc:
+            raise SceneError(f"shipped scene {text!r} failed to import: {type(exc).__name__}: {exc}") from None
         source = getattr(module, "__file__", "") or ""
     return scene_of(module, source)
 
 
 def scene_reference(scene: Scene) -> str:
     """How to load ``scene`` again: its name when it is shipped in ``problems/``, else its file path."""
-    import problems
-
     src = Path(scene.source) if scene.source else None
-    if src is None or src.resolve().parent == Path(problems.__file__).resolve().parent:
+    if src is None or src.resolve().parent == Path(_problems().__file__).resolve().parent:
         return scene.name
     return str(src.resolve())
 

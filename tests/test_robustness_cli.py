@@ -87,6 +87,9 @@ def test_local_folder_named_like_a_shipped_scene_does_not_shadow_it(tmp_path):
     (tmp_path / "manipulator").mkdir()
     (tmp_path / "manipulator" / "__init__.py").write_text("raise RuntimeError('the local folder was imported')\n")
     (tmp_path / "manipulator.py").write_text("raise RuntimeError('the local file was imported')\n")
+    (tmp_path / "problems").mkdir()  # `python -m invctl.cli` puts the working directory first on sys.path
+    (tmp_path / "problems" / "__init__.py").write_text("")
+    (tmp_path / "problems" / "manipulator.py").write_text("raise RuntimeError('the local package was imported')\n")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     p = subprocess.run([sys.executable, "-m", "invctl.cli", "analyze", "manipulator", "--samples", "4", "--json"],
                        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
