@@ -456,7 +456,8 @@ class Scene:
                 raise SceneError(f"scene {self.name!r}: the model has no output h, but the scene declares a "
                                  f"reference; give Model(..., h=...){at}")
             if kind == "contact" and not obj.gaps:
-                raise SceneError(f"scene {self.name!r}: a contact scene's model needs gaps (Model(..., gaps=[...])){at}")
+                raise SceneError(f"scene {self.name!r}: a contact scene's model needs gaps "
+                                 f"(Model(..., gaps=[...])){at}")
         elif kind == "switched" and not hasattr(obj, "error_system"):
             raise SceneError(f"scene {self.name!r}: build() returned {type(obj).__name__}; a switched scene "
                              f"must return an invctl.studies.switched.SwitchedProblem{at}")

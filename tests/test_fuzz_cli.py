@@ -167,7 +167,8 @@ def _option_values(draw, name: str, scene: str, tmp: Path, case: int) -> list[st
     if name in ("out", "plot", "inverse", "out_dir"):
         return [flag, _path(draw, name, tmp, case, valid)]
     if name == "samples":
-        return [flag, str(draw(st.integers(1, 24))) if valid else draw(st.sampled_from(["0", "-3", "abc", "1e9", "2.5"]))]
+        bad = ["0", "-3", "abc", "1e9", "2.5"]
+        return [flag, str(draw(st.integers(1, 24))) if valid else draw(st.sampled_from(bad))]
     if name == "job":
         return [flag, draw(st.sampled_from(["simulate", "impacts", "invert", "analyze", "foo"]))]
     raise AssertionError(f"the fuzzer does not know option {name!r}: add it")
@@ -414,7 +415,8 @@ def test_property_checker_rejects_bad_outcomes():
     ok = '{"a": 1}'
     assert check_property(["x"], 0, ok + "\n", "") == "ok"
     for rc, out, err in [(3, '{"error": "InternalError", "message": "x"}', ""),
-                         (0, '{"a": NaN}', ""), (0, '{"a": "nan"}', ""), (2, '{"error": "ValueError", "message": "x"}', ""),
+                         (0, '{"a": NaN}', ""), (0, '{"a": "nan"}', ""),
+                         (2, '{"error": "ValueError", "message": "x"}', ""),
                          (0, ok, "Traceback (most recent call last):"), (0, "", ""), (2, "not json", ""),
                          (130, '{"error": "RunInterrupted", "message": "x"}', "")]:
         with pytest.raises((AssertionError, pytest.fail.Exception)):

@@ -397,9 +397,10 @@ _MARKED_CONTACT = textwrap.dedent("""
 
 
 def test_sigint_during_a_contact_run_is_an_interruption(tmp_path):
-    # 1.5e6 Moreau-Jean steps (several seconds) in compiled code, which turns Ctrl-C into its own error
-    p = _child(["simulate", "bouncing_ball", "--set", "h=2e-6", "--json"], code=_MARKED_CONTACT, cwd=tmp_path)
-    rc, out, err = _interrupt_when(p, "CONTACT RUN STARTED", delay=0.5)
+    # 3e5 Moreau-Jean steps (about a second, 0.4 GB estimated) in compiled code, which turns Ctrl-C
+    # into its own error
+    p = _child(["simulate", "bouncing_ball", "--set", "h=1e-5", "--json"], code=_MARKED_CONTACT, cwd=tmp_path)
+    rc, out, err = _interrupt_when(p, "CONTACT RUN STARTED", delay=0.2)
     assert rc == 130, err[-2000:]
     assert _last_json(out)["error"] == "RunInterrupted" and "internal error" not in err
 
@@ -448,7 +449,8 @@ def test_cli_exit_codes_for_interrupts_bugs_and_memory(capsys, monkeypatch):
 
 
 def test_usage_errors_are_json_with_json(capsys):
-    for argv in (["invert", "manipulator", "--bogus"], ["invert"], ["nocommand", "x"], ["invert", "manipulator", "--N"]):
+    for argv in (["invert", "manipulator", "--bogus"], ["invert"], ["nocommand", "x"],
+                 ["invert", "manipulator", "--N"]):
         rc, d, _ = run_cli(capsys, *argv)
         assert rc == 2 and d["error"] == "UsageError", argv
     rc, d, _ = run_cli(capsys, "invert", "manipulator", "--N", "abc")
@@ -614,6 +616,19 @@ def test_penetration_of_a_fraction_of_the_clearance_warns_with_the_numbers(capsy
 
 
 # ---------------------------------------------------- parameters of scenes
+def test_plant_overrides_are_checked_before_any_work(capsys, monkeypatch):
+    from invctl.studies import switched_report
+
+    def fail(*a, **k):
+        raise AssertionError("the pipeline ran although --plant-set cannot apply")
+
+    monkeypatch.setattr(switched_report, "pipeline", fail)
+    rc, d, _ = run_cli(capsys, "pipeline", "compliant_wrist", "--plant-set", "kt=2")
+    assert rc == 2 and d["error"] == "SceneError" and "not applicable" in d["message"]
+    rc, d, _ = run_cli(capsys, "simulate", "cartpole", "--plant-set", "nope=2")
+    assert rc == 2 and d["error"] == "SceneError" and "unknown plant parameter" in d["message"]
+
+
 def test_plant_overrides_go_through_the_scene_checks(capsys):
     for scene, item, expect in [("manipulator", "I2=-0.01", "I2 must be positive"),
                                 ("manipulator", "m3=-1", "m3 must be positive"),

@@ -138,12 +138,19 @@ def _kind(scene: Scene):
     return importlib.import_module(_KIND_MODULES[scene.kind])
 
 
-def _plant_params(items) -> dict:
+def _plant_params(items, scene: Scene | None = None) -> dict:
+    """``--plant-set`` values, checked against the scene before any work (names, applicability)."""
     from ..model.params import parse_assignments
 
-    if isinstance(items, dict):
-        return dict(items)
-    return parse_assignments(items, option="--plant-set")
+    plant = dict(items) if isinstance(items, dict) else parse_assignments(items, option="--plant-set")
+    if plant and scene is not None:
+        if scene.kind == "switched":
+            raise SceneError(f"scene {scene.name!r}: the controller (3) uses no plant model, so plant and model "
+                             "parameters coincide; --plant-set is not applicable (use --set)")
+        unknown = sorted(set(plant) - set(scene.params))
+        if unknown:
+            raise SceneError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(scene.params)}")
+    return plant
 
 
 def _figure_path(path, force):
@@ -492,7 +499,7 @@ def simulate(scene, values=None, **options) -> CommandResult:
         out = str(check_output_path(o["out"], suffix=suffix, force=o["force"]))
     plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
     params, settings = scene.split(values)
-    kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"]), t_end=o["t_end"], out=out,
+    kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"], scene), t_end=o["t_end"], out=out,
               plot=plot, quiet=o["quiet"])
     if o["inverse"]:
         if scene.kind != "tracking":
@@ -512,12 +519,13 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     scene.require("pipeline")
     o = check_options("pipeline", options)
     params, settings = scene.split(values)
+    plant = _plant_params(o["plant_set"], scene)
     check_resources("pipeline", scene, params, settings, o)
     out_dir = check_output_dir(o["out_dir"])
     from ..scenes import scene_reference
 
     result = _interruptible(lambda: _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
-                                                          plant_params=_plant_params(o["plant_set"]),
+                                                          plant_params=plant,
                                                           quiet=o["quiet"], animate=not o["no_animation"]),
                             out_dir=out_dir, meta={"scene": scene_reference(scene), "params": params})
     stale = Path(out_dir) / "INTERRUPTED.txt"  # the note of an earlier interrupted run in this folder
