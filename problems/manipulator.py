@@ -107,6 +107,11 @@ def _check(values: dict) -> None:
     if R <= 0.6:
         raise ParameterError(f"manipulator: L2/2 + L3 = {R:.4g} m cannot reach the printed start r_app,0 = "
                              f"{R_APP_0} (needs > 0.6 m)")
+    # the loop closes at the start (s1 = s2 = 0) in the triangle L1, L2/2, d (003 Sect. 6, alpha0, beta0)
+    L1, half, d = values["L1"], 0.5 * values["L2"], values["d"]
+    if not abs(L1 - half) < d < L1 + half:
+        raise ParameterError(f"manipulator: the kinematic loop cannot close at the start: the triangle L1 = {L1:.4g}, "
+                             f"L2/2 = {half:.4g}, d = {d:.4g} m needs |L1 - L2/2| < d < L1 + L2/2")
 
 
 def build(**overrides: float) -> Model:

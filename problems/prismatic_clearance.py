@@ -160,6 +160,29 @@ def _check(v: dict) -> None:
     if not v["L"] > 2 * v["l"]:
         raise ParameterError(f"prismatic_clearance: the clearance L - 2 l = {v['L'] - 2 * v['l']:.3g} must be "
                              "positive")
+    # the gaps are differences of positions of size S: their round-off (~1e-16 S) must stay below a
+    # millionth of the clearance, or the contact decisions are made on round-off
+    S = v["L"] + abs(v["qd"]) + abs(v["amp"])
+    if v["L"] - 2 * v["l"] < 1e-9 * S:
+        raise ParameterError(f"prismatic_clearance: the clearance L - 2 l = {v['L'] - 2 * v['l']:.3g} is below "
+                             f"1e-9 of the positions' size {S:.3g}: the gap expressions cannot resolve it in double "
+                             "precision; use a larger clearance")
+    _common(v)
+
+
+def _common(v: dict, name: str = "prismatic_clearance") -> None:
+    """Checks shared by the time-stepping settings and the PD/pre-loading gains."""
+    from invctl.errors import ParameterError
+
+    if not 0 <= v["theta"] <= 1:
+        raise ParameterError(f"{name}: theta of the theta-method must lie in [0, 1], got {v['theta']}")
+    if v["projection"] not in (0, 1):
+        raise ParameterError(f"{name}: projection is a switch, 0 or 1, got {v['projection']}")
+    if v["activation_tol"] < 0:
+        raise ParameterError(f"{name}: activation_tol (a gap threshold) must be >= 0, got {v['activation_tol']}")
+    for k in ("Kp", "Kv"):
+        if v[k] < 0:
+            raise ParameterError(f"{name}: the gain {k} must be >= 0, got {v[k]}")
 
 
 def drawing(model: Model):
@@ -177,7 +200,8 @@ def drawing(model: Model):
 SCENE = Scene(
     "prismatic_clearance", build, params={k: PARAMS[k] for k in (*MODEL_PARAMS, "actuators")},
     settings={k: v for k, v in PARAMS.items() if k not in (*MODEL_PARAMS, "actuators")},
-    integer=("actuators",), positive=("m1", "m2", "l", "L", "h", "t_end", "period"), validate=_check,
+    integer=("actuators", "projection"), positive=("m1", "m2", "l", "L", "h", "t_end", "period", "beta"),
+    validate=_check,
     contact=Contact(controllers={"pd": _pd, "preload": _preload, "switching": _switching, "juggling": _juggling},
                     initial_state=_initial,
                     default_controller=lambda model, s: "pd" if model.m == 1 else "preload"),

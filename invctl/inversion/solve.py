@@ -17,7 +17,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
-from ..errors import BoundaryConditionError, InversionFailed, NoDichotomyError, ReferenceSignalError
+from ..errors import (BoundaryConditionError, InversionFailed, NoDichotomyError, ReferenceSignalError, RunInterrupted,
+                      WallTimeLimitError, watch_sigint)
 from .boundary import EquilibriumSolver, dichotomy, explain_dichotomy, explain_no_dichotomy, resolve_selection
 from .collocation import Transcription, get_scheme
 from .result import Inverse
@@ -115,15 +116,25 @@ def _equilibrium_solver(model) -> EquilibriumSolver:
     return _remember(_EQ_CACHE, model_key(model), lambda: EquilibriumSolver(model))
 
 
+#: IPOPT statuses of a solve stopped by its time limit (no continuation after those)
+_TIME_LIMIT = ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
+
+
 class _Progress(ca.Callback):
-    """IPOPT iteration callback printing one line per iteration to stderr."""
+    """IPOPT iteration callback printing one line per iteration to stderr.
+
+    One per transcription (:func:`_progress_of`), kept alive with it: a cached solver keeps
+    calling the callback it was built with, so the callback must not be part of what makes a
+    solver new (and must outlive the solve)."""
 
     def __init__(self, nx, ng, np_, label):
         ca.Callback.__init__(self)
         self.nx, self.ng, self.np_, self.label = nx, ng, np_, label
-        self.k = 0
-        self.t = time.perf_counter()
+        self.restart(label)
         self.construct("progress", {})
+
+    def restart(self, label):
+        self.label, self.k, self.t = label, 0, time.perf_counter()
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -156,6 +167,14 @@ class _Progress(ca.Callback):
               file=sys.stderr, flush=True)
         self.k += 1
         return [0]
+
+
+def _progress_of(tr, label) -> _Progress:
+    cb = getattr(tr, "_progress", None)
+    if cb is None:
+        cb = tr._progress = _Progress(tr.nX, tr.ng, tr.np, label)
+    cb.restart(label)
+    return cb
 
 
 def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: str = "") -> np.ndarray:
@@ -492,7 +511,7 @@ def invert(model, reference, *, T0: float | None = None, Tf: float | None = None
                                               square=not under)
     build_s += build_solver_s
     cont_info = None
-    if not info["success"] and continuation and warm_start is None:
+    if not info["success"] and continuation and warm_start is None and info["status"] not in _TIME_LIMIT:
         x, info, cont_info = _continuation(model, reference, tr, servo, t_mesh, x0, E0, Ef, theta,
                                            backend=backend, ipopt_options=ipopt_options, max_iter=max_iter,
                                            max_wall_time=max_wall_time, newton_tol=newton_tol,
@@ -511,6 +530,13 @@ def invert(model, reference, *, T0: float | None = None, Tf: float | None = None
         "mesh": "given" if mesh is not None else ("graded" if plan is not None and mesh_fraction is None
                                                   and {"T0", "Tf"} & set(plan.derived) else "piecewise uniform"),
     })
+    if not info["success"] and info["status"] in _TIME_LIMIT:
+        raise WallTimeLimitError(
+            f"stable inversion stopped at the wall-time limit of {max_wall_time:g} s after {info['iterations']} "
+            f"iterations ({backend}, {label}, max constraint violation "
+            f"{info.get('max_constraint_violation', float('nan')):.3g}); raise max_wall_time (invert(..., "
+            "max_wall_time=...) or the scene's Tracking(inversion={'max_wall_time': ...})) or use fewer intervals "
+            "(N); the last iterate is in exc.partial", partial=inv, diagnostics=inv.diagnostics)
     if not info["success"]:
         raise InversionFailed(
             f"stable inversion failed ({backend}: {info['status']} after {info['iterations']} iterations, "
@@ -550,7 +576,7 @@ def _solve(tr, x0, p, *, backend, ipopt_options, max_iter, max_wall_time, newton
         opts.update(IPOPT_SQUARE_DEFAULTS)
     opts.update(ipopt_options or {})
     if progress:
-        opts["iteration_callback"] = _Progress(tr.nX, tr.ng, tr.np, label)
+        opts["iteration_callback"] = _progress_of(tr, label)
     zero_hessian = (square and assembled_jacobian
                     and opts.get("ipopt.hessian_approximation", "exact") == "exact")
     solver = tr.ipopt(opts, assembled_jacobian=assembled_jacobian, zero_hessian=zero_hessian)
@@ -559,9 +585,14 @@ def _solve(tr, x0, p, *, backend, ipopt_options, max_iter, max_wall_time, newton
     args = {"x0": x0, "p": p, "lbg": 0, "ubg": 0}
     if lam_g0 is not None:
         args["lam_g0"] = lam_g0
-    sol = solver(**args)
+    with watch_sigint() as sigint:  # Ctrl-C inside IPOPT ends as User_Requested_Stop: an interruption
+        sol = solver(**args)
     solve_s = time.perf_counter() - t1
     st = solver.stats()
+    if sigint.seen and not st.get("success", False):
+        raise RunInterrupted(f"interrupted during the IPOPT solve on {label} after {st.get('iter_count', '?')} "
+                             "iterations", diagnostics={"status": st.get("return_status", "?"),
+                                                        "iterations": int(st.get("iter_count", -1))})
     g = np.array(sol["g"]).ravel()
     viol = float(np.max(np.abs(g))) if g.size else 0.0
     ok = bool(st.get("success", False)) or (st.get("return_status") == "Solved_To_Acceptable_Level" and viol < 1e-8)
@@ -645,11 +676,31 @@ def interval_errors(inv: Inverse, servo, reference, theta) -> np.ndarray:
     return err * h
 
 
-def _refine(model, reference, *, tol, max_refinements, max_N, forward_options, N, mesh, warm_start, **kw):
+def _refine(model, reference, *, tol, **kw):
+    """:func:`_refine_meshes`; on Ctrl-C, :class:`RunInterrupted` with the last accepted mesh's inverse
+    (solved and forward-checked, ``tol`` not met yet) in ``partial``."""
+    state = {"meshes": [], "accepted": None}
+    try:
+        return _refine_meshes(model, reference, state, tol=tol, **kw)
+    except KeyboardInterrupt as exc:
+        last, meshes = state["accepted"], state["meshes"]
+        note = f"mesh refinement interrupted after {len(meshes)} complete mesh(es)"
+        if last is not None:
+            last.diagnostics.update({"meshes": meshes, "max_output_error": meshes[-1]["error"], "tol": tol,
+                                     "partial": note})
+        raise RunInterrupted(
+            note + ("; the last accepted mesh (N = {}, forward-check error {:.3g}, tol {:.2g} not met) is in "
+                    "exc.partial".format(last.N, meshes[-1]["error"], tol) if last is not None
+                    else "; no mesh was complete") + (f" ({exc})" if str(exc) else ""),
+            partial=last, diagnostics={"meshes": meshes}) from None
+
+
+def _refine_meshes(model, reference, state, *, tol, max_refinements, max_N, forward_options, N, mesh, warm_start,
+                   **kw):
     from .verify import forward_check
 
     sch = get_scheme(kw["scheme"])
-    meshes = []
+    meshes = state["meshes"]
     inv = warm_start
     total_build = total_solve = 0.0
     t_mesh = None if mesh is None else np.asarray(mesh, float)
@@ -660,6 +711,7 @@ def _refine(model, reference, *, tol, max_refinements, max_N, forward_options, N
         total_solve += inv.diagnostics["solve_s"]
         meshes.append({"N": inv.N, "error": fc["error"], "iterations": inv.diagnostics["iterations"],
                        "solve_s": inv.diagnostics["solve_s"], "build_s": inv.diagnostics["build_s"]})
+        state["accepted"] = inv
         if kw.get("progress"):
             print(f"  refinement {it}: N = {inv.N}, forward-check error {fc['error']:.3e} (tol {tol:.1e})",
                   file=sys.stderr)

@@ -8,6 +8,13 @@ The same calls serve the command line, notebooks and scripts::
     from invctl.studies import commands
     res = commands.invert("cartpole", {"mp": 0.3}, N=300)
     print(res.text); res.data["max_output_error"]
+
+Around every run: the memory a long run records is estimated before it starts
+(:class:`~invctl.errors.ResourceLimitError` naming the option that fits); a contact run whose
+penetration is large against the clearance warns or fails with the numbers; Ctrl-C
+(:class:`~invctl.errors.RunInterrupted`) saves what is complete next to the requested output
+(``x.partial.npz``, ``tradeoff_<scene>.partial.csv``, the runs of a pipeline with a note) and
+re-raises with ``exc.saved`` naming the files.
 """
 from __future__ import annotations
 
@@ -17,7 +24,10 @@ import os
 from dataclasses import dataclass, replace
 from typing import Any, Callable
 
-from ..errors import ParameterError, SceneError
+from pathlib import Path
+
+from ..errors import (InvctlError, NumericalError, ParameterError, ResourceLimitError, RunInterrupted, SceneError,
+                      SimulationFailed, watch_sigint)
 from ..io import check_output_dir, check_output_path
 from ..scenes import SCENE_COMMANDS, CommandResult, Scene, load_scene
 
@@ -152,12 +162,19 @@ def _kind(scene: Scene):
     return importlib.import_module(_KIND_MODULES[scene.kind])
 
 
-def _plant_params(items) -> dict:
+def _plant_params(items, scene: Scene | None = None) -> dict:
+    """``--plant-set`` values, checked against the scene before any work (names, applicability)."""
     from ..model.params import parse_assignments
 
-    if isinstance(items, dict):
-        return dict(items)
-    return parse_assignments(items, option="--plant-set")
+    plant = dict(items) if isinstance(items, dict) else parse_assignments(items, option="--plant-set")
+    if plant and scene is not None:
+        if scene.kind == "switched":
+            raise SceneError(f"scene {scene.name!r}: the controller (3) uses no plant model, so plant and model "
+                             "parameters coincide; --plant-set is not applicable (use --set)")
+        unknown = sorted(set(plant) - set(scene.params))
+        if unknown:
+            raise SceneError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(scene.params)}")
+    return plant
 
 
 def _figure_path(path, force):
@@ -165,6 +182,291 @@ def _figure_path(path, force):
     if p.suffix.lower() not in _FIGURE_SUFFIXES:
         raise ParameterError(f"--plot {path}: use one of {', '.join(_FIGURE_SUFFIXES)}")
     return p
+
+
+# ---------------------------------------------------------------- resources
+#: Recorded doubles per output sample or step (measured: growth of the peak RSS between a default
+#: run and one with ten times the samples, then rounded up by 10-30 %):
+#: Moreau-Jean ``40 + 80 n + 40 n_gaps + 20 m`` (bouncing_ball 133 measured / 160 estimated,
+#: prismatic_clearance 232 / 300, slider_crank_clearance 304 / 340, gear_backlash 412 / 500);
+#: closed loop ``120 + 15 (n + m + n_y)`` per output step (cartpole 167 / 180, manipulator 220 / 255)
+#: plus the funnel's reference grid at half the step; switched runs 100 (stiff_wall 44, wrist 78).
+_DOUBLES = {
+    "contact": lambda n, gaps, m, ny: 40 + 80 * n + 40 * gaps + 20 * m,
+    "tracking": lambda n, gaps, m, ny: 120 + 15 * (n + m + ny) + 2 * 4 * n,
+    "switched": lambda n, gaps, m, ny: 100,
+}
+#: below this many samples a run is never large (no model is built to estimate it)
+_SMALL = 2e5
+#: share of the available memory a run may plan to use
+_MEMORY_SHARE = 0.75
+
+
+def usable_memory() -> float:
+    """Bytes a run may plan to use: 75 % of the available memory (``MemAvailable``), or
+    ``INVCTL_MAX_MEMORY`` (bytes, e.g. ``4e9``) when that is smaller."""
+    avail = math.inf
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = float(line.split()[1]) * 1024
+                    break
+    except OSError:
+        try:
+            avail = float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (ValueError, OSError, AttributeError):
+            pass
+    limit = _MEMORY_SHARE * avail
+    env = os.environ.get("INVCTL_MAX_MEMORY")
+    if env:
+        try:
+            limit = min(limit, float(env))
+        except ValueError:
+            raise ParameterError(f"INVCTL_MAX_MEMORY={env!r}: expected a number of bytes (e.g. 4e9)") from None
+    return limit
+
+
+def _gib(b: float) -> str:
+    return f"{b / 2**30:.3g} GiB"
+
+
+def _run_size(command, scene: Scene, params, settings, o) -> tuple | None:
+    """``(samples, runs, step, t_end, horizon option, step option)`` of the long run a command
+    records, or None."""
+    kind = scene.kind
+    t_opt = o.get("t_end")
+    if kind == "contact" and command in ("simulate", "pipeline"):
+        if "h" not in settings or "t_end" not in settings:
+            return None
+        t_end = float(t_opt if t_opt is not None else settings["t_end"])
+        return t_end / float(settings["h"]), 1, float(settings["h"]), t_end, "--t-end ", "--set h="
+    if kind == "tracking" and command in ("simulate", "pipeline") and t_opt is not None:
+        from .tracking import setup_tracking
+        import inspect
+
+        dt = float(inspect.signature(setup_tracking).parameters["dt"].default)
+        runs = 1 if command == "simulate" else len(scene.tracking.controllers)
+        return float(t_opt) / dt, runs, dt, float(t_opt), "--t-end ", None
+    if kind == "switched" and command in ("simulate", "pipeline", "study"):
+        p = {**scene.params, **params}
+        if "h_max" not in p or "t_end" not in p:
+            return None
+        t_end = float(t_opt if t_opt is not None else p["t_end"])
+        if command == "study":  # the trade-off's reference run (invctl.studies.tradeoff_specs.switched)
+            return t_end / 1e-5, 1, 1e-5, t_end, "--set t_end=", None
+        return t_end / float(p["h_max"]), 2, float(p["h_max"]), t_end, "--t-end ", "--set h_max="
+    return None
+
+
+def check_resources(command: str, scene: Scene, params, settings, o) -> None:
+    """Estimate the memory a command's run records (before it starts).
+
+    Raises
+    ------
+    ResourceLimitError
+        The estimate exceeds :func:`usable_memory`; the message names the horizon (and step) that fit.
+    """
+    if command == "invert":
+        return _check_inversion(scene, params, o)
+    size = _run_size(command, scene, params, settings, o)
+    if size is None:
+        return
+    samples, runs, step, t_end, t_opt, h_opt = size
+    if not samples * runs > _SMALL:
+        return
+    n = gaps = m = ny = 0
+    if scene.kind != "switched":
+        model = scene.model(params)
+        n, gaps, m, ny = model.n, len(model.gaps), model.m, model.ny
+    per = 8.0 * _DOUBLES[scene.kind](n, gaps, m, ny)
+    need = samples * runs * per
+    limit = usable_memory()
+    if need <= limit:
+        return
+    fit_t = limit / (runs * per) * step
+    fits = f"use {t_opt}{fit_t:.3g} or less"
+    if h_opt:
+        fits += f", or {h_opt}{step * need / limit:.3g} or more"
+    raise ResourceLimitError(
+        f"{scene.name}: {command} would record {samples:.3g} samples (t_end = {t_end:g} s at a step of {step:g} s"
+        + (f", {runs} runs" if runs > 1 else "") + f"): about {_gib(need)} of memory, but {_gib(limit)} is usable "
+        f"({int(100 * _MEMORY_SHARE)} % of the available memory or INVCTL_MAX_MEMORY); {fits}",
+        diagnostics={"samples": samples, "runs": runs, "bytes_needed": need, "bytes_usable": limit,
+                     "t_end_that_fits": fit_t})
+
+
+#: bytes per collocation interval of an inversion (transcription, IPOPT and MUMPS together):
+#: ``600 (s nx)^1.7`` with ``s`` = 2 (Hermite-Simpson) or d + 1 (d-stage Legendre/Radau); measured peak RSS
+#: growth per interval: manipulator (nx = 14) 108 KB (HS) and 490 KB (radau3), cartpole (nx = 5) 19 KB
+#: (HS); the formula gives 172, 561 and 30 KB
+_INVERSION_BYTES = (600.0, 1.7)
+
+
+def _check_inversion(scene: Scene, params, o) -> None:
+    N = o.get("N")
+    if N is None or N <= 2000:
+        return
+    from ..inversion.collocation import get_scheme
+
+    sch = get_scheme(o.get("scheme") or "hermite-simpson")
+    stages = 2 if sch.is_hs else sch.degree + 1
+    model = scene.model(params)
+    nx = 2 * model.n + model.ell + model.p + model.m
+    per = _INVERSION_BYTES[0] * (stages * nx) ** _INVERSION_BYTES[1]
+    need, limit = N * per, usable_memory()
+    if need > limit:
+        raise ResourceLimitError(
+            f"{scene.name}: invert --N {N} ({sch.name}, {nx} unknowns per node) would need about {_gib(need)} of "
+            f"memory, but {_gib(limit)} is usable; use --N {int(limit / per)} or less (or --tol to refine only "
+            "where needed)", diagnostics={"bytes_needed": need, "bytes_usable": limit, "N_that_fits": int(limit / per)})
+
+
+# ------------------------------------------------------------- after a run
+#: a contact run warns when it penetrates more than this share of the clearance, and fails beyond 1
+GAP_WARN = 0.1
+
+
+def _check_contact_data(name: str, d: dict) -> tuple[str | None, str | None]:
+    """(warning, failure) texts for one contact run's data: its largest penetration against the
+    clearance, measured by the largest gap at the start (the free room of a joint started in its
+    clearance, the drop height of a ball; the largest gap seen later would count the penetration of
+    one side of a joint as room on the other)."""
+    viol, gaps0 = d.get("max_gap_violation"), d.get("initial_gaps")
+    if viol is None or not gaps0:
+        return None, None
+    room = max(gaps0)
+    ratio = viol / room if room > 0 else (math.inf if viol > 0 else 0.0)
+    d["clearance_scale"], d["gap_violation_ratio"] = room, ratio
+    what = (f"{name}: the largest penetration {viol:.3g} is {ratio:.3g} times the clearance scale (the largest "
+            f"gap at the start, {room:.3g})")
+    fix = "use a smaller step (--set h=...), the projection (--set projection=1) or a larger clearance"
+    if not ratio <= 1.0:
+        return None, f"{what}: the contacts of this run are not resolved; {fix}"
+    if ratio > GAP_WARN:
+        return f"warning: {what}; {fix}", None
+    return None, None
+
+
+def _check_contact(scene: Scene, result: CommandResult) -> CommandResult:
+    """Warn about, or fail on, the penetration of the runs in ``result`` (simulate or pipeline)."""
+    runs = result.data["runs"] if "runs" in result.data else {result.data.get("controller", scene.name): result.data}
+    warnings, failures = [], []
+    for name, d in runs.items():
+        w, f = _check_contact_data(f"{scene.name} ({name})", d)
+        warnings += [w] if w else []
+        failures += [f] if f else []
+    if failures:
+        written = result.data.get("out") or result.data.get("out_dir")
+        raise SimulationFailed("; ".join(failures) + (f" (the run was written to {written})" if written else ""),
+                               partial=result, diagnostics={"runs": {k: {kk: v.get(kk) for kk in (
+                                   "max_gap_violation", "clearance_scale", "gap_violation_ratio")}
+                                   for k, v in runs.items()}})
+    if warnings:
+        result.data.setdefault("warnings", []).extend(warnings)
+        result.text = result.text + "\n" + "\n".join(warnings)
+    return result
+
+
+# --------------------------------------------------------- interruptions
+def _free(path: Path) -> Path:
+    """``path``, or ``stem-2.ext``, ``stem-3.ext`` ... when it exists (a partial never replaces a file)."""
+    k, p = 2, path
+    while p.exists():
+        p = path.with_name(f"{path.stem}-{k}{path.suffix}")
+        k += 1
+    return p
+
+
+def _partial_name(out, suffix=None) -> Path:
+    p = Path(out)
+    suffix = suffix or p.suffix
+    return _free(p.with_name(f"{p.name[:len(p.name) - len(p.suffix)] if p.suffix else p.name}.partial{suffix}"))
+
+
+def _save_partial(exc: RunInterrupted, *, out=None, out_dir=None, meta=None, dt=None) -> None:
+    """Write ``exc.partial`` next to the requested output (noting that it is partial); record the
+    files in ``exc.saved``. Failures to write are reported in the message, never raised."""
+    part, note = exc.partial, str(exc)
+    try:
+        if out_dir is not None:
+            d = Path(out_dir)
+            d.mkdir(parents=True, exist_ok=True)
+            if part is not None and hasattr(part, "to_csv") and hasattr(part, "rows"):  # trade-off rows
+                stem = f"tradeoff_{part.scene or 'study'}"
+                for ext in ("csv", "json"):
+                    path = _free(d / f"{stem}.partial.{ext}")
+                    getattr(part, f"to_{ext}")(path)
+                    exc.saved.append(str(path))
+            elif part is not None and hasattr(part, "runs") and hasattr(part, "save"):  # tracking runs so far
+                if part.runs:
+                    part.info["partial"] = note
+                    part.save(d, meta=meta)
+                    exc.saved += [str(d / f"run_{k}.npz") for k in part.runs] + [str(d / "study.json")]
+            files = sorted(q.name for q in d.iterdir() if q.name != "INTERRUPTED.txt")
+            nf = d / "INTERRUPTED.txt"
+            nf.write_text(f"PARTIAL RESULTS: {note}\nfiles present: {', '.join(files) or 'none'}\n")
+            exc.saved.append(str(nf))
+        elif out is not None and part is not None:
+            csv = str(out).lower().endswith(".csv")
+            path = _partial_name(out)
+            info = {**(meta or {}), "partial": note}
+            if csv and hasattr(part, "to_csv"):
+                part.to_csv(path)
+            elif hasattr(part, "to_npz"):
+                path = path if path.suffix == ".npz" else _partial_name(out, ".npz")
+                if dt is not None:
+                    path = part.to_npz(path, dt, meta=info)
+                else:
+                    path = part.to_npz(path, meta=info)
+            elif hasattr(part, "save"):
+                path = part.save(path)
+            else:
+                return
+            exc.saved.append(str(path))
+    except Exception as err:  # noqa: BLE001 - the interruption is what must reach the user
+        exc.args = (f"{note}; writing the partial result failed ({type(err).__name__}: {err})",)
+
+
+def _interruptible(run, **where):
+    """``run()``, saving what is complete on Ctrl-C (see :func:`_save_partial`). A failure after a
+    SIGINT is the interruption (compiled solvers turn Ctrl-C into their own errors)."""
+    with watch_sigint() as sigint:
+        try:
+            return run()
+        except RunInterrupted as exc:
+            _save_partial(exc, **where)
+            raise
+        except KeyboardInterrupt as exc:
+            ri = RunInterrupted(str(exc) or "interrupted")
+        except Exception as exc:
+            if not sigint.seen:
+                raise
+            ri = RunInterrupted(f"interrupted (the solver stopped with {type(exc).__name__}: {str(exc)[:200]})",
+                                partial=getattr(exc, "partial", None) if isinstance(exc, InvctlError) else None)
+    _save_partial(ri, **where)
+    raise ri from None
+
+
+def _load_inverse(path, scene: Scene, params) -> Any:
+    """A saved inverse for ``scene``: its recorded scene and its sizes must be this scene's."""
+    from ..errors import ResultFileError
+    from ..inversion import Inverse
+    from ..scenes import scene_reference
+
+    inv = Inverse.load(path)
+    recorded, here = inv.meta.get("scene"), scene_reference(scene)
+    if recorded is not None and recorded != here:
+        raise ResultFileError(f"--inverse {path}: the inverse was computed for scene {recorded!r}, not {here!r}")
+    model = scene.model(params)
+    sizes = {"n": model.n, "l": model.ell, "p": model.p, "m": model.m}
+    if {k: int(inv.sizes.get(k, -1)) for k in sizes} != sizes:
+        raise ResultFileError(f"--inverse {path}: its sizes {dict(inv.sizes)} are not those of {scene.name!r} {sizes}")
+    saved = {k: float(v) for k, v in dict(inv.meta.get("params") or {}).items()}
+    if saved != {k: float(v) for k, v in params.items()}:
+        raise ResultFileError(f"--inverse {path}: the inverse was computed with the parameters {saved}, this run "
+                              f"uses {dict(params)}; pass the same --set values or invert again")
+    return inv
 
 
 # ------------------------------------------------------------------ commands
@@ -187,8 +489,13 @@ def invert(scene, values=None, **options) -> CommandResult:
         raise ParameterError("--dt sets the sampling of the saved trajectory; give --out FILE.npz too")
     out = str(check_output_path(o["out"], suffix=".npz", force=o["force"])) if o["out"] else None
     params, settings = scene.split(values, preset=o["preset"])
-    return _kind(scene).invert(scene, params, settings, N=o["N"], scheme=o["scheme"], tol=o["tol"],
-                               backend=o["backend"], out=out, dt=o["dt"], quiet=o["quiet"])
+    check_resources("invert", scene, params, settings, o)
+    from ..scenes import scene_reference
+
+    return _interruptible(lambda: _kind(scene).invert(scene, params, settings, N=o["N"], scheme=o["scheme"],
+                                                      tol=o["tol"], backend=o["backend"], out=out, dt=o["dt"],
+                                                      quiet=o["quiet"]),
+                          out=out, dt=o["dt"], meta={"scene": scene_reference(scene), "params": params})
 
 
 def design(scene, values=None, **options) -> CommandResult:
@@ -209,18 +516,25 @@ def simulate(scene, values=None, **options) -> CommandResult:
     out = None
     if o["out"]:
         suffix = ".csv" if str(o["out"]).lower().endswith(".csv") else ".npz"
+        if suffix == ".csv" and scene.kind == "contact":
+            from ..errors import OutputPathError
+
+            raise OutputPathError(f"--out {o['out']}: contact runs are written as .npz only; use --out FILE.npz")
         out = str(check_output_path(o["out"], suffix=suffix, force=o["force"]))
     plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
     params, settings = scene.split(values, preset=o["preset"])
-    kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"]), t_end=o["t_end"], out=out,
+    kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"], scene), t_end=o["t_end"], out=out,
               plot=plot, quiet=o["quiet"])
     if o["inverse"]:
         if scene.kind != "tracking":
             raise SceneError("--inverse applies to tracking scenes only")
-        from ..inversion import Inverse
+        kw["inverse"] = _load_inverse(o["inverse"], scene, params)
+    check_resources("simulate", scene, params, settings, o)
+    from ..scenes import scene_reference
 
-        kw["inverse"] = Inverse.load(o["inverse"])
-    return _kind(scene).simulate(scene, params, settings, **kw)
+    result = _interruptible(lambda: _kind(scene).simulate(scene, params, settings, **kw), out=out,
+                            meta={"scene": scene_reference(scene), "params": params, "controller": o["controller"]})
+    return _check_contact(scene, result) if scene.kind == "contact" else result
 
 
 def pipeline(scene, values=None, **options) -> CommandResult:
@@ -228,11 +542,20 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     scene = _scene(scene)
     scene.require("pipeline")
     o = check_options("pipeline", options)
-    out_dir = check_output_dir(o["out_dir"])
     params, settings = scene.split(values, preset=o["preset"])
-    return _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
-                                 plant_params=_plant_params(o["plant_set"]), quiet=o["quiet"],
-                                 animate=not o["no_animation"])
+    plant = _plant_params(o["plant_set"], scene)
+    check_resources("pipeline", scene, params, settings, o)
+    out_dir = check_output_dir(o["out_dir"])
+    from ..scenes import scene_reference
+
+    result = _interruptible(lambda: _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
+                                                          plant_params=plant,
+                                                          quiet=o["quiet"], animate=not o["no_animation"]),
+                            out_dir=out_dir, meta={"scene": scene_reference(scene), "params": params})
+    stale = Path(out_dir) / "INTERRUPTED.txt"  # the note of an earlier interrupted run in this folder
+    if stale.is_file():
+        stale.unlink()
+    return _check_contact(scene, result) if scene.kind == "contact" else result
 
 
 def study(scene, kind: str, values=None, **options) -> CommandResult:
@@ -245,11 +568,12 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
     if kind != "tradeoff":
         raise SceneError(f"unknown study {kind!r}; available: tradeoff")
     o = check_options("study", options)
-    out = check_output_dir(o["out_dir"])
     params, settings = scene.split(values, preset=o["preset"])
+    check_resources("study", scene, params, settings, o)
+    out = check_output_dir(o["out_dir"])
     smoke = os.environ.get("INVCTL_SMOKE") == "1"
     spec = spec_for(scene, params, settings, smoke=smoke, job=o["job"])
-    result = run_tradeoff(spec, progress=not o["quiet"])
+    result = _interruptible(lambda: run_tradeoff(spec, progress=not o["quiet"]), out_dir=out)
     stem = f"tradeoff_{spec.scene}"
     out.mkdir(parents=True, exist_ok=True)
     result.to_csv(out / f"{stem}.csv")
@@ -310,8 +634,16 @@ def run_command(command: str, scene, values=None, **options) -> CommandResult:
     """Run ``command`` (one of :data:`invctl.scenes.SCENE_COMMANDS`) on ``scene``."""
     if command not in SCENE_COMMANDS:
         raise SceneError(f"unknown command {command!r}; commands: {', '.join(SCENE_COMMANDS)}")
-    if command == "study":
-        kind = options.pop("kind", "tradeoff")
-        return study(scene, kind, values, **options)
-    return _COMMANDS[command](scene, values, **options)
+    import numpy as np
+
+    try:
+        if command == "study":
+            kind = options.pop("kind", "tradeoff")
+            return study(scene, kind, values, **options)
+        return _COMMANDS[command](scene, values, **options)
+    except (np.linalg.LinAlgError, FloatingPointError, OverflowError, ZeroDivisionError) as exc:
+        name = scene.name if isinstance(scene, Scene) else scene
+        raise NumericalError(f"{command} {name}: the computation broke down numerically ({type(exc).__name__}: {exc}) "
+                             f"with the values {dict(values or {})}; they are outside the range the model can be "
+                             "evaluated in (or the model is singular there)") from exc
 

@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CoordinateError, FunnelViolation, ParameterError, SceneError
+from ..errors import CoordinateError, FunnelViolation, ParameterError, RunInterrupted, SceneError
+from ..io import file_loader, read_json
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
 __all__ = ["CONTROLLERS", "NEEDS_INVERSE", "check_controller", "TrackingSetup", "TrackingStudy", "setup_tracking",
@@ -469,9 +470,10 @@ class TrackingStudy:
         (d / "study.json").write_text(json.dumps(jsonable(self.to_dict()), indent=1))
 
     @classmethod
+    @file_loader
     def load(cls, directory) -> "TrackingStudy":
         d = Path(directory)
-        meta = json.loads((d / "study.json").read_text())
+        meta = read_json(d / "study.json", "study summary")
         runs = {name: ClosedLoopResult.load(d / f"run_{name}.npz") for name in meta["runs"]}
         return cls(runs, meta.get("info", {}))
 
@@ -494,13 +496,17 @@ def run_tracking_study(scene, params=None, plant_params=None, *, controllers=Non
                                                            invert=bool(set(NEEDS_INVERSE) & set(controllers)),
                                                            **setup_options)
     runs = {}
-    for name in controllers:
-        if progress:
-            print(f"simulating {name} ({CONTROLLERS.get(name, '?')}) ...", file=sys.stderr)
-        try:
-            runs[name] = run_controller(setup, name)
-        except FunnelViolation as exc:
-            runs[name] = exc.partial
+    try:
+        for name in controllers:
+            if progress:
+                print(f"simulating {name} ({CONTROLLERS.get(name, '?')}) ...", file=sys.stderr)
+            try:
+                runs[name] = run_controller(setup, name)
+            except FunnelViolation as exc:
+                runs[name] = exc.partial
+    except KeyboardInterrupt:  # keep the complete runs
+        note = f"interrupted; complete runs: {', '.join(runs) or 'none'} of {', '.join(controllers)}"
+        raise RunInterrupted(note, partial=TrackingStudy(runs, {"scene": scene.name, "partial": note}, setup)) from None
     a1 = {name: a1_along(setup, r) for name, r in runs.items() if r.t.size > 1}
     info = {"a1_along_trajectory": a1, "params": dict(params or {}),
             "plant": {k: v for k, v in setup.plant.values.items() if v != setup.model.values.get(k)},
