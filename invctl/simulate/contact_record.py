@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ParameterError, RecordingError, ResourceLimitError, SimulationFailed
+from ..errors import ParameterError, RecordingError, ResourceLimitError, ResultFileError, SimulationFailed
+from ..io import file_loader, load_npz, require_finite, save_npz
 
 __all__ = ["ContactTrajectory", "ChunkRecorder", "available_memory", "resolve_memory_budget",
            "DEFAULT_MEMORY_FRACTION"]
@@ -220,8 +221,6 @@ class ContactTrajectory:
     def to_npz(self, path, meta: dict | None = None) -> Path:
         """Write to ``.npz`` (read back with :meth:`load`); ``meta`` (JSON-able) records where the run
         came from (scene, parameters) for ``invctl animate``. Returns the path written."""
-        from ..io import save_npz
-
         arrays = {k: getattr(self, k) for k in self._ARRAYS}
         stats = {}
         for k, v in self.stats.items():
@@ -234,14 +233,14 @@ class ContactTrajectory:
         return save_npz(path, "ContactTrajectory", arrays, info)
 
     @classmethod
+    @file_loader
     def load(cls, path) -> "ContactTrajectory":
         """Read a file written by :meth:`to_npz` (format and version checked)."""
-        from ..io import load_npz
-
         d, info = load_npz(path, "ContactTrajectory")
         missing = [k for k in cls._ARRAYS if k not in d] + [k for k in ("h", "stats") if k not in info]
         if missing:
-            raise RecordingError(f"{path}: incomplete contact trajectory (missing {missing})")
+            raise ResultFileError(f"{path}: incomplete contact trajectory (missing {missing})")
+        require_finite(path, d, ("t", "q", "v"))
         stats = dict(info["stats"])
         stats.update({k[6:]: v for k, v in d.items() if k.startswith("stats:")})
         meta = {k: v for k, v in info.items()

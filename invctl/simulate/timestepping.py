@@ -480,54 +480,60 @@ class MoreauJean:
         done, recomputed, c = 0, 0, 0
         meta = dict(h=h, backend=backend, est=est, every=every, record=record, vtol=vtol, x_init=x_init)
         tic = time.perf_counter()
-        while done < N:
-            run_chunk()
-            use = min(N - done, size)
-            fail = None
-            okrow = Ych[ok_row, :use]
-            if not okrow.all():
-                fail = int(np.argmin(okrow > 0.5))
-                use = fail
-            x_after = self._state_at(xin, Xacc, use, size, S)
-            if not np.all(np.isfinite(x_after[:lay["v"].stop])):
-                bad = np.flatnonzero(~np.all(np.isfinite(Ych[:lay["v"].stop, :use]), axis=0))
-                k_bad = int(bad[0]) if bad.size else use
-                rec.consume(Ych, k_bad, done, self._after_values(Ych[:, k_bad]))
-                raise SimulationFailed(
-                    f"Moreau-Jean: non-finite state at step {done + k_bad} (t = {t0 + (done + k_bad) * h:.6g}); "
-                    "reduce h or check the model/gains", partial=self._package(rec, None, done + k_bad, 0.0, meta),
-                    diagnostics={"step": done + k_bad})
-            rec.consume(Ych, use, done, self._after_values(x_after))
-            done += use
-            if fail is not None:
-                if on_lcp_failure == "raise":
-                    Dm, bm, _ = self._f_lcp(x_after)
-                    raise ContactError(
-                        f"Moreau-Jean: the compiled LCP ({self.lcp}) did not converge at step {done} "
-                        f"(t = {t0 + done * h:.6g}); raise lcp_iters, use lcp='lemke', or "
-                        "on_lcp_failure='recompute' (exact numpy LCP for such steps)",
-                        partial=self._package(rec, x_after, done, time.perf_counter() - tic, meta),
-                        diagnostics={"step": done, "D": np.array(Dm).tolist(), "b": np.array(bm).ravel().tolist()})
-                try:
-                    x_after, yrow = self.reference_step(x_after)
-                except ContactError as exc:
-                    raise ContactError(f"Moreau-Jean step {done} (t = {t0 + done * h:.6g}): {exc}",
-                                       partial=self._package(rec, None, done, time.perf_counter() - tic, meta),
-                                       diagnostics={"step": done, **exc.diagnostics}) from exc
-                rec.consume(yrow.reshape(-1, 1), 1, done, self._after_values(x_after))
-                done += 1
-                recomputed += 1
-            xin[:] = x_after
-            if rec.nbytes() + buffer_bytes > limit:
-                raise ResourceLimitError(
-                    f"Moreau-Jean: the record ({rec.nbytes() / 2**20:.4g} MiB after {done} of {N} steps: "
-                    f"{rec.n_imp_rows} impacts) outgrew the memory budget {limit / 2**20:.4g} MiB; use "
-                    f"record_every > {every} without record='events', a shorter t_end or a larger memory_budget",
-                    partial=self._package(rec, xin.copy(), done, time.perf_counter() - tic, meta),
-                    diagnostics={"steps_done": done, "record_bytes": rec.nbytes(), "budget_bytes": limit})
-            c += 1
-            if progress and c % 50 == 0:
-                print(f"\rinvctl: moreau-jean {done}/{N} steps", end="", file=sys.stderr)
+        try:
+            while done < N:
+                run_chunk()
+                use = min(N - done, size)
+                fail = None
+                okrow = Ych[ok_row, :use]
+                if not okrow.all():
+                    fail = int(np.argmin(okrow > 0.5))
+                    use = fail
+                x_after = self._state_at(xin, Xacc, use, size, S)
+                if not np.all(np.isfinite(x_after[:lay["v"].stop])):
+                    bad = np.flatnonzero(~np.all(np.isfinite(Ych[:lay["v"].stop, :use]), axis=0))
+                    k_bad = int(bad[0]) if bad.size else use
+                    rec.consume(Ych, k_bad, done, self._after_values(Ych[:, k_bad]))
+                    raise SimulationFailed(
+                        f"Moreau-Jean: non-finite state at step {done + k_bad} (t = {t0 + (done + k_bad) * h:.6g}); "
+                        "reduce h or check the model/gains", partial=self._package(rec, None, done + k_bad, 0.0, meta),
+                        diagnostics={"step": done + k_bad})
+                rec.consume(Ych, use, done, self._after_values(x_after))
+                done += use
+                if fail is not None:
+                    if on_lcp_failure == "raise":
+                        Dm, bm, _ = self._f_lcp(x_after)
+                        raise ContactError(
+                            f"Moreau-Jean: the compiled LCP ({self.lcp}) did not converge at step {done} "
+                            f"(t = {t0 + done * h:.6g}); raise lcp_iters, use lcp='lemke', or "
+                            "on_lcp_failure='recompute' (exact numpy LCP for such steps)",
+                            partial=self._package(rec, x_after, done, time.perf_counter() - tic, meta),
+                            diagnostics={"step": done, "D": np.array(Dm).tolist(), "b": np.array(bm).ravel().tolist()})
+                    try:
+                        x_after, yrow = self.reference_step(x_after)
+                    except ContactError as exc:
+                        raise ContactError(f"Moreau-Jean step {done} (t = {t0 + done * h:.6g}): {exc}",
+                                           partial=self._package(rec, None, done, time.perf_counter() - tic, meta),
+                                           diagnostics={"step": done, **exc.diagnostics}) from exc
+                    rec.consume(yrow.reshape(-1, 1), 1, done, self._after_values(x_after))
+                    done += 1
+                    recomputed += 1
+                xin[:] = x_after
+                if rec.nbytes() + buffer_bytes > limit:
+                    raise ResourceLimitError(
+                        f"Moreau-Jean: the record ({rec.nbytes() / 2**20:.4g} MiB after {done} of {N} steps: "
+                        f"{rec.n_imp_rows} impacts) outgrew the memory budget {limit / 2**20:.4g} MiB; use "
+                        f"record_every > {every} without record='events', a shorter t_end or a larger memory_budget",
+                        partial=self._package(rec, xin.copy(), done, time.perf_counter() - tic, meta),
+                        diagnostics={"steps_done": done, "record_bytes": rec.nbytes(), "budget_bytes": limit})
+                c += 1
+                if progress and c % 50 == 0:
+                    print(f"\rinvctl: moreau-jean {done}/{N} steps", end="", file=sys.stderr)
+        except KeyboardInterrupt:
+            from ..errors import RunInterrupted
+
+            raise RunInterrupted(f"Moreau-Jean interrupted after {done} of {N} steps (t = {t0 + done * h:.6g})",
+                                 partial=self._package(rec, None, done, time.perf_counter() - tic, meta)) from None
         wall = time.perf_counter() - tic
         if progress:
             print(file=sys.stderr)

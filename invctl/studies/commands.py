@@ -94,6 +94,12 @@ OPTIONS: dict[str, Option] = {
     "force": Option(bool, "replace existing output files", ("invert", "simulate", "design"), False, flag=True),
     "quiet": Option(bool, "no progress output", ("invert", "simulate", "pipeline", "study"), False, flag=True),
     "no_animation": Option(bool, "do not write animations of the runs", ("pipeline",), False, flag=True),
+    "record_every": Option(int, "contact runs: keep every k-th step (the run's statistics stay exact)",
+                           ("simulate", "pipeline"), None, _at_least(1)),
+    "record": Option(str, "contact runs: record every step ('steps') or only impacts and contact changes "
+                          "('events')", ("simulate", "pipeline"), None, choices=("steps", "events")),
+    "max_wall_time": Option(float, "stop the inversion's solver after this many seconds", ("invert",), None,
+                            _positive),
 }
 
 #: ``invctl generate`` (trajectory libraries, :mod:`.library`): its own options; it shares N, scheme, tol,
@@ -236,11 +242,8 @@ def _run_size(command, scene: Scene, params, settings, o) -> tuple | None:
     records, or None."""
     kind = scene.kind
     t_opt = o.get("t_end")
-    if kind == "contact" and command in ("simulate", "pipeline"):
-        if "h" not in settings or "t_end" not in settings:
-            return None
-        t_end = float(t_opt if t_opt is not None else settings["t_end"])
-        return t_end / float(settings["h"]), 1, float(settings["h"]), t_end, "--t-end ", "--set h="
+    if kind == "contact":  # Moreau-Jean estimates its record itself, with the recording options that fit
+        return None
     if kind == "tracking" and command in ("simulate", "pipeline") and t_opt is not None:
         from .tracking import setup_tracking
         import inspect
@@ -494,7 +497,7 @@ def invert(scene, values=None, **options) -> CommandResult:
 
     return _interruptible(lambda: _kind(scene).invert(scene, params, settings, N=o["N"], scheme=o["scheme"],
                                                       tol=o["tol"], backend=o["backend"], out=out, dt=o["dt"],
-                                                      quiet=o["quiet"]),
+                                                      quiet=o["quiet"], max_wall_time=o["max_wall_time"]),
                           out=out, dt=o["dt"], meta={"scene": scene_reference(scene), "params": params})
 
 
@@ -524,7 +527,7 @@ def simulate(scene, values=None, **options) -> CommandResult:
     plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
     params, settings = scene.split(values, preset=o["preset"])
     kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"], scene), t_end=o["t_end"], out=out,
-              plot=plot, quiet=o["quiet"])
+              plot=plot, quiet=o["quiet"], **_recording(scene, o))
     if o["inverse"]:
         if scene.kind != "tracking":
             raise SceneError("--inverse applies to tracking scenes only")
@@ -535,6 +538,15 @@ def simulate(scene, values=None, **options) -> CommandResult:
     result = _interruptible(lambda: _kind(scene).simulate(scene, params, settings, **kw), out=out,
                             meta={"scene": scene_reference(scene), "params": params, "controller": o["controller"]})
     return _check_contact(scene, result) if scene.kind == "contact" else result
+
+
+def _recording(scene: Scene, o: dict) -> dict:
+    """The recording options of a contact run (``--record-every``, ``--record``); an error for other kinds."""
+    given = {k: o[k] for k in ("record_every", "record") if o.get(k) is not None}
+    if given and scene.kind != "contact":
+        raise ParameterError(f"{', '.join('--' + k.replace('_', '-') for k in given)}: applies to contact scenes "
+                             f"only; {scene.name!r} is a {scene.kind} scene")
+    return given
 
 
 def pipeline(scene, values=None, **options) -> CommandResult:
@@ -548,9 +560,10 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     out_dir = check_output_dir(o["out_dir"])
     from ..scenes import scene_reference
 
+    rec = _recording(scene, o)
     result = _interruptible(lambda: _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
                                                           plant_params=plant,
-                                                          quiet=o["quiet"], animate=not o["no_animation"]),
+                                                          quiet=o["quiet"], animate=not o["no_animation"], **rec),
                             out_dir=out_dir, meta={"scene": scene_reference(scene), "params": params})
     stale = Path(out_dir) / "INTERRUPTED.txt"  # the note of an earlier interrupted run in this folder
     if stale.is_file():

@@ -96,8 +96,10 @@ def contact_setup(scene, params=None, settings=None, *, controller=None, plant_p
     return ContactRun(scene, model, plant, name, law, q0, v0, settings, params)
 
 
-def run_contact(run: ContactRun, *, t_end=None, progress=None) -> ContactRun:
-    """Simulate ``run`` with the compiled Moreau-Jean scheme; fills ``run.trajectory``."""
+def run_contact(run: ContactRun, *, t_end=None, progress=None, record_every: int = 1,
+                record: str = "steps") -> ContactRun:
+    """Simulate ``run`` with the compiled Moreau-Jean scheme; fills ``run.trajectory`` (``record_every``,
+    ``record="events"``: a reduced record, the statistics exact)."""
     from ..simulate.timestepping import MoreauJean
 
     s = run.settings
@@ -110,7 +112,7 @@ def run_contact(run: ContactRun, *, t_end=None, progress=None) -> ContactRun:
     tic = time.perf_counter()
     run.trajectory = mj.run(run.q0, run.v0, t_end, h, theta=_setting(s, "theta"), params=run.plant.theta_values,
                             ctrl_params=run.model.theta_values, activation_tol=_setting(s, "activation_tol"),
-                            progress=progress)
+                            progress=progress, record_every=int(record_every), record=record)
     run.stats["wall_s"] = time.perf_counter() - tic
     return run
 
@@ -247,10 +249,10 @@ def _summary(run: ContactRun) -> tuple[list, dict]:
 
 
 def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
-             plot=None, quiet=False) -> CommandResult:
+             plot=None, quiet=False, record_every: int = 1, record: str = "steps") -> CommandResult:
     """Run one controller of a contact scene and report (module docstring)."""
     run = run_contact(contact_setup(scene, params, settings, controller=controller, plant_params=plant_params),
-                      t_end=t_end, progress=None if not quiet else False)
+                      t_end=t_end, progress=None if not quiet else False, record_every=record_every, record=record)
     lines, data = _summary(run)
     rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
                                controller=run.controller)
@@ -270,7 +272,7 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
 
 
 def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
-             quiet=False, animate=True) -> CommandResult:
+             quiet=False, animate=True, record_every: int = 1, record: str = "steps") -> CommandResult:
     """Every declared controller of a contact scene: runs, reports, figures (one per controller)."""
     from ..plot import close
 
@@ -280,7 +282,7 @@ def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end
     lines, data = [], {"runs": {}}
     for name in names:
         run = run_contact(contact_setup(scene, params, settings, controller=name, plant_params=plant_params),
-                          t_end=t_end, progress=False)
+                          t_end=t_end, progress=False, record_every=record_every, record=record)
         ls, d = _summary(run)
         rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
                                    controller=name)

@@ -165,11 +165,12 @@ def _analyze_flat(scene, model, ref, point, samples, t0) -> CommandResult:
 
 # ------------------------------------------------------------------- invert
 def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None, backend=None, out=None,
-           dt=None, quiet=False) -> CommandResult:
+           dt=None, quiet=False, max_wall_time=None) -> CommandResult:
     """Invert with the automatic setup (and the scene's overrides), forward-check, report."""
     from ..inversion import forward_check
 
-    opts = {k: v for k, v in {"N": N, "scheme": scheme, "tol": tol, "backend": backend}.items() if v is not None}
+    opts = {k: v for k, v in {"N": N, "scheme": scheme, "tol": tol, "backend": backend,
+                              "max_wall_time": max_wall_time}.items() if v is not None}
     t_wall = time.perf_counter()
     model, reference = tracking_model(scene, params)
     inv = invert_tracking(scene, model, reference, progress=not quiet, **opts)
