@@ -189,9 +189,17 @@ def _viable(j: Juggler, f: Flight, samples: int = 400) -> bool:
     return bool(np.all(y > 0) and np.all(y < j.clearance))
 
 
-def _cycle(j: Juggler, st: JugglerState, q2d: float, v2d: float, D0: float, D1: float):
-    """Steps 2-4 for fixed flight times: a Cycle, or None when step 2 (``"step2"``) or step 4
-    (``"step4"``) fails."""
+def _peak(pieces, D) -> float:
+    """Largest ``|y''|`` of piecewise cubics (linear ``y''`` per piece: its ends)."""
+    out = 0.0
+    for k, (s0, c) in enumerate(pieces):
+        T = (pieces[k + 1][0] if k + 1 < len(pieces) else D) - s0
+        out = max(out, abs(2 * c[2]), abs(2 * c[2] + 6 * c[3] * T))
+    return out
+
+
+def _cycle(j: Juggler, st: JugglerState, q2d: float, v2d: float, D0: float, D1: float, *, check: bool = True):
+    """Steps 2-4 for fixed flight times: ``(Cycle, None)``, or ``(None, "step2" | "step4")``."""
     M = j.m1 + j.m2
     k = (1 + j.e) * j.m1 / M
     q2_t1, v2_t1m = _flight(j, st.q2, st.v2, D0)
@@ -203,15 +211,13 @@ def _cycle(j: Juggler, st: JugglerState, q2d: float, v2d: float, D0: float, D1: 
     mid = 0.5 * j.clearance
     f0 = Flight(st.t, st.q2, st.v2, D0, 2, _profile(j.clearance, st.v1 - st.v2, 0.0, A, D0, mid))
     f1 = Flight(st.t + D0, q2_t1, w, D1, 1, _profile(j.clearance, j.e * A, 0.0, B, D1, mid))
-    if not (_viable(j, f0) and _viable(j, f1)):
+    if check and not (_viable(j, f0) and _viable(j, f1)):
         return None, "step4"
     v1_t1p = (v2_t1m + A) - (1 + j.e) * A * j.m2 / M         # y2' = v1 - v2, then the kick of Sigma_2
     q2_t2, v2_t2m = _flight(j, q2_t1, w, D1)
     dv1, dv2 = j.kick(B)
     end = JugglerState(st.t + D0 + D1, q2_t2 - j.l, v2_t2m - B + dv1, q2_t2, v2_t2m + dv2)
-    peak = max(float(np.max(np.abs([c[2] * 2, 2 * c[2] + 6 * c[3] * ((f.pieces[i + 1][0] if i + 1 < len(f.pieces)
-                                                                       else f.D) - s0)])))
-               for f in (f0, f1) for i, (s0, c) in enumerate(f.pieces))
+    peak = max(_peak(f0.pieces, D0), _peak(f1.pieces, D1))
     return Cycle(st, end, D0, D1, A, B, (f0, f1), (st.t + D0, q2_t1, w, q2_t1 - (j.L - j.l), v1_t1p), peak), None
 
 
@@ -236,17 +242,14 @@ def design_cycle(j: Juggler, st: JugglerState, q2d: float, v2d: float, *, durati
                              f"got v1 = {st.v1}, v2 = {st.v2}")
     pairs = [tuple(durations)] if durations is not None else [
         (a, b) for a in np.geomspace(*window, grid) for b in np.geomspace(*window, grid)]
-    best, fails = None, {"step2": 0, "step4": 0}
-    for D0, D1 in pairs:
-        cyc, why = _cycle(j, st, q2d, v2d, D0, D1)
-        if cyc is None:
-            fails[why] += 1
-        elif best is None or cyc.peak_acceleration < best.peak_acceleration:
-            best = cyc
-    diag = {"start": st, "target": (q2d, v2d), "window": window, "pairs": len(pairs), **fails}
-    if best is not None:
-        return best
-    if fails["step2"] == len(pairs):
+    cands = [c for c in (_cycle(j, st, q2d, v2d, D0, D1, check=False)[0] for D0, D1 in pairs) if c is not None]
+    n_step2 = len(pairs) - len(cands)
+    for c in sorted(cands, key=lambda c: c.peak_acceleration):      # step 4 on the smoothest first
+        if _viable(j, c.flights[0]) and _viable(j, c.flights[1]):
+            return c
+    diag = {"start": st, "target": (q2d, v2d), "window": window, "pairs": len(pairs), "step2": n_step2,
+            "step4": len(cands)}
+    if not cands:
         why = ("body 2 leaves the first wall moving towards it (q2'(t0+) <= 0) and the target lies ahead: the "
                "second wall can only push it back" if st.v2 <= 0 and q2d > st.q2 else
                "the velocity changes needed have the wrong sign for the walls that would produce them")
@@ -255,7 +258,7 @@ def design_cycle(j: Juggler, st: JugglerState, q2d: float, v2d: float, *, durati
             f"impacts Sigma_1 -> Sigma_2 -> Sigma_1 from q2 = {st.q2:.6g}, q2' = {st.v2:.6g} ({why}); more "
             "intermediate collisions are needed: add cycles, or change the target", diagnostics=diag)
     raise JugglingInfeasible(
-        f"000 Sect. 4, step 4 fails: {fails['step4']} flight-time pairs solve step 2 for q2 = {q2d:.6g}, "
+        f"000 Sect. 4, step 4 fails: {len(cands)} flight-time pairs solve step 2 for q2 = {q2d:.6g}, "
         f"q2' = {v2d:.6g}, but on every one body 1 would leave the slot between the impacts; widen the window or "
         "add cycles", diagnostics=diag)
 
