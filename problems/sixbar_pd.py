@@ -83,12 +83,19 @@ def equilibria_report(ctx) -> dict:
     eqs = equilibrium_points(model, F, [tr.q[-1]] + starts, active_tol=np.inf)
     q1d = _targets(model, s)
     near = int(np.argmin([np.linalg.norm(tr.q[-1] - e.q) for e in eqs])) if eqs else -1
-    out = {"equilibria found (20 starts)": len(eqs)}
-    for k, e in enumerate(eqs):
-        out[f"E[{k}]: q_1* - q_1d"] = e.q[:3] - q1d
-        out[f"E[{k}]: lam_14, lam_45, lam_50"] = e.lam
+    isolated = [e for e in eqs if e.dimension == 0]
+    out = {"equilibria found (21 starts)": len(eqs), "isolated ones": len(isolated)}
+    if len(isolated) < len(eqs):
+        dims = sorted({e.dimension for e in eqs if e.dimension > 0})
+        out["the others lie on a continuum of local dimension"] = dims
+    for k, e in enumerate(isolated):
+        out[f"isolated E[{k}]: q_1* - q_1d"] = e.q[:3] - q1d
+        out[f"isolated E[{k}]: lam_14, lam_45, lam_50"] = e.lam
     if near >= 0:
-        out["run ends next to"] = f"E[{near}] at |q - q*| = {np.linalg.norm(tr.q[-1] - eqs[near].q):.3g}"
+        e = eqs[near]
+        out["run ends next to"] = (f"{'an isolated' if e.dimension == 0 else 'a continuum'} equilibrium, "
+                                   f"|q - q*| = {np.linalg.norm(tr.q[-1] - e.q):.3g}, q_1* - q_1d = "
+                                   f"{np.round(e.q[:3] - q1d, 8).tolist()}")
     return out
 
 
