@@ -111,6 +111,6 @@ def drawing(model):
     """Bars and ground pivots from the linkage, plus the ground line."""
     from invctl.plot.animate import Drawing
 
-    d = model.linkage.drawing(model)
-    return Drawing(points=d.points, links=d.links,
+    points, links = model.linkage.drawing_parts(model)
+    return Drawing(points=points, links=links,
                    segments=[((-0.1, 0.0), (float(model.values["d"]) + 0.1, 0.0))])

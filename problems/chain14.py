@@ -247,8 +247,8 @@ def _check(values):
 def drawing(model):
     from invctl.plot.animate import Drawing
 
-    d = model.linkage.drawing(model)
-    return Drawing(points=d.points, links=d.links,
+    points, links = model.linkage.drawing_parts(model)
+    return Drawing(points=points, links=links,
                    segments=[((G16[0] - 0.15, G16[1] - SLIDER[1] - 0.002), (G16[0] + 0.15, G16[1] - SLIDER[1] - 0.002))])
 
 

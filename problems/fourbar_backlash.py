@@ -19,8 +19,6 @@ multiplier equal to that torque (virtual work), which the scene report checks.
 """
 from __future__ import annotations
 
-import math
-
 import casadi as ca
 import numpy as np
 

@@ -443,11 +443,9 @@ class Linkage:
                 q[k] = u @ (world(j, "b") - world(j, "a"))
         return q
 
-    def drawing(self, model: Model):
-        """A :class:`~invctl.plot.animate.Drawing` of the bodies (polylines through their points) and the
-        ground points."""
-        from ..plot.animate import Drawing
-
+    def drawing_parts(self, model: Model) -> tuple[dict, list]:
+        """Points (``body.point`` and ``ground.<joint>``, SX in ``model.q``) and links (polylines through
+        each body's points) for an :class:`invctl.plot.animate.Drawing` of the linkage."""
         poses = self._poses(model.q)
         pts, links = {}, []
         for b in self.bodies.values():
@@ -458,4 +456,4 @@ class Linkage:
         for j in self.joints:
             if j.a == GROUND:
                 pts[f"ground.{j.name}"] = _vec(j.at_a)
-        return Drawing(points=pts, links=links)
+        return pts, links
