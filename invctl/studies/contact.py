@@ -210,7 +210,8 @@ def _equilibrium_report(run: ContactRun) -> tuple[list, dict]:
     u, _, kappa = law.symbolic(model, t)
     if ca.depends_on(u, t):
         return [], {}
-    u = ca.substitute(u, kappa, ca.DM(law.kappa_values))
+    # the law sees the nominal parameters (as in the run), the plant its own
+    u = ca.substitute(ca.substitute(u, kappa, ca.DM(law.kappa_values)), model.theta, ca.DM(model.theta_values))
     F = static_force(model, u)
     th = run.plant.theta_values
     q_end = tr.q[-1]
