@@ -236,6 +236,17 @@ class watch_sigint:
     "NumericalError", "watch_sigint",
 
 
+class JugglingInfeasible(FeedbackDesignError):
+    """The recursive impact design of 000 (29)-(33) has no solution for a cycle: step 2 (no impact
+    speeds of the right sign reach the target) or step 4 (viability) fails; ``partial`` holds the plan
+    of the cycles before, ``diagnostics`` the start, the target and the search window."""
+
+    "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted",
+
+
+    "SingularHighGainError", "JugglingInfeasible",
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError", "RelativeDegreeError",
     "CoordinateError", "ReferenceSignalError", "BoundaryConditionError", "InversionFailed", "SimulationFailed",
@@ -243,5 +254,5 @@ __all__ = [
     "OutputPathError", "AnimationError", "DrawingError", "FeedbackDesignError", "PositionOutputError",
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
     "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
-    "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted",
+    "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted", "JugglingInfeasible",
 ]
