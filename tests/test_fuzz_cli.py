@@ -171,6 +171,15 @@ def _option_values(draw, name: str, scene: str, tmp: Path, case: int) -> list[st
         return [flag, str(draw(st.integers(1, 24))) if valid else draw(st.sampled_from(bad))]
     if name == "job":
         return [flag, draw(st.sampled_from(["simulate", "impacts", "invert", "analyze", "foo"]))]
+    if name == "preset":
+        return [flag, draw(st.sampled_from(["paper", "foo", ""]))]
+    if name == "record_every":
+        return [flag, draw(st.sampled_from(["1", "10", "1000"])) if valid else draw(st.sampled_from(
+            ["0", "-1", "abc", "2.5", "1e12"]))]
+    if name == "record":
+        return [flag, draw(st.sampled_from(["steps", "events"])) if valid else draw(st.sampled_from(["all", ""]))]
+    if name == "max_wall_time":
+        return [flag, draw(st.sampled_from(["30", "60"])) if valid else draw(st.sampled_from(["0", "-1", "nan", "abc"]))]
     raise AssertionError(f"the fuzzer does not know option {name!r}: add it")
 
 
