@@ -254,5 +254,6 @@ __all__ = [
     "OutputPathError", "AnimationError", "DrawingError", "FeedbackDesignError", "PositionOutputError",
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
     "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
-    "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted", "JugglingInfeasible",
+    "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted", "watch_sigint",
+    "JugglingInfeasible",
 ]

@@ -159,6 +159,9 @@ class Contact:
     exact_impacts : callable, optional
         ``exact_impacts(model, settings, t_max) -> (times, post-impact normal velocities)`` of the
         default run in closed form (the reference of ``invctl study tradeoff --job impacts``).
+    clearance : callable, optional
+        ``clearance(model, settings) -> float``: the free room of the joints (the scale a run's
+        penetration is judged against); default: the largest gap at the start of the run.
     """
 
     controllers: Mapping[str, Callable] = field(default_factory=dict)
@@ -166,6 +169,7 @@ class Contact:
     default_controller: Any = None
     potential: Callable | None = None
     exact_impacts: Callable | None = None
+    clearance: Callable | None = None
 
     def _check(self, scene: str) -> None:
         object.__setattr__(self, "controllers", _frozen(self.controllers, "contact.controllers", scene))
@@ -174,6 +178,7 @@ class Contact:
         _callable(self.initial_state, "contact.initial_state", scene, optional=False)
         _callable(self.potential, "contact.potential", scene)
         _callable(self.exact_impacts, "contact.exact_impacts", scene)
+        _callable(self.clearance, "contact.clearance", scene)
         dc = self.default_controller
         if isinstance(dc, str) and dc not in self.controllers:
             raise SceneError(f"scene {scene!r}: contact.default_controller {dc!r} is not one of "

@@ -262,7 +262,7 @@ SCENE = Scene(
     positive=("m1", "m2", "l", "L", "h", "t_end", "period", "beta", "jcycles"), validate=_check,
     contact=Contact(controllers={"pd": _pd, "preload": _preload, "switching": _switching, "juggling": _juggling,
                                  "juggling_design": _juggling_design},
-                    initial_state=_initial,
+                    initial_state=_initial, clearance=lambda model, s: model.values["L"] - 2 * model.values["l"],
                     default_controller=lambda model, s: "pd" if model.m == 1 else "preload"),
     reports=(Report("Remark 4 switching modes", modes_report, controllers=("switching",)),
              Report("000 (29)-(33): planned and simulated impacts", juggling_report, controllers=("juggling_design",)),

@@ -124,7 +124,7 @@ SCENE = Scene(
     settings={k: v for k, v in PARAMS.items() if k not in MODEL_PARAMS},
     integer=("projection",), positive=("J1", "r", "Lr", "mr", "ms", "c", "h", "t_end", "period", "Kp", "Kv"),
     validate=_check,
-    contact=Contact(controllers={"pd": _pd, "pdplus": _pdplus},
+    contact=Contact(controllers={"pd": _pd, "pdplus": _pdplus}, clearance=lambda model, s: model.values["c"],
                     initial_state=lambda model, s, controller: (centered_configuration(model, s["theta0"]),
                                                                 np.zeros(3))),
     drawing=drawing,

@@ -586,7 +586,13 @@ def _solve(tr, x0, p, *, backend, ipopt_options, max_iter, max_wall_time, newton
     if lam_g0 is not None:
         args["lam_g0"] = lam_g0
     with watch_sigint() as sigint:  # Ctrl-C inside IPOPT ends as User_Requested_Stop: an interruption
-        sol = solver(**args)
+        try:
+            sol = solver(**args)
+        except RuntimeError as exc:  # a Ctrl-C caught in a Python callback (progress) aborts the call
+            if not sigint.seen:
+                raise
+            raise RunInterrupted(f"interrupted during the IPOPT solve on {label}",
+                                 diagnostics={"solver": str(exc).splitlines()[-1][:200]}) from None
     solve_s = time.perf_counter() - t1
     st = solver.stats()
     if sigint.seen and not st.get("success", False):

@@ -46,6 +46,12 @@ def resolve_memory_budget(budget=None) -> tuple[int, str]:
     """``(bytes, description)`` of a memory budget: a number of bytes, or None
     for :data:`DEFAULT_MEMORY_FRACTION` of :func:`available_memory`."""
     if budget is None:
+        cap = os.environ.get("INVCTL_MAX_MEMORY")
+        if cap:
+            try:
+                return int(float(cap)), f"INVCTL_MAX_MEMORY = {cap}"
+            except ValueError:
+                raise ParameterError(f"INVCTL_MAX_MEMORY must be a number of bytes, got {cap!r}") from None
         avail = available_memory()
         return int(DEFAULT_MEMORY_FRACTION * avail), (f"{DEFAULT_MEMORY_FRACTION:.0%} of the "
                                                       f"{_fmt_bytes(avail)} available")
@@ -472,11 +478,11 @@ def check_budget(*, N: int, h: float, t0: float, every: int, events: bool, row_b
     if "record_every" in fits:
         k = fits["record_every"]
         need_k = ChunkRecorder.rows_needed(N, k, False) * row_bytes + buffer_bytes
-        alt.append(f"record_every={k} ({_fmt_bytes(need_k)})")
+        alt.append(f"record_every={k} (--record-every {k}; {_fmt_bytes(need_k)})")
     if not events:
-        alt.append('record="events" (impacts and contact changes only, plus first and last step)')
+        alt.append('record="events" (--record events: impacts and contact changes only, plus first and last step)')
     if "t_end" in fits:
-        alt.append(f"t_end <= {fits['t_end']:.6g}")
+        alt.append(f"t_end <= {fits['t_end']:.6g} (--t-end)")
     alt.append("a larger memory_budget")
     raise ResourceLimitError(
         f"{what} of {N} steps recording {rec} needs about {_fmt_bytes(need)} ({row_bytes} bytes per recorded "

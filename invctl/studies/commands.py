@@ -332,17 +332,20 @@ GAP_WARN = 0.1
 
 def _check_contact_data(name: str, d: dict) -> tuple[str | None, str | None]:
     """(warning, failure) texts for one contact run's data: its largest penetration against the
-    clearance, measured by the largest gap at the start (the free room of a joint started in its
-    clearance, the drop height of a ball; the largest gap seen later would count the penetration of
-    one side of a joint as room on the other)."""
+    clearance the scene declares (``Contact.clearance``) or, by default, the largest gap at the start
+    (the free room of a joint started in its clearance, the drop height of a ball; the largest gap seen
+    later would count the penetration of one side of a joint as room on the other).  A run that starts
+    with every contact closed and declares no clearance gives no scale: not judged."""
     viol, gaps0 = d.get("max_gap_violation"), d.get("initial_gaps")
     if viol is None or not gaps0:
         return None, None
-    room = max(gaps0)
+    room = d.get("clearance") or max(gaps0)
+    if d.get("clearance") is None and room <= 1e-12:
+        return None, None
     ratio = viol / room if room > 0 else (math.inf if viol > 0 else 0.0)
     d["clearance_scale"], d["gap_violation_ratio"] = room, ratio
-    what = (f"{name}: the largest penetration {viol:.3g} is {ratio:.3g} times the clearance scale (the largest "
-            f"gap at the start, {room:.3g})")
+    source = "the clearance the scene declares" if d.get("clearance") else "the largest gap at the start"
+    what = f"{name}: the largest penetration {viol:.3g} is {ratio:.3g} times the clearance scale ({source}, {room:.3g})"
     fix = "use a smaller step (--set h=...), the projection (--set projection=1) or a larger clearance"
     if not ratio <= 1.0:
         return None, f"{what}: the contacts of this run are not resolved; {fix}"

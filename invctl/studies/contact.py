@@ -285,6 +285,8 @@ def _summary(run: ContactRun) -> tuple[list, dict]:
              f"({tr.stats['backend']})"]
     data = {"controller": run.controller, "h": tr.h, "n_impacts": int(ti.size), "impact_times": ti[:200].tolist(),
             "max_gap_violation": tr.max_gap_violation, "initial_gaps": tr.gaps[0].tolist(),
+            "clearance": (float(run.scene.contact.clearance(run.model, run.settings))
+                          if run.scene.contact.clearance is not None else None),
             "steps_per_s": tr.stats["steps_per_s"],
             "backend": tr.stats["backend"], "steps": tr.stats["steps"], "q_final": tr.q[-1].tolist(),
             "v_final": tr.v[-1].tolist(), "settings": dict(run.settings)}
