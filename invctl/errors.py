@@ -228,12 +228,79 @@ class watch_sigint:
             signal.signal(signal.SIGINT, self._old)
         return False
 
-    "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
-    "SingularHighGainError",
+
+class remember_sigint:
+    """Context manager (the command line's) that also remembers a Ctrl-C, so that one swallowed by a
+    compiled library is still honoured: CasADi's conversion of Python arguments catches any exception
+    raised inside it, ``KeyboardInterrupt`` included, and carries on.  :func:`check_interrupt` at the
+    loops' natural boundaries (closed-loop chunks, controllers of a study, contact chunks, sweep
+    points, IPOPT solves) raises it there.  Restores the handler in place on exit."""
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        global _SIGINT_PENDING
+        _SIGINT_PENDING, self._old = False, None
+        if threading.current_thread() is threading.main_thread():
+            old = signal.getsignal(signal.SIGINT)
+            if callable(old):
+                def handler(signum, frame):
+                    global _SIGINT_PENDING
+                    _SIGINT_PENDING = True
+                    return old(signum, frame)
+
+                self._old = old
+                signal.signal(signal.SIGINT, handler)
+        return self
+
+    def __exit__(self, *exc):
+        global _SIGINT_PENDING
+        _SIGINT_PENDING = False
+        if self._old is not None:
+            import signal
+
+            signal.signal(signal.SIGINT, self._old)
+        return False
 
 
-    "LinearizationError", "ZeroError", "WallTimeLimitError", "ResourceLimitError", "RunInterrupted",
-    "NumericalError", "watch_sigint",
+_SIGINT_PENDING = False
+
+
+def check_interrupt() -> None:
+    """Raise ``KeyboardInterrupt`` if a Ctrl-C arrived inside :class:`remember_sigint` and was
+    swallowed before reaching Python code (does nothing outside it)."""
+    global _SIGINT_PENDING
+    if _SIGINT_PENDING:
+        _SIGINT_PENDING = False
+        raise KeyboardInterrupt
+
+
+def is_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` is a Ctrl-C: a ``KeyboardInterrupt``; the ``SystemError`` Python raises when a
+    compiled library returns with the ``KeyboardInterrupt`` of a Python callback still set; or, after a
+    Ctrl-C remembered by :class:`remember_sigint`, the ``NotImplementedError`` CasADi's argument
+    conversion reports when a ``KeyboardInterrupt`` cut it short (see :data:`INTERRUPT_LIKE`)."""
+    seen = set()
+    e = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        if not isinstance(e, SystemError):
+            break
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return _SIGINT_PENDING and isinstance(exc, INTERRUPT_LIKE)
+
+
+INTERRUPT_LIKE = (KeyboardInterrupt, SystemError, NotImplementedError)
+"""What a Ctrl-C can surface as from compiled code (``except INTERRUPT_LIKE`` then :func:`is_interrupt`)."""
+
+
+def interrupt_delivered() -> None:
+    """Note that a Ctrl-C reached the code that handles it (nothing pending any more)."""
+    global _SIGINT_PENDING
+    _SIGINT_PENDING = False
 
 
 class JugglingInfeasible(FeedbackDesignError):
@@ -241,10 +308,6 @@ class JugglingInfeasible(FeedbackDesignError):
     speeds of the right sign reach the target) or step 4 (viability) fails; ``partial`` holds the plan
     of the cycles before, ``diagnostics`` the start, the target and the search window."""
 
-    "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted",
-
-
-    "SingularHighGainError", "JugglingInfeasible",
 
 
 __all__ = [
@@ -255,5 +318,5 @@ __all__ = [
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
     "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
     "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted", "watch_sigint",
-    "JugglingInfeasible",
+    "remember_sigint", "check_interrupt", "is_interrupt", "INTERRUPT_LIKE", "interrupt_delivered", "JugglingInfeasible",
 ]

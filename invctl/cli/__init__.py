@@ -16,7 +16,7 @@ import json
 import sys
 import time
 
-from ..errors import InvctlError, ResourceLimitError
+from ..errors import InvctlError, ResourceLimitError, remember_sigint
 from ..scenes import jsonable
 
 _HELP = {
@@ -91,6 +91,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     t0 = time.perf_counter()
     target = getattr(args, "scene", getattr(args, "run", ""))
+    with remember_sigint():
+        return _run(args, target, t0)
+
+
+def _run(args, target: str, t0: float) -> int:
     try:
         if args.command == "animate":
             from ..studies.animation import animate_run

@@ -18,7 +18,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
 from ..errors import (BoundaryConditionError, InversionFailed, NoDichotomyError, ReferenceSignalError, RunInterrupted,
-                      WallTimeLimitError, watch_sigint)
+                      WallTimeLimitError, INTERRUPT_LIKE, is_interrupt, watch_sigint)
 from .boundary import EquilibriumSolver, dichotomy, explain_dichotomy, explain_no_dichotomy, resolve_selection
 from .collocation import Transcription, get_scheme
 from .result import Inverse
@@ -688,7 +688,9 @@ def _refine(model, reference, *, tol, **kw):
     state = {"meshes": [], "accepted": None}
     try:
         return _refine_meshes(model, reference, state, tol=tol, **kw)
-    except KeyboardInterrupt as exc:
+    except INTERRUPT_LIKE as exc:
+        if not is_interrupt(exc):
+            raise
         last, meshes = state["accepted"], state["meshes"]
         note = f"mesh refinement interrupted after {len(meshes)} complete mesh(es)"
         if last is not None:

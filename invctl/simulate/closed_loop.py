@@ -21,7 +21,8 @@ from dataclasses import dataclass, field, fields
 import casadi as ca
 import numpy as np
 
-from ..errors import FunnelViolation, ParameterError, RunInterrupted, SimulationFailed, watch_sigint
+from ..errors import (FunnelViolation, ParameterError, RunInterrupted, SimulationFailed, check_interrupt,
+                      INTERRUPT_LIKE, is_interrupt, watch_sigint)
 from ..io import file_loader
 
 __all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acceleration", "sampled_signal"]
@@ -346,6 +347,7 @@ class ClosedLoop:
         status, message, fail = "ok", "", None
         try:
             for c in range(self.chunks):
+                check_interrupt()
                 ts = c * self.per_chunk * self.dt
                 tg = ts + self.dt * np.arange(1, self.per_chunk + 1)
                 try:
@@ -367,7 +369,9 @@ class ClosedLoop:
                 if fail is not None or (mon_ratios is not None and mon_ratios.size
                                         and mon_ratios.max() >= VIOLATION_RATIO):
                     break
-        except KeyboardInterrupt:  # keep the simulated prefix (complete chunks)
+        except INTERRUPT_LIKE as _exc:  # keep the simulated prefix (complete chunks)
+            if not is_interrupt(_exc):
+                raise
             k = min(len(Xs), len(Ts))
             T, X = np.concatenate(Ts[:k]), np.hstack(Xs[:k])
             prefix = self._result(T, X, theta, None, time.perf_counter() - wall0, controller_label or self.name)

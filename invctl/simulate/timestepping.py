@@ -47,7 +47,8 @@ import numpy as np
 from ..contact.lcp import lcp_residual, lcp_sx, solve_lcp
 from ..contact.mechanics import ContactSystem
 from ..control.pdplus import FeedbackLaw, zero_input
-from ..errors import ContactError, ParameterError, ResourceLimitError, SimulationFailed
+from ..errors import (ContactError, ParameterError, ResourceLimitError, SimulationFailed, check_interrupt,
+                      INTERRUPT_LIKE, is_interrupt)
 from .codegen import Layout, c_compiler, compile_function, cse, small_solve
 from .contact_record import ChunkRecorder, ContactTrajectory, RowLayout, check_budget
 
@@ -482,6 +483,7 @@ class MoreauJean:
         tic = time.perf_counter()
         try:
             while done < N:
+                check_interrupt()
                 run_chunk()
                 use = min(N - done, size)
                 fail = None
@@ -529,7 +531,9 @@ class MoreauJean:
                 c += 1
                 if progress and c % 50 == 0:
                     print(f"\rinvctl: moreau-jean {done}/{N} steps", end="", file=sys.stderr)
-        except KeyboardInterrupt:
+        except INTERRUPT_LIKE as _exc:
+            if not is_interrupt(_exc):
+                raise
             from ..errors import RunInterrupted
 
             raise RunInterrupted(f"Moreau-Jean interrupted after {done} of {N} steps (t = {t0 + done * h:.6g})",

@@ -41,7 +41,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import InvctlError, ParameterError
+from ..errors import INTERRUPT_LIKE, InvctlError, ParameterError, is_interrupt
 from .library_data import Axis, Library, LibraryStore, parse_grid, reference_arguments, resolve_axes
 
 __all__ = ["Axis", "Library", "generate", "parse_grid", "reference_arguments", "resolve_axes"]
@@ -455,7 +455,9 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
     try:
         _run(ctx, points, norm, seed_pos, done, todo, continuation=continuation, verify_mask=verify_mask,
              executor=executor, max_workers=max_workers, on_record=on_record, shape=shape)
-    except KeyboardInterrupt:
+    except INTERRUPT_LIKE as _exc:
+        if not is_interrupt(_exc):
+            raise
         if store is not None:
             print(f"\ninterrupted: {len(done)} solved point(s) are saved in {store.parts}; run the same command "
                   "again to resume", file=sys.stderr)

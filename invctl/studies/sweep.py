@@ -20,6 +20,8 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..errors import INTERRUPT_LIKE, is_interrupt
+
 
 def grid(**axes: Sequence[float]) -> tuple[list[dict[str, float]], tuple[int, ...]]:
     """All combinations of the given axes (first axis slowest) and the grid shape."""
@@ -219,9 +221,10 @@ def sweep(
     finished = [False] * len(pts)
     try:
         if executor == "serial":
-            from ..errors import watch_sigint
+            from ..errors import check_interrupt, watch_sigint
 
             for i, p in enumerate(pts):
+                check_interrupt()
                 with watch_sigint() as sigint:
                     values[i], errors[i] = _call(fn, p)
                 if sigint.seen:  # Ctrl-C, possibly turned into a failure of this point by a compiled solver
@@ -244,7 +247,9 @@ def sweep(
                         values[i], errors[i] = None, f"{type(exc).__name__}: {exc}"
                     finished[i] = True
                     report(done)
-            except KeyboardInterrupt:
+            except INTERRUPT_LIKE as _exc:
+                if not is_interrupt(_exc):
+                    raise
                 for fut in futures:
                     fut.cancel()
                 if owned:
@@ -254,7 +259,9 @@ def sweep(
             finally:
                 if owned:
                     ex.shutdown()
-    except KeyboardInterrupt:
+    except INTERRUPT_LIKE as _exc:
+        if not is_interrupt(_exc):
+            raise
         from ..errors import RunInterrupted
 
         k = sum(finished)

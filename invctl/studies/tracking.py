@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CoordinateError, FunnelViolation, ParameterError, RunInterrupted, SceneError
+from ..errors import (CoordinateError, FunnelViolation, ParameterError, RunInterrupted, SceneError, check_interrupt,
+                      INTERRUPT_LIKE, is_interrupt)
 from ..io import file_loader, read_json
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
@@ -498,13 +499,16 @@ def run_tracking_study(scene, params=None, plant_params=None, *, controllers=Non
     runs = {}
     try:
         for name in controllers:
+            check_interrupt()
             if progress:
                 print(f"simulating {name} ({CONTROLLERS.get(name, '?')}) ...", file=sys.stderr)
             try:
                 runs[name] = run_controller(setup, name)
             except FunnelViolation as exc:
                 runs[name] = exc.partial
-    except KeyboardInterrupt:  # keep the complete runs
+    except INTERRUPT_LIKE as _exc:  # keep the complete runs
+        if not is_interrupt(_exc):
+            raise
         note = f"interrupted; complete runs: {', '.join(runs) or 'none'} of {', '.join(controllers)}"
         raise RunInterrupted(note, partial=TrackingStudy(runs, {"scene": scene.name, "partial": note}, setup)) from None
     a1 = {name: a1_along(setup, r) for name, r in runs.items() if r.t.size > 1}

@@ -19,6 +19,8 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..errors import INTERRUPT_LIKE, is_interrupt
+
 
 @dataclass
 class TradeoffSpec:
@@ -239,7 +241,9 @@ def run_tradeoff(spec: TradeoffSpec, *, progress: bool = True, min_time_s: float
                 msg = "failed" if last is None else f"error {last['error']:.3e} in {last['time_s']:.3f} s"
                 print(f"tradeoff {spec.scene} {spec.knob}={_fmt(value)}: {msg} ({k}/{len(spec.values)})",
                       file=sys.stderr)
-    except KeyboardInterrupt:
+    except INTERRUPT_LIKE as _exc:
+        if not is_interrupt(_exc):
+            raise
         note = (f"interrupted at {spec.knob}={_fmt(value)} ({k}/{len(spec.values)}); {len(rows)} of "
                 f"{len(spec.values)} settings complete")
         raise RunInterrupted(note, partial=TradeoffResult(spec.knob, rows, spec.reference, spec.error_name,
