@@ -142,11 +142,24 @@ class ZeroError(InvctlError):
     """System zeros cannot be computed or classified (degenerate system matrix, inconsistent tests)."""
 
 
+class OptionError(InvctlError, ValueError):
+    """An option of the inversion (:mod:`invctl.inversion.options`) has a wrong type or value."""
+
+
+class BoundsError(OptionError):
+    """Bounds of a bounded inversion are malformed (unknown names, lower > upper, negative limits)."""
+
+
+class InfeasibleBoundsError(InversionFailed):
+    """No trajectory satisfies the bounds together with the boundary conditions; the diagnostics
+    hold the closest feasible relaxation found (``diagnostics["relaxation"]``)."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError", "RelativeDegreeError",
     "CoordinateError", "ReferenceSignalError", "BoundaryConditionError", "InversionFailed", "SimulationFailed",
     "FunnelViolation", "StabilityError", "ContactError", "PreloadInfeasible", "ResultFileError",
     "OutputPathError", "AnimationError", "DrawingError", "FeedbackDesignError", "PositionOutputError",
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
-    "LinearizationError", "ZeroError",
+    "LinearizationError", "ZeroError", "OptionError", "BoundsError", "InfeasibleBoundsError",
 ]
