@@ -143,7 +143,7 @@ class OCPTranscription:
     -----
     Decision vector ``[vec(X_mesh); vec(X_col); vec(S) (m x nS, relaxed); tau (free_time); r
     (elastic)]``; parameters ``[h; vec(Y); theta; E0; Ef; sqrt(W) (m); sqrt(rho, w_E, w_R); w_T;
-    c; mask (N: 1 on the intervals of [t0, tf]); tau_ref; relaxation weights; eps]``;
+    c; mask (N: 1 on the intervals of [t0, tf]); tau_ref; relaxation weights; eps; scale]``;
     constraints ``[defects; boundary conditions; bounded quantities (:attr:`path_rows`)]``, the
     bounded quantities twice (upper, lower) in the elastic problem.
 
@@ -191,7 +191,7 @@ class OCPTranscription:
         self.nr = len(self.relax_labels)
         self.nX = self.i_r + self.nr
         sizes = [("h", N), ("Y", m4 * self.nY), ("theta", nth), ("E0", nx), ("Ef", nx), ("W", m), ("w", 3),
-                 ("wT", 1), ("c", 1), ("mask", N), ("tau_ref", 1), ("relax_w", self.nr), ("eps", 1)]
+                 ("wT", 1), ("c", 1), ("mask", N), ("tau_ref", 1), ("relax_w", self.nr), ("eps", 1), ("fscale", 1)]
         self._p_slices, o = {}, 0
         for name, k in sizes:
             self._p_slices[name] = slice(o, o + k)
@@ -341,15 +341,15 @@ class OCPTranscription:
                 JGn, Gm, JGm = out_n[1], out_m[0], out_m[1]
                 tin = [out_n[2][:, :N], out_n[2][:, 1:], out_m[2]] if tau is not None else []
                 blocks = iv_jac.map(N)(Gn[:, :N], Gn[:, 1:], Gm, JGn[:, :nz_pt * N], JGn[:, nz_pt:], JGm, *tin, *ip)
-                return blocks, out_n
+                return blocks, {"node": out_n, "mid": out_m, "Xm": Xm}
             out_c = pt.map(N * d)(zeta_of(Xcol, 0, N * d), Ymat, *common)
             if not jac:
                 return iv_val.map(N)(Xmesh[:, :N], Xmesh[:, 1:], Xcol, out_c, *ip), None
             tin = [out_c[2]] if tau is not None else []
-            return iv_jac.map(N)(out_c[0], out_c[1], *tin, *ip), None
+            return iv_jac.map(N)(out_c[0], out_c[1], *tin, *ip), {"col": out_c}
 
         (defect, resid, ipath), Gn = graph(False)
-        (Jdef, JR_blk, Jip), node_jac = graph(True)
+        (Jdef, JR_blk, Jip), pts = graph(True)
         s0, sf = list(selection.start), list(selection.end)
         bc = ca.vertcat(Xmesh[s0, 0] - P["E0"][s0], Xmesh[sf, N] - P["Ef"][sf])
         trip = []  # (rows, cols, values) of the Jacobian of g
@@ -360,6 +360,7 @@ class OCPTranscription:
         trip.append((o + np.arange(bc_cols.size), bc_cols, ca.DM.ones(bc_cols.size)))
         o += bc_cols.size
         parts, rows, pj, base = [], [], [], 0
+        n_el = 0  # elastic state rows (mesh and collocation points) before the interval path rows
         if self.elastic and bnd:  # bounds on the mesh and collocation states become constraints
             parts.append(ca.vec(Xmesh[bnd, :]))
             rows += [PathRow("X", i, "mesh", k) for k in range(N + 1) for i in bnd]
@@ -369,7 +370,7 @@ class OCPTranscription:
                 rows += [PathRow("X", i, "col", k) for k in range(self.n_col) for i in bnd]
                 ccols += [nx * (N + 1) + k * nx + i for k in range(self.n_col) for i in bnd]
             pj.append((np.arange(len(ccols)), np.array(ccols, np.int64), ca.DM.ones(len(ccols))))
-            base = len(ccols)
+            base = n_el = len(ccols)
         if n_ip:
             parts.append(ca.vec(ipath))
             if hs:
@@ -383,10 +384,10 @@ class OCPTranscription:
             parts.append(ca.vec(Gn[rate_rows, :]))
             rows += [PathRow("rate", j, "mesh", k) for k in range(N + 1) for j in self.rated]
             nidx = np.stack([point_cols(k, k) for k in range(N + 1)])
-            pj.append((*_block_triplets(len(rate_rows), nidx, base), ca.vec(node_jac[1][rate_rows, :])))
+            pj.append((*_block_triplets(len(rate_rows), nidx, base), ca.vec(pts["node"][1][rate_rows, :])))
             if tau is not None:
                 pj.append((base + np.arange((N + 1) * len(rate_rows)), np.full((N + 1) * len(rate_rows), self.i_tau),
-                           ca.vec(node_jac[2][rate_rows, :])))
+                           ca.vec(pts["node"][2][rate_rows, :])))
         self.path_rows = tuple(rows)
         npr = len(rows)
         path = ca.vertcat(*parts) if parts else ca.MX(0, 1)
@@ -416,24 +417,181 @@ class OCPTranscription:
                             ["jac_g_x", "jac_g_p"])
         self._gfun = ca.Function("ocp_g", [xs, ps], [gs], ["x", "p"], ["g"],
                                  {"custom_jacobian": jac_g, "jac_penalty": 0})
-        weight = P["eps"] if self.elastic else 1.0
+        weight = P["eps"] if self.elastic else P["fscale"]
         f = weight * ca.sumsqr(R)
         if self.free_time:
-            f = f + P["wT"] * x[self.i_tau]
+            f = f + P["fscale"] * P["wT"] * x[self.i_tau]
         if self.elastic:
             f = f + ca.dot(P["relax_w"], x[self.i_r:])
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
-        ws = ca.substitute(weight, p, ps) if self.elastic else 1.0
+        ws = ca.substitute(weight, p, ps)
         self._hess_gn = ca.Function("gauss_newton_hess_lag", [xs, ps, lam_f, lam_g],
                                     [ca.triu(2 * lam_f * ws * ca.mtimes(JRs.T, JRs))],
                                     ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
         self._residual_fn = ca.Function("ocp_residual", [x, p], [R])
+
+        def build_exact_hessian():
+            """The exact Hessian of the Lagrangian, structured (class notes): per interval the total
+            adjoint weights of the point outputs, the point Hessians of the weighted outputs, and
+            per interval the second-order expansion of the (low-degree) interval formulas."""
+            wv = ca.SX.sym("w", nG)
+            pvars = ca.vertcat(zeta, tau) if tau is not None else zeta
+            npv = int(pvars.numel())
+            pt_hess = ca.Function("ocp_point_hess", pin + [wv], [ca.densify(ca.hessian(ca.dot(wv, G), pvars)[0])])
+            lam_s, mu_s, fs = ca.SX.sym("lam", n_def), ca.SX.sym("mu", n_ip), ca.SX.sym("fs")
+            tz = [tau] if tau is not None else []
+            hd_sym = ca.SX.sym("dt") if tau is not None else ca.SX(0)
+            h_d = h + (dh * hd_sym if tau is not None else 0)
+            if hs:
+                Ga_, Gb_, Gm_ = (ca.SX.sym(k, nG) for k in ("Ga", "Gb", "Gm"))
+                JGa_, JGb_, JGm_ = (ca.SX.sym(k, nG, nz_pt) for k in ("JGa", "JGb", "JGm"))
+                Gta_, Gtb_, Gtm_ = (ca.SX.sym(k, nG) for k in ("Gta", "Gtb", "Gtm"))
+                Hm_ = ca.SX.sym("Hm", npv, npv)
+
+                # total adjoint weights of Ga, Gb, Gm (first-order models, gradient at 0)
+                dGa, dGb, dGm = (ca.SX.sym(k, nG) for k in ("dGa", "dGb", "dGm"))
+                Fa_, Fb_ = Ga_[:nx] + dGa[:nx], Gb_[:nx] + dGb[:nx]
+                dXm = h / 8 * (dGa[:nx] - dGb[:nx])
+                Gm_l = Gm_ + dGm + ca.mtimes(JGm_[:, :nx], dXm)
+                PHI = (ca.dot(lam_s, -h / 6 * (Fa_ + 4 * Gm_l[:nx] + Fb_))
+                       + fs * (h / 6 * ca.sumsqr(Ga_[nx:] + dGa[nx:]) + 2 * h / 3 * ca.sumsqr(Gm_l[nx:])
+                               + h / 6 * ca.sumsqr(Gb_[nx:] + dGb[nx:]))
+                       + ca.dot(mu_s, ca.vertcat(dXm[bnd], Gm_l[:nx][rate_rows])))
+                dall = ca.vertcat(dGa, dGb, dGm)
+                wa, wb, wm = (ca.substitute(ca.gradient(PHI, v), dall, ca.DM.zeros(3 * nG)) for v in (dGa, dGb, dGm))
+                iv_w = ca.Function("ocp_hs_weights", [Ga_, Gb_, Gm_, JGm_, lam_s, mu_s, fs] + ipars, [wa, wb, wm])
+                # second-order expansion in the local variables d
+                dXa_, dXb_ = ca.SX.sym("dXa", nx), ca.SX.sym("dXb", nx)
+                dsa_, dsb_, dsm_ = (ca.SX.sym(k, m) if self.relaxed else ca.SX(0, 1) for k in ("dsa", "dsb", "dsm"))
+                dt_ = hd_sym
+                dGa2 = lin(JGa_, Gta_, ca.vertcat(dXa_, dsa_), dt_)
+                dGb2 = lin(JGb_, Gtb_, ca.vertcat(dXb_, dsb_), dt_)
+                Fa2, Fb2 = Ga_[:nx] + dGa2[:nx], Gb_[:nx] + dGb2[:nx]
+                dXm2 = 0.5 * (dXa_ + dXb_) + h_d / 8 * (Fa2 - Fb2) - h / 8 * (Ga_[:nx] - Gb_[:nx])
+                dzm = ca.vertcat(dXm2, dsm_)
+                Gm2 = Gm_ + ca.mtimes(JGm_, dzm) + (Gtm_ * dt_ if tau is not None else 0)
+                R2 = ca.vertcat(ca.sqrt(h_d / 6) * (Ga_[nx:] + dGa2[nx:]), ca.sqrt(2 * h_d / 3) * Gm2[nx:],
+                                ca.sqrt(h_d / 6) * (Gb_[nx:] + dGb2[nx:]))
+                PHI2 = (ca.dot(lam_s, dXb_ - dXa_ - h_d / 6 * (Fa2 + 4 * Gm2[:nx] + Fb2)) + fs * ca.sumsqr(R2)
+                        + ca.dot(mu_s, ca.vertcat(dXm2[bnd], Gm2[:nx][rate_rows])))
+                zl = ca.vertcat(dXa_, dXb_, dsa_, dsb_, dsm_, *([dt_] if tau is not None else []))
+                Jm = ca.jacobian(ca.vertcat(dzm, *([dt_] if tau is not None else [])), zl)
+                H2 = ca.hessian(PHI2, zl)[0] + ca.mtimes([Jm.T, Hm_, Jm])
+                H2 = ca.substitute(H2, zl, ca.DM.zeros(zl.numel()))
+                tins = [Gta_, Gtb_, Gtm_] if tau is not None else []
+                iv_h = ca.Function("ocp_hs_hess", [Ga_, Gb_, Gm_, JGa_, JGb_, JGm_] + tins + [lam_s, mu_s, fs, Hm_]
+                                   + ipars, [ca.densify(H2)])
+            else:
+                Gc_, JGc_, Gtc_ = ca.SX.sym("Gc", nG, d), ca.SX.sym("JGc", nG, nz_pt * d), ca.SX.sym("Gtc", nG, d)
+                wq = quadrature_weights(scheme)
+                Cm, Dm = ca.DM(scheme.C), ca.DM(scheme.D)
+                dGc = ca.SX.sym("dGc", nG, d)
+
+                def coll_phi(Gc_d, hh, dall, dXk1):
+                    res = ca.mtimes(dall, Cm) - hh * Gc_d[:nx, :]
+                    PHI = ca.dot(lam_s, ca.vertcat(ca.vec(res), dXk1 - ca.mtimes(dall, Dm)))
+                    PHI += fs * sum(hh * float(wq[q]) * ca.sumsqr(Gc_d[nx:, q]) for q in range(d))
+                    return PHI + ca.dot(mu_s, ca.vertcat(*[Gc_d[rate_rows, q] for q in range(d)]))
+
+                PHI = coll_phi(Gc_ + dGc, h, ca.SX.zeros(nx, d + 1), ca.SX.zeros(nx))
+                wc = ca.substitute(ca.gradient(PHI, ca.vec(dGc)), ca.vec(dGc), ca.DM.zeros(nG * d))
+                iv_w = ca.Function("ocp_coll_weights", [Gc_, lam_s, mu_s, fs] + ipars, [ca.reshape(wc, nG, d)])
+                dXk_, dXk1_, dXc_ = ca.SX.sym("dXk", nx), ca.SX.sym("dXk1", nx), ca.SX.sym("dXc", nx, d)
+                dSc_ = ca.SX.sym("dSc", m, d) if self.relaxed else ca.SX(0, d)
+                dt_ = hd_sym
+                dG2 = ca.horzcat(*[lin(JGc_[:, q * nz_pt:(q + 1) * nz_pt], Gtc_[:, q], ca.vertcat(dXc_[:, q], dSc_[:, q]),
+                                       dt_) for q in range(d)])
+                PHI2 = coll_phi(Gc_ + dG2, h_d, ca.horzcat(dXk_, dXc_), dXk1_)
+                zl = ca.vertcat(dXk_, dXk1_, ca.vec(dXc_), ca.vec(dSc_), *([dt_] if tau is not None else []))
+                H2 = ca.substitute(ca.hessian(PHI2, zl)[0], zl, ca.DM.zeros(zl.numel()))
+                tins = [Gtc_] if tau is not None else []
+                iv_h = ca.Function("ocp_coll_hess", [Gc_, JGc_] + tins + [lam_s, mu_s, fs] + ipars, [ca.densify(H2)])
+            # ---- MX assembly
+            xs2, ps2 = ca.MX.sym("x", self.nX), ca.MX.sym("p", self.np)
+            lf, lg = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
+            Pm = {k: ps2[sl] for k, sl in self._p_slices.items()}
+            fsv = lf * (Pm["eps"] if self.elastic else Pm["fscale"])
+            base_p = self.n_defect + self.n_bc
+            lam_def = ca.reshape(lg[:N * n_def], n_def, N)
+
+            def path_mult(a, n_):  # multipliers of path rows a..a+n_ (both copies when elastic)
+                out = lg[base_p + a:base_p + a + n_]
+                return out + lg[base_p + npr + a:base_p + npr + a + n_] if self.elastic else out
+
+            mu_ip = ca.reshape(path_mult(n_el, N * n_ip), n_ip, N) if n_ip else ca.MX(0, N)
+            sub = ca.substitute([pts_expr for pts_expr in flat_pts], [x, p], [xs2, ps2])
+            outs = dict(zip(pts_keys, sub))
+            ip2 = ca.substitute(ip, [p, x], [ps2, xs2]) if ip else []
+            com2 = ca.substitute(common, [p, x], [ps2, xs2])
+            trip_h = []
+            if hs:
+                Gn_, JGn_, Gm_v, JGm_v = outs["Gn"], outs["JGn"], outs["Gm"], outs["JGm"]
+                wa, wb, wm = iv_w.map(N)(Gn_[:, :N], Gn_[:, 1:], Gm_v, JGm_v, lam_def, mu_ip, fsv, *ip2)
+                Wn = ca.horzcat(wa, ca.MX.zeros(nG, 1)) + ca.horzcat(ca.MX.zeros(nG, 1), wb)
+                if self.rated:
+                    mu_n = ca.reshape(path_mult(n_el + N * n_ip, (N + 1) * len(rate_rows)), len(rate_rows), N + 1)
+                    E = ca.DM(ca.Sparsity.triplet(nG, len(rate_rows), rate_rows, list(range(len(rate_rows)))), 1.0)
+                    Wn = Wn + ca.mtimes(E, mu_n)
+                Hn = pt_hess.map(N + 1)(outs["zn"], outs["Yn"], *com2, Wn)
+                Hm = pt_hess.map(N)(outs["zm"], outs["Ym"], *com2, wm)
+                tins = [outs["Gtn"][:, :N], outs["Gtn"][:, 1:], outs["Gtm"]] if tau is not None else []
+                Hb = iv_h.map(N)(Gn_[:, :N], Gn_[:, 1:], Gm_v, JGn_[:, :nz_pt * N], JGn_[:, nz_pt:], JGm_v, *tins,
+                                 lam_def, mu_ip, fsv, Hm, *ip2)
+                pidx = np.stack([np.concatenate([point_cols(k, k)] + ([[self.i_tau]] if tau is not None else []))
+                                 for k in range(N + 1)])
+                trip_h += [(pidx, Hn), (iv_index, Hb)]
+            else:
+                Gc_v, JGc_v = outs["Gc"], outs["JGc"]
+                wc = iv_w.map(N)(Gc_v, lam_def, mu_ip, fsv, *ip2)
+                Hc = pt_hess.map(N * d)(outs["zc"], outs["Yc"], *com2, wc)
+                tins = [outs["Gtc"]] if tau is not None else []
+                Hb = iv_h.map(N)(Gc_v, JGc_v, *tins, lam_def, mu_ip, fsv, *ip2)
+                pidx = np.stack([np.concatenate([point_cols(j, j, "C")] + ([[self.i_tau]] if tau is not None else []))
+                                 for j in range(N * d)])
+                trip_h += [(pidx, Hc), (iv_index, Hb)]
+            rr, cc, vv = [], [], []
+            for index, blk in trip_h:
+                count, nzl = index.shape
+                r_, c_ = _block_triplets(nzl, index, 0)  # rows here are local: recompute global rows
+                k = np.repeat(np.arange(count), nzl * nzl)
+                i_loc = np.tile(np.arange(nzl), count * nzl)
+                grow = index[k, i_loc]
+                keep = grow <= c_
+                rr.append(grow[keep]), cc.append(c_[keep])
+                vv.append(ca.vec(blk)[np.flatnonzero(keep).tolist()])
+            sp_h, S_h = _assembly(np.concatenate(rr), np.concatenate(cc), (self.nX, self.nX), summed=True)
+            H = ca.MX(sp_h, ca.mtimes(S_h, ca.vertcat(*vv)))
+            return ca.Function("structured_hess_lag", [xs2, ps2, lf, lg], [H], ["x", "p", "lam_f", "lam_g"],
+                               ["triu_hess_gamma_x_x"])
+
+        # the point outputs the exact Hessian needs, as expressions of (x, p)
+        if hs:
+            on, om = pts["node"], pts["mid"]
+            pts_map = {"Gn": on[0], "JGn": on[1], "Gm": om[0], "JGm": om[1], "zn": zeta_of(Xmesh, 0, N + 1),
+                       "Yn": Ymat[:, :N + 1], "zm": zeta_of(pts["Xm"], N + 1, 2 * N + 1), "Ym": Ymat[:, N + 1:]}
+            if tau is not None:
+                pts_map.update({"Gtn": on[2], "Gtm": om[2]})
+        else:
+            oc = pts["col"]
+            pts_map = {"Gc": oc[0], "JGc": oc[1], "zc": zeta_of(Xcol, 0, N * d), "Yc": Ymat}
+            if tau is not None:
+                pts_map["Gtc"] = oc[2]
+        pts_keys, flat_pts = list(pts_map), list(pts_map.values())
+        self._build_exact_hessian = build_exact_hessian
         self.g = self._gfun(x, p)
         self.f = f
         self._plain = (f, g)  # the same NLP without custom derivatives (hessian="exact")
         self._x, self._p = x, p
         self._solvers: dict = {}
         self.build_s = time.perf_counter() - t_build
+
+    def residual(self, x, p) -> np.ndarray:
+        """The objective residual ``R`` (``f = scale |R|^2 + ...``)."""
+        return np.array(self._residual_fn(x, p)).ravel()
+
+    def g_function(self):
+        """``(x, p) -> g`` (with the assembled Jacobian)."""
+        return self._gfun
 
     # ------------------------------------------------------------------ layout
     def sample_times(self, t_mesh) -> np.ndarray:
@@ -456,9 +614,12 @@ class OCPTranscription:
         return np.array([at[r.where][r.point] for r in self.path_rows])
 
     def parameters(self, t_mesh, Ysamples, theta, E0, Ef, *, W=1.0, rho=0.0, energy=0.0, rate=0.0,
-                   time_weight=0.0, c=1.0, mask=None, tau_ref=1.0, relax_weights=None, eps=0.0) -> np.ndarray:
-        """The parameter vector (class notes); ``W``, ``rho``, ``energy``, ``rate`` are the
-        objective weights (their square roots enter the residuals)."""
+                   time_weight=0.0, c=1.0, mask=None, tau_ref=1.0, relax_weights=None, eps=0.0,
+                   scale=1.0) -> np.ndarray:
+        """The parameter vector (class notes); ``W``, ``rho``, ``energy``, ``rate``, ``time_weight``
+        are the objective weights (the square roots of the first four enter the residuals),
+        ``scale`` multiplies the whole objective (IPOPT's objective scaling without a new solver;
+        the elastic problem has ``eps`` on its least-squares part instead)."""
         p = np.zeros(self.np)
         S = self._p_slices
         p[S["h"]] = np.diff(np.asarray(t_mesh, float))
@@ -474,6 +635,7 @@ class OCPTranscription:
         if self.nr:
             p[S["relax_w"]] = relax_weights
         p[S["eps"]] = eps
+        p[S["fscale"]] = scale
         return p
 
     def pack(self, Xmesh, Xcol=None, S=None, tau=None, r=None) -> np.ndarray:
@@ -512,14 +674,19 @@ class OCPTranscription:
 
         ``hessian``: ``"gauss-newton"`` (default, class notes), ``"exact"`` (CasADi AD of the whole
         graph; slow) or ``"limited-memory"`` (IPOPT's quasi-Newton)."""
-        if hessian not in ("gauss-newton", "exact", "limited-memory"):
-            raise ValueError(f"hessian must be 'gauss-newton', 'exact' or 'limited-memory', got {hessian!r}")
+        if hessian not in ("gauss-newton", "exact", "limited-memory", "ad"):
+            raise ValueError(f"hessian must be 'gauss-newton', 'exact', 'limited-memory' or 'ad', got {hessian!r}")
         key = repr((sorted((k, repr(v)) for k, v in options.items()), hessian))
         if key not in self._solvers:
             opts = dict(options)
-            if hessian == "exact":
+            if hessian == "ad":
                 f, g = self._plain
                 nlp = {"x": self._x, "p": self._p, "f": f, "g": g}
+            elif hessian == "exact":
+                if getattr(self, "_hess_exact", None) is None:
+                    self._hess_exact = self._build_exact_hessian()
+                nlp = {"x": self._x, "p": self._p, "f": self.f, "g": self.g}
+                opts["hess_lag"] = self._hess_exact
             else:
                 nlp = {"x": self._x, "p": self._p, "f": self.f, "g": self.g}
                 if hessian == "gauss-newton" and opts.get("ipopt.hessian_approximation", "exact") == "exact":
@@ -533,5 +700,6 @@ class OCPTranscription:
         """``G = (F, r)`` at points ``zeta = (X, s)`` (columns), e.g. the slopes ``F`` at the mesh
         points for the Hermite-Simpson interpolant (``r`` with unit weights)."""
         k = zeta.shape[1]
+        tau = tau_ref if tau is None else tau  # samples given for the actual duration: no retiming
         args = [zeta, Ysamples] + ([tau] if self.free_time else []) + [theta, c, np.ones(self.m), np.ones(3), tau_ref]
         return np.array(self._functions["point"].map(k)(*args))
