@@ -182,7 +182,7 @@ def output_error(inv, servo, reference, theta, samples_per_interval: int = 8) ->
             "by_output": {nm: {"max": float(ea[i].max()), "rms": float(rms[i])} for i, nm in enumerate(names)}}
 
 
-def solve_scaled(tr, slv, x0, params, limits, *, scale: float = 1e3):
+def solve_scaled(tr, slv, x0, params, limits, *, hessian: str, scale: float = 1e3):
     """Solve with the objective scaled by ``scale``; when the optimal scaled objective is below
     1e-2 (tiny output errors), solve again warm-started with the objective scaled to 1, so that
     the multipliers are large against IPOPT's final barrier parameter and active bounds are
@@ -191,7 +191,7 @@ def solve_scaled(tr, slv, x0, params, limits, *, scale: float = 1e3):
     Returns ``(solution, stats, scale)``; ``stats["iterations"]`` counts both solves."""
     lbx, ubx, lbg, ubg = limits
     opts = _ipopt_options(slv)
-    solver = tr.ipopt(opts, hessian=slv.hessian)
+    solver = tr.ipopt(opts, hessian=hessian)
     sol = solver(x0=x0, p=params(scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     st = dict(solver.stats())
     st["iterations"] = int(st.get("iter_count", -1))
@@ -200,7 +200,7 @@ def solve_scaled(tr, slv, x0, params, limits, *, scale: float = 1e3):
         s2 = min(1.0 / f, 1e12)
         warm = dict(opts, **{"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
                              "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.mu_init": 1e-9})
-        solver2 = tr.ipopt(warm, hessian=slv.hessian)
+        solver2 = tr.ipopt(warm, hessian=hessian)
         k = s2 / scale
         sol2 = solver2(x0=sol["x"], lam_x0=sol["lam_x"] * k, lam_g0=sol["lam_g"] * k, p=params(s2), lbx=lbx,
                        ubx=ubx, lbg=lbg, ubg=ubg)
@@ -209,6 +209,10 @@ def solve_scaled(tr, slv, x0, params, limits, *, scale: float = 1e3):
             st2["iterations"] = st["iterations"] + int(st2.get("iter_count", 0))
             return sol2, st2, s2
     return sol, st, scale
+
+
+def _hessian(slv, auto: str) -> str:
+    return auto if slv.hessian == "auto" else slv.hessian
 
 
 def _ipopt_options(slv):
@@ -258,7 +262,11 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
     exact, margins, exact_s = None, None, 0.0
     hz_plan = replace(hz, T0=T0p, Tf=Tfp, start=plan_result[2], end=plan_result[3], plan=plan_result[4],
                       plan_options=None)
-    if warm_start is None or not (rest_start or rest_end):
+    from .boundary import _resolve
+
+    square = len(_resolve("start", plan_result[2], servo)) + len(_resolve("end", plan_result[3], servo)) == \
+        servo.layout.nx
+    if square and (warm_start is None or not (rest_start or rest_end)):
         t0_ = time.perf_counter()
         exact_opts = replace(opts, horizon=hz_plan, bounds=None, objective=None)
         if disc.tol is not None:
@@ -279,11 +287,11 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
             exact.diagnostics["tracking"] = {"exact": True, "max_output_error": 0.0, "rms_output_error": 0.0}
             return exact
     elif disc.tol is not None:
-        raise OptionError("invert: tol (mesh refinement) with a shortened pre-/post-actuation and a warm start; "
-                          "give N instead")
+        raise OptionError("invert: tol (mesh refinement) needs an exact inverse first (a square selection and no "
+                          "warm start with a shortened pre-/post-actuation); give N instead")
     # 2. the relaxed problem
     setup = prepare(model, reference, disc, hz, T0=T0, Tf=Tf, rest_start=rest_start, rest_end=rest_end,
-                    plan_result=plan_result)
+                    plan_result=plan_result, any_count=True)
     bad = _equilibrium_check(setup, rb)
     if bad:
         worst = bad[0]
@@ -313,7 +321,8 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
                              rho=objective.slack, energy=objective.energy, rate=objective.rate, c=c, scale=scale)
 
     t_solve = time.perf_counter()
-    sol, st, scale = solve_scaled(tr, slv, x0, params, (lbx, ubx, lbg, ubg))
+    hessian = _hessian(slv, "gauss-newton")
+    sol, st, scale = solve_scaled(tr, slv, x0, params, (lbx, ubx, lbg, ubg), hessian=hessian)
     solve_s = time.perf_counter() - t_solve
     x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
     viol = _violation(g, lbg, ubg, x, lbx, ubx)
@@ -340,7 +349,7 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
     Xm, _Xc, S, _tau, _r = tr.unpack(x)
     inv.diagnostics.update({
         "status": status, "iterations": int(st["iterations"]), "success": ok,
-        "max_constraint_violation": viol, "backend": "ipopt", "hessian": slv.hessian, "scheme": sch.name,
+        "max_constraint_violation": viol, "backend": "ipopt", "hessian": hessian, "scheme": sch.name,
         "N": int(N), "formulation": disc.formulation, "omega": disc.omega, "build_s": build_s, "solve_s": solve_s,
         "exact_solve_s": exact_s, "guess_s": setup.timings["guess_s"], "unknowns": tr.nX, "equations": tr.ng,
         "selection": setup.selection.describe(), "T0": T0, "Tf": Tf, "residuals": res, "compiled": False,
@@ -415,7 +424,7 @@ def _infeasible(model, reference, servo, setup, rb, sch, t_mesh, Y, theta, c, ob
             k = tr.i_r + index[(r.kind, r.entry, side)]
             if np.isfinite(need):
                 x0[k] = max(x0[k], need + 1e-6 * scale[k - tr.i_r])
-    solver = tr.ipopt(_ipopt_options(slv), hessian=slv.hessian)
+    solver = tr.ipopt(_ipopt_options(slv), hessian=_hessian(slv, "gauss-newton"))
     sol = solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     st = solver.stats()
     xe = np.array(sol["x"]).ravel()

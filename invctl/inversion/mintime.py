@@ -41,8 +41,8 @@ def retime(reference, duration: float):
                      diagnostics={**reference.diagnostics, "retimed_from": [reference.t0, reference.tf]})
 
 
-def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration=None, discretization=None,
-                 solver=None, horizon=None, warm_start=None, **keywords):
+def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration=None, objective=None,
+                 discretization=None, solver=None, horizon=None, warm_start=None, **keywords):
     """The minimum-time (``energy = 0``) or time-energy optimal duration of ``reference``'s
     transition under ``bounds`` (module doc).
 
@@ -57,6 +57,12 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         Weight ``w_E`` of the input energy (``int |u|^2 dt`` over the horizon) against the duration.
     duration : (float, float), optional
         Range of ``tau``; default ``(0.02, 50) * (tf - t0)``.
+    objective : Objective, optional
+        Relax the servo constraint and add this least-squares objective (output error, slack,
+        energy, rate weights) to ``tau``: the fastest transition that tracks the shape as well as
+        the weights ask.  With ``Objective(output=0, slack=0)`` and a selection fixing ``q``,
+        ``v`` (and ``u``) at both ends it is the classical free-input minimum-time problem
+        between the reference's end equilibria.
     discretization, solver, horizon, **keywords
         As for :func:`~invctl.inversion.invert` (the horizon's ``T0``/``Tf`` fix the pre- and
         post-actuation lengths for the reference's duration).
@@ -77,7 +83,8 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     """
     t_all = time.perf_counter()
     opts = from_keywords("minimum_time", discretization=discretization, solver=solver, horizon=horizon,
-                         bounds=bounds, **keywords)
+                         bounds=bounds, objective=objective, **keywords)
+    objective = opts.objective
     if opts.bounds is None and not energy > 0:
         raise OptionError("minimum_time: give bounds (minimum time under bounds) and/or energy > 0 (time-energy "
                           "trade); without either the shortest duration is zero")
@@ -98,7 +105,8 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     servo = servo_model(model, disc.formulation, disc.omega)
     rb = bnd.resolve(servo)
     plan_result = resolve_plan(model, reference, disc, opts.horizon)
-    setup = prepare(model, reference, disc, opts.horizon, plan_result=plan_result)
+    relaxed = objective is not None
+    setup = prepare(model, reference, disc, opts.horizon, plan_result=plan_result, any_count=relaxed)
     from .solve import make_inverse, solve_square
 
     t_mesh = setup.t_mesh
@@ -111,9 +119,13 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     # the exact inverse at the reference's duration: the initial guess
     hz = replace(opts.horizon, T0=setup.T0, Tf=setup.Tf, start=plan_result[2], end=plan_result[3],
                  plan=plan_result[4], plan_options=None)
-    guess = warm_start or solve_square(model, reference, replace(opts, horizon=hz, bounds=None), setup=setup)
+    square = len(setup.selection.start) + len(setup.selection.end) == servo.layout.nx
+    if warm_start is None and square:
+        guess = solve_square(model, reference, replace(opts, horizon=hz, bounds=None, objective=None), setup=setup)
+    else:
+        guess = None
     sch, N = setup.scheme, t_mesh.size - 1
-    tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=False, free_time=True, bounded=rb.bounded,
+    tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True, bounded=rb.bounded,
                            rated=rb.rated)
     tc = tr.collocation_times(t_mesh)
     tau0 = float(np.clip(tau_ref if warm_start is None else warm_start.tf - warm_start.t0, lo, hi))
@@ -121,17 +133,26 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         ws_mesh = tr.retimed_mesh(t_mesh, mask, tau_ref, tau0)
         x0 = tr.pack(warm_start.X(ws_mesh), warm_start.X(tr.collocation_times(ws_mesh)) if tc.size else None,
                      tau=tau0)
-    else:
+    elif guess is not None:
         x0 = tr.pack(guess.X(t_mesh), guess.X(tc) if tc.size else None, tau=tau0)
+    else:
+        x0 = tr.pack(setup.initial_guess(t_mesh), setup.initial_guess(tc) if tc.size else None, tau=tau0)
     Y = servo.reference_samples(reference, tr.sample_times(t_mesh))
     lbx, ubx, lbg, ubg = _limits(tr, rb, (lo, hi))
 
+    from .ocp import slack_scale
+
+    c = slack_scale(servo, tau_ref)
+    ow = objective.output_weights(model) if relaxed else 0.0
+    rho, e_w, r_w = (objective.slack, objective.energy + energy, objective.rate) if relaxed else (0.0, energy, 0.0)
+
     def params(scale):
-        return tr.parameters(t_mesh, Y, theta, setup.E0, setup.Ef, W=0.0, energy=energy, time_weight=1.0,
-                             mask=mask, tau_ref=tau_ref, scale=scale)
+        return tr.parameters(t_mesh, Y, theta, setup.E0, setup.Ef, W=ow, rho=rho, energy=e_w, rate=r_w,
+                             time_weight=1.0, c=c, mask=mask, tau_ref=tau_ref, scale=scale)
 
     t_solve = time.perf_counter()
-    sol, st, scale = solve_scaled(tr, slv, x0, params, (lbx, ubx, lbg, ubg), scale=1.0)
+    hessian = "exact" if slv.hessian == "auto" else slv.hessian
+    sol, st, scale = solve_scaled(tr, slv, x0, params, (lbx, ubx, lbg, ubg), hessian=hessian, scale=1.0)
     solve_s = time.perf_counter() - t_solve
     x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
     viol = _violation(g, lbg, ubg, x, lbx, ubx)
@@ -141,7 +162,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     ref_opt = retime(reference, tau)
     mesh_opt = tr.retimed_mesh(t_mesh, mask, tau_ref, tau)
     Yopt = servo.reference_samples(ref_opt, tr.sample_times(mesh_opt))
-    inv = _inverse(tr, servo, ref_opt, sch, mesh_opt, x, Yopt, theta, 1.0, make_inverse)
+    inv = _inverse(tr, servo, ref_opt, sch, mesh_opt, x, Yopt, theta, c, make_inverse)
     # energy by the scheme's quadrature (the objective's own), and the active bounds at the optimum
     w_unit = tr.parameters(mesh_opt, Yopt, theta, setup.E0, setup.Ef, W=0.0, energy=1.0, time_weight=0.0,
                            mask=np.zeros(N), tau_ref=tau)
@@ -156,7 +177,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     _ts, Xs, _tr, Us = constraint_points(inv, servo, ref_opt, theta)
     inv.diagnostics.update({
         "status": status, "iterations": int(st["iterations"]), "success": ok, "max_constraint_violation": viol,
-        "backend": "ipopt", "hessian": slv.hessian, "scheme": sch.name, "N": int(N),
+        "backend": "ipopt", "hessian": hessian, "scheme": sch.name, "N": int(N), "relaxed": relaxed,
         "formulation": disc.formulation, "omega": disc.omega, "build_s": setup.timings["build_s"] + tr.build_s,
         "solve_s": solve_s, "guess_s": setup.timings["guess_s"], "unknowns": tr.nX, "equations": tr.ng,
         "selection": setup.selection.describe(), "T0": inv.T0, "Tf": inv.Tf, "residuals": res,

@@ -119,7 +119,7 @@ class Discretization:
 #: backends of the square solve
 BACKENDS = ("ipopt", "newton")
 #: Hessians of the bounded problems (:class:`~invctl.inversion.ocp.OCPTranscription`)
-HESSIANS = ("gauss-newton", "exact", "limited-memory")
+HESSIANS = ("auto", "gauss-newton", "exact", "limited-memory")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -143,8 +143,11 @@ class SolverOptions:
         One line per iteration to stderr.
     continuation : bool
         When a cold square solve fails, solve a slower transition first and continue.
-    hessian : {"gauss-newton", "exact", "limited-memory"}
-        Hessian of the bounded problems (:class:`~invctl.inversion.ocp.OCPTranscription`).
+    hessian : {"auto", "gauss-newton", "exact", "limited-memory"}
+        Hessian of the Lagrangian of the bounded problems
+        (:class:`~invctl.inversion.ocp.OCPTranscription`): ``"auto"`` is Gauss-Newton for
+        least-squares tracking (cheaper per iteration) and the exact structured Hessian for
+        free-time problems (the time-energy trade needs the constraint curvature).
     """
 
     backend: str = "ipopt"
@@ -155,7 +158,7 @@ class SolverOptions:
     residual_tol: float = 1e-4
     progress: bool = False
     continuation: bool = True
-    hessian: str = "gauss-newton"
+    hessian: str = "auto"
 
     def __post_init__(self):
         w = "SolverOptions: "

@@ -9,7 +9,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..errors import BoundaryConditionError, NoDichotomyError, OptionError, ReferenceSignalError
-from .boundary import Selection, dichotomy, explain_dichotomy, explain_no_dichotomy, resolve_selection
+from .boundary import (BLOCKS, Selection, _resolve, dichotomy, explain_dichotomy, explain_no_dichotomy,
+                       resolve_selection)
 from .cache import _QS_LAST, equilibrium_solver, servo_model
 from .collocation import Scheme, get_scheme
 from .guess import default_mesh, quasi_static_guess
@@ -69,13 +70,14 @@ def resolve_plan(model, reference, discretization, horizon):
 
 
 def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest_start: bool = False,
-            rest_end: bool = False, plan_result=None) -> Setup:
+            rest_end: bool = False, plan_result=None, any_count: bool = False) -> Setup:
     """The :class:`Setup` of one inversion.
 
     ``T0``/``Tf`` override the horizon (pre-/post-actuation bounds); ``rest_start``/``rest_end``
     fix every entry of ``X`` at that end to the equilibrium (an inverse that starts/ends at rest
     there; over-determined for exact tracking).  ``plan_result`` is the output of
-    :func:`resolve_plan` when the caller has it already.
+    :func:`resolve_plan` when the caller has it already.  ``any_count`` accepts selections with
+    more or fewer conditions than unknowns (problems with a relaxed servo constraint).
     """
     from .plan import check_reference, graded_mesh
 
@@ -90,10 +92,10 @@ def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest
     sch = get_scheme(discretization.scheme)
     servo = servo_model(model, discretization.formulation, discretization.omega)
     nx = servo.layout.nx
-    if rest_start or rest_end:
-        base = resolve_selection(servo, start, end, allow_underdetermined=True)
-        sel = Selection(tuple(range(nx)) if rest_start else base.start, tuple(range(nx)) if rest_end else base.end,
-                        base.labels)
+    if rest_start or rest_end or any_count:
+        labels = tuple(f"{k}:{nm}" for k in BLOCKS for nm in servo.names[k])
+        s0, sf = tuple(_resolve("start", start, servo)), tuple(_resolve("end", end, servo))
+        sel = Selection(tuple(range(nx)) if rest_start else s0, tuple(range(nx)) if rest_end else sf, labels)
     else:
         sel = resolve_selection(servo, start, end, allow_underdetermined=horizon.allow_underdetermined)
     N = discretization.intervals
@@ -104,15 +106,16 @@ def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest
                               f"{t_mesh[-1]}")
         kind = "given"
     elif plan is not None and discretization.mesh_fraction is None and {"T0", "Tf"} & set(plan.derived):
-        decay = plan.mesh_decay(sch.order)
-        t_mesh = graded_mesh(T0, Tf, reference.t0, reference.tf, int(N),
-                             (decay[0] if T0 == T0p else 0.0, decay[1] if Tf == Tfp else 0.0))
+        # a pre-/post-actuation shortened by a bound keeps the grading of the tails (the inverse
+        # still grows like exp(rate (t - t0)) there; it only starts from rest)
+        t_mesh = graded_mesh(T0, Tf, reference.t0, reference.tf, int(N), plan.mesh_decay(sch.order))
         kind = "graded"
     else:
         frac = 0.5 if discretization.mesh_fraction is None else discretization.mesh_fraction
         t_mesh = default_mesh(T0, Tf, reference.t0, reference.tf, int(N), frac)
         kind = "piecewise uniform"
     under = len(sel.start) + len(sel.end) < nx
+    square = len(sel.start) + len(sel.end) == nx
     build_s = time.perf_counter() - t_build
     # equilibria and the quasi-static guess
     t_guess = time.perf_counter()
@@ -134,7 +137,7 @@ def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest
                         theta=model.theta_values, where=f" at {name} = {t}")
         E.append(X)
     dich = None
-    if not under and not (rest_start or rest_end):
+    if square and not (rest_start or rest_end):
         Yends = servo.reference_samples(reference, np.array([T0, Tf]))
         dich = dichotomy(servo, sel, E[0], Yends[:, :1], E[1], Yends[:, 1:], model.theta_values)
         public = {k: v for k, v in dich.items() if not k.startswith("eigenvalues")}
