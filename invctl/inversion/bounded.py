@@ -304,7 +304,8 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
                                                                        "where": b["where"]} for b in bad}})
     sch, t_mesh, N = setup.scheme, setup.t_mesh, setup.t_mesh.size - 1
     t_build = time.perf_counter()
-    tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=True, bounded=rb.bounded, rated=rb.rated)
+    tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=True, bounded=rb.bounded, rated=rb.rated,
+                           compiled=disc.compiled)
     build_s = setup.timings["build_s"] + time.perf_counter() - t_build
     guess = warm_start if warm_start is not None else exact
     tc = tr.collocation_times(t_mesh)

@@ -126,7 +126,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         guess = None
     sch, N = setup.scheme, t_mesh.size - 1
     tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True, bounded=rb.bounded,
-                           rated=rb.rated)
+                           rated=rb.rated, compiled=disc.compiled)
     tc = tr.collocation_times(t_mesh)
     tau0 = float(np.clip(tau_ref if warm_start is None else warm_start.tf - warm_start.t0, lo, hi))
     if warm_start is not None:  # a solution for another duration: sample it at the same shape positions

@@ -113,6 +113,18 @@ def _assembly(rows, cols, shape, *, summed: bool = False):
     return sparsity, S
 
 
+def _all_cached(functions) -> bool:
+    from .compiled import is_cached
+
+    return all(is_cached(f) for f in functions)
+
+
+def _compile(fn):
+    from .compiled import compile_cached
+
+    return compile_cached(fn)
+
+
 def _block_triplets(nrow: int, index: np.ndarray, row0: int):
     """Global (row, col) of the vec of a mapped dense block output ``(nrow x nz)`` per repetition
     (``index``: ``(count, nz)`` global columns; rows ``row0 + k nrow + i``), in vec order."""
@@ -159,7 +171,7 @@ class OCPTranscription:
     """
 
     def __init__(self, servo, selection, scheme: Scheme, N: int, *, relaxed: bool, free_time: bool = False,
-                 bounded: tuple = (), rated: tuple = (), elastic: bool = False):
+                 bounded: tuple = (), rated: tuple = (), elastic: bool = False, compiled: bool | str = False):
         t_build = time.perf_counter()
         if elastic and not relaxed:
             raise ValueError("the elastic problem relaxes the servo constraint (relaxed=True)")
@@ -314,6 +326,13 @@ class OCPTranscription:
                                                 + ([[self.i_tau]] if tau is not None else [])) for k in ks])
         n_def, n_res, n_ip = (int(v.numel()) for v in val)
         self._functions = {"point": pt_val, "point_jac": pt_jac, "interval": iv_val, "interval_jac": iv_jac}
+        # compiled derivative functions (never differentiated themselves: they feed the custom
+        # Jacobian and Hessians); "auto": only when already in the disk cache
+        self._compile_request = compiled
+        self.compiled = self._compile_request is True or (
+            self._compile_request == "auto" and _all_cached([pt_jac, iv_jac]))
+        if self.compiled:
+            pt_jac, iv_jac = _compile(pt_jac), _compile(iv_jac)
         # ---------------------------------------------------------------- the MX graph
         x, p = ca.MX.sym("x", self.nX), ca.MX.sym("p", self.np)
         P = {k: p[sl] for k, sl in self._p_slices.items()}
@@ -506,6 +525,9 @@ class OCPTranscription:
                 H2 = ca.substitute(ca.hessian(PHI2, zl)[0], zl, ca.DM.zeros(zl.numel()))
                 tins = [Gtc_] if tau is not None else []
                 iv_h = ca.Function("ocp_coll_hess", [Gc_, JGc_] + tins + [lam_s, mu_s, fs] + ipars, [ca.densify(H2)])
+            hfuns = [pt_hess, iv_w, iv_h]
+            if self._compile_request is True or (self._compile_request == "auto" and _all_cached(hfuns)):
+                pt_hess, iv_w, iv_h = (_compile(fn) for fn in hfuns)
             # ---- MX assembly
             xs2, ps2 = ca.MX.sym("x", self.nX), ca.MX.sym("p", self.np)
             lf, lg = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
