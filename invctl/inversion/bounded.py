@@ -196,10 +196,13 @@ def solve_scaled(tr, slv, x0, params, limits, *, hessian: str, scale: float = 1e
     st = dict(solver.stats())
     st["iterations"] = int(st.get("iter_count", -1))
     f = float(sol["f"]) / scale
-    if st.get("success") and 0 < f * scale < 1e-2 and "ipopt.obj_scaling_factor" not in (slv.ipopt_options or {}):
-        s2 = min(1.0 / f, 1e12)
+    inequalities = bool(tr.bounded or tr.rated)  # without them there is nothing to sharpen
+    if (inequalities and st.get("success") and 0 < f * scale < 1e-2
+            and "ipopt.obj_scaling_factor" not in (slv.ipopt_options or {})):
+        s2 = min(1.0 / f, 1e9)
         warm = dict(opts, **{"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
-                             "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.mu_init": 1e-9})
+                             "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.mu_init": 1e-9,
+                             "ipopt.max_iter": min(int(opts["ipopt.max_iter"]), 50)})
         solver2 = tr.ipopt(warm, hessian=hessian)
         k = s2 / scale
         sol2 = solver2(x0=sol["x"], lam_x0=sol["lam_x"] * k, lam_g0=sol["lam_g"] * k, p=params(s2), lbx=lbx,
@@ -355,7 +358,8 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
         "exact_solve_s": exact_s, "guess_s": setup.timings["guess_s"], "unknowns": tr.nX, "equations": tr.ng,
         "selection": setup.selection.describe(), "T0": T0, "Tf": Tf, "residuals": res, "compiled": False,
         "plan": None if setup.plan is None else setup.plan.to_dict(), "mesh": setup.mesh_kind,
-        "objective": float(sol["f"]) / scale, "objective_scale": scale, "slack_max": float(np.max(np.abs(S))) if S.size else 0.0,
+        "objective": float(sol["f"]) / scale, "objective_scale": scale,
+        "slack_max": float(np.max(np.abs(S))) if S.size else 0.0,
         "bounds": {"active": active, "margins": margins, "rest": [bool(rest_start), bool(rest_end)],
                    "describe": describe_active(active, err)},
         "tracking": {"exact": False, "max_output_error": err["max"], "t_max_output_error": err["t_max"],

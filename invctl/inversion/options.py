@@ -410,7 +410,8 @@ class ResolvedBounds:
         """Largest violation per bound label of states ``X`` (columns) and rates (``m`` x k)."""
         out = {}
         for i in self.bounded:
-            v = max(float(np.max(X[i] - self.hi[i], initial=-math.inf)), float(np.max(self.lo[i] - X[i], initial=-math.inf)))
+            v = max(float(np.max(X[i] - self.hi[i], initial=-math.inf)),
+                    float(np.max(self.lo[i] - X[i], initial=-math.inf)))
             out[self.labels[i]] = v
         if rates is not None:
             for j in self.rated:
