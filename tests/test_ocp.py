@@ -261,12 +261,12 @@ def test_pre_actuation_bound_costs_error_at_the_unstable_rate(manip):
     for pre in (0.2, 0.3):
         inv = invert(md, ref, q_guess=q0, N=120, bounds=Bounds(max_pre_actuation=pre))
         assert inv.T0 == pytest.approx(ref.t0 - pre)
-        E0 = inv.diagnostics["plan"]
+        plan = inv.diagnostics["plan"]
         np.testing.assert_allclose(inv.X(inv.T0)[:, 0], inv.X(inv.T0 - 1.0)[:, 0])  # held before T0
         assert np.max(np.abs(inv.v(inv.T0))) < 1e-9  # at rest
         assert inv.diagnostics["bounds"]["active"][0]["bound"] == "max_pre_actuation"
         errs[pre] = inv.diagnostics["tracking"]["max_output_error"]
-        rate = E0["rate_pre"]
+        rate = plan["rate_pre"]
     ratio = errs[0.2] / errs[0.3]
     assert abs(ratio / math.exp(0.1 * rate) - 1) < 0.25
 

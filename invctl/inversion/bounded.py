@@ -191,6 +191,8 @@ def solve_scaled(tr, slv, x0, params, limits, *, hessian: str, scale: float = 1e
     Returns ``(solution, stats, scale)``; ``stats["iterations"]`` counts both solves."""
     lbx, ubx, lbg, ubg = limits
     opts = _ipopt_options(slv)
+    if slv.progress:
+        opts["iteration_callback"] = _progress(tr)
     solver = tr.ipopt(opts, hessian=hessian)
     sol = solver(x0=x0, p=params(scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     st = dict(solver.stats())
@@ -212,6 +214,30 @@ def solve_scaled(tr, slv, x0, params, limits, *, hessian: str, scale: float = 1e
             st2["iterations"] = st["iterations"] + int(st2.get("iter_count", 0))
             return sol2, st2, s2
     return sol, st, scale
+
+
+def _progress(tr):
+    """IPOPT iteration callback: objective and largest equality violation (defects, boundary rows)."""
+    import sys
+
+    from .backends import _Progress
+
+    n_eq = tr.n_defect + tr.n_bc
+
+    class OCPProgress(_Progress):
+        def eval(self, arg):
+            import casadi as ca
+
+            names = ca.nlpsol_out()
+            g = np.array(arg[names.index("g")]).ravel()[:n_eq]
+            f = float(np.array(arg[names.index("f")]).ravel()[0])
+            print(f"  [{self.label}] iter {self.k:3d}  objective {f:.6e}  max|defect| = "
+                  f"{np.max(np.abs(g)) if g.size else 0.0:.3e}  ({time.perf_counter() - self.t:.2f} s)",
+                  file=sys.stderr, flush=True)
+            self.k += 1
+            return [0]
+
+    return OCPProgress(tr.nX, tr.ng, tr.np, f"{tr.scheme.name} N={tr.N} {'free time' if tr.free_time else 'bounded'}")
 
 
 def _hessian(slv, auto: str) -> str:

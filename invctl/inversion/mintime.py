@@ -188,6 +188,12 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
                       "bound_violation": max([0.0] + [v for v in rb.violations(Xs, Us).values()])},
         "wall_s": time.perf_counter() - t_all,
     })
+    key = "holonomic_mesh" if relaxed else "position_mesh"
+    if ok and res[key] > slv.residual_tol:
+        raise InversionFailed(
+            f"minimum_time: the solution violates the position-level constraints by {res[key]:.3g} > residual_tol "
+            f"= {slv.residual_tol:.3g} at the mesh ({sch.name} N={N}); refine the mesh", partial=inv,
+            diagnostics=inv.diagnostics)
     if not ok:
         if status in ("Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeasibility"):
             raise InfeasibleBoundsError(
