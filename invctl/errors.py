@@ -142,6 +142,111 @@ class ZeroError(InvctlError):
     """System zeros cannot be computed or classified (degenerate system matrix, inconsistent tests)."""
 
 
+class ResourceLimitError(InvctlError):
+    """A run would need more memory (or another resource) than its budget allows.
+
+    ``diagnostics`` holds the estimate, the budget and the settings that fit
+    (e.g. ``record_every``); ``partial`` holds what was computed when the
+    limit was hit during the run.
+    """
+
+
+class RecordingError(InvctlError, ValueError):
+    """A quantity needs trajectory steps that were not recorded (decimated or
+    event-only record); the exact run statistics or a full record give it."""
+
+
+class LibraryError(InvctlError):
+    """A trajectory library cannot be generated or read as asked (a point without a trajectory,
+    an unknown axis)."""
+
+
+class SingularHighGainError(RelativeDegreeError):
+    """The high-gain matrix Gamma of the auxiliary ODE 003 (10) is singular at a point of a
+    normal-form inverse: the relative degree of the outputs does not exist there, so 003 (15)
+    cannot be solved for the multipliers and inputs."""
+
+
+class WallTimeLimitError(InversionFailed):
+    """A solve stopped at its wall-time limit (``max_wall_time``) before converging: the problem is
+    too large for the limit, not necessarily ill-posed."""
+
+
+class NumericalError(InvctlError):
+    """A computation broke down numerically (singular or non-finite matrices, overflow) for the given
+    parameter values: they are outside the range the model can be evaluated in."""
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """The user interrupted a run (Ctrl-C, SIGINT).
+
+    A ``KeyboardInterrupt`` (so ``except Exception`` never swallows it) that carries what was
+    complete when it arrived: ``partial`` (study rows so far, the last accepted mesh's inverse, the
+    simulated prefix) and ``diagnostics``; ``saved`` lists the files the command wrote them to.
+    """
+
+    def __init__(self, message: str = "interrupted", *, partial: Any = None, diagnostics: dict | None = None):
+        super().__init__(message)
+        self.partial = partial
+        self.diagnostics = dict(diagnostics or {})
+        self.saved: list[str] = []
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else "interrupted"
+
+
+class watch_sigint:
+    """Context manager noting a SIGINT that arrives inside it (``.seen``), chaining to the handler in
+    place (so Ctrl-C still raises ``KeyboardInterrupt`` where Python code runs).
+
+    Compiled solvers turn a ``KeyboardInterrupt`` raised in their callbacks into their own failure
+    (IPOPT: ``User_Requested_Stop``; CVODES: a ``RuntimeError``); ``seen`` tells such a failure
+    apart from a real one so it can be reported as :class:`RunInterrupted`.  Does nothing outside
+    the main thread or when SIGINT is ignored.
+    """
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        self.seen, self._old = False, None
+        if threading.current_thread() is threading.main_thread():
+            old = signal.getsignal(signal.SIGINT)
+            if callable(old):
+                def handler(signum, frame):
+                    self.seen = True
+                    return old(signum, frame)
+
+                self._old = old
+                signal.signal(signal.SIGINT, handler)
+        return self
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            import signal
+
+            signal.signal(signal.SIGINT, self._old)
+        return False
+
+    "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
+    "SingularHighGainError",
+
+
+    "LinearizationError", "ZeroError", "WallTimeLimitError", "ResourceLimitError", "RunInterrupted",
+    "NumericalError", "watch_sigint",
+
+
+class JugglingInfeasible(FeedbackDesignError):
+    """The recursive impact design of 000 (29)-(33) has no solution for a cycle: step 2 (no impact
+    speeds of the right sign reach the target) or step 4 (viability) fails; ``partial`` holds the plan
+    of the cycles before, ``diagnostics`` the start, the target and the search window."""
+
+    "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted",
+
+
+    "SingularHighGainError", "JugglingInfeasible",
+
+
 class OptionError(InvctlError, ValueError):
     """An option of the inversion (:mod:`invctl.inversion.options`) has a wrong type or value."""
 
@@ -161,5 +266,7 @@ __all__ = [
     "FunnelViolation", "StabilityError", "ContactError", "PreloadInfeasible", "ResultFileError",
     "OutputPathError", "AnimationError", "DrawingError", "FeedbackDesignError", "PositionOutputError",
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
-    "LinearizationError", "ZeroError", "OptionError", "BoundsError", "InfeasibleBoundsError",
+    "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
+    "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted", "JugglingInfeasible",
+    "OptionError", "BoundsError", "InfeasibleBoundsError",
 ]

@@ -7,6 +7,7 @@ newer files instead of returning wrong-sized data.
 """
 from __future__ import annotations
 
+import functools
 import json
 import os
 import zipfile
@@ -14,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import OutputPathError, ResultFileError
+from .errors import InvctlError, OutputPathError, ResultFileError
 
-__all__ = ["FORMAT_VERSION", "save_npz", "load_npz", "check_output_path", "read_meta"]
+__all__ = ["FORMAT_VERSION", "save_npz", "load_npz", "check_output_path", "check_output_dir", "read_meta",
+           "require_finite", "file_loader", "read_json"]
 
 #: version of the files written by this invctl (raise when the layout changes incompatibly)
 FORMAT_VERSION = 2
@@ -45,7 +47,9 @@ def read_meta(path) -> dict:
     """The ``{"kind", "version", "info"}`` entry of an invctl result file (checked)."""
     path = Path(path)
     if not path.is_file():
-        raise ResultFileError(f"{path}: no such file")
+        raise ResultFileError(f"{path}: no such file" + (" (a folder)" if path.is_dir() else ""))
+    if not zipfile.is_zipfile(path):
+        raise ResultFileError(f"{path}: not an .npz result file (not a zip archive: another format, or truncated)")
     try:
         with np.load(path, allow_pickle=False) as d:
             if _TAG not in d.files:
@@ -57,8 +61,10 @@ def read_meta(path) -> dict:
     except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as exc:
         raise ResultFileError(f"{path}: cannot read ({type(exc).__name__}: {exc}); the file is truncated or "
                               "not an .npz file") from None
-    if not isinstance(meta, dict) or "kind" not in meta or "version" not in meta:
-        raise ResultFileError(f"{path}: malformed {_TAG!r} entry")
+    if (not isinstance(meta, dict) or not isinstance(meta.get("kind"), str) or isinstance(meta.get("version"), bool)
+            or not isinstance(meta.get("version"), int) or not isinstance(meta.get("info", {}), dict)):
+        raise ResultFileError(f"{path}: malformed {_TAG!r} entry (needs a kind, an integer version and an info "
+                              "dict); the file was edited or not written by invctl")
     return meta
 
 
@@ -90,6 +96,46 @@ def load_npz(path, kind: str | tuple) -> tuple[dict, dict]:
     return arrays, dict(meta.get("info", {}))
 
 
+def file_loader(load):
+    """Decorator of a ``load(cls, path)`` classmethod body: a file whose entries have the wrong type,
+    shape or content (a schema error raising ``KeyError``, ``TypeError``, ``ValueError``,
+    ``AttributeError``, ``IndexError`` or ``OSError`` while the object is rebuilt) becomes a
+    :class:`ResultFileError` naming the file, never a traceback or a wrong object."""
+    @functools.wraps(load)
+    def wrapper(cls, path, *args, **kwargs):
+        try:
+            return load(cls, path, *args, **kwargs)
+        except InvctlError:
+            raise
+        except FileNotFoundError as exc:
+            raise ResultFileError(f"{path}: no such file ({exc.filename})") from None
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError, OSError, zipfile.BadZipFile) as exc:
+            raise ResultFileError(f"{path}: malformed {cls.__name__} file ({type(exc).__name__}: {exc}); it was "
+                                  "edited, truncated or not written by this invctl") from None
+    return wrapper
+
+
+def read_json(path, what: str) -> dict:
+    """A JSON object from ``path`` (``what`` names the file in errors).
+
+    Raises
+    ------
+    ResultFileError
+        Missing, unreadable or truncated file, or JSON that is not an object.
+    """
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ResultFileError(f"{path}: no such file ({what})") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ResultFileError(f"{path}: not a readable {what} ({type(exc).__name__}: {exc}); the file is truncated "
+                              "or was not written by invctl") from None
+    if not isinstance(d, dict):
+        raise ResultFileError(f"{path}: a {what} holds a JSON object, got {type(d).__name__}")
+    return d
+
+
 def require_finite(path, arrays: dict, names) -> None:
     """Raise :class:`ResultFileError` when one of ``names`` holds NaN or infinity."""
     for k in names:
@@ -108,14 +154,17 @@ def check_output_path(path, *, suffix: str | None = None, force: bool = False, o
     OutputPathError
         What is wrong and what to do.
     """
+    _check_name(path, option)
     p = Path(path)
+    if not p.name:
+        raise OutputPathError(f"{option} {str(path)!r}: give a file name")
     if suffix and p.suffix.lower() != suffix:
         p = p.with_name(p.name + suffix)
+    _check_name(p, option)
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         raise OutputPathError(f"{option} {path}: directory {str(parent)!r} does not exist; create it first")
-    if not os.access(parent, os.W_OK):
-        raise OutputPathError(f"{option} {path}: directory {str(parent)!r} is not writable")
+    _probe_write(parent, f"{option} {path}: directory {str(parent)!r}")
     if p.is_dir():
         raise OutputPathError(f"{option} {path}: is a directory; give a file name")
     if p.exists() and not force:
@@ -123,14 +172,47 @@ def check_output_path(path, *, suffix: str | None = None, force: bool = False, o
     return p
 
 
+def _check_name(path, option) -> None:
+    text = str(path)
+    if "\x00" in text:
+        raise OutputPathError(f"{option} {text!r}: a path cannot contain a NUL character")
+    try:
+        max_name = os.pathconf(".", "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):
+        max_name = 255
+    long = [part for part in Path(text).parts if len(part.encode(errors="surrogateescape")) > max_name]
+    if long:
+        raise OutputPathError(f"{option} {text[:60]!r}...: the name {long[0][:40]!r}... is longer than the "
+                              f"{max_name} bytes the file system allows")
+
+
 def check_output_dir(path, *, option: str = "--out-dir") -> Path:
-    """Check that a results folder can be created or written (before any computation)."""
+    """Check, before any computation, that a results folder can be written: it is created (with its
+    parents) if missing and a file is written to it and removed."""
+    _check_name(path, option)
     p = Path(path)
     probe = p
     while not probe.exists():
         probe = probe.parent if str(probe.parent) != str(probe) else Path(".")
     if not probe.is_dir():
         raise OutputPathError(f"{option} {path}: {str(probe)!r} is a file, not a folder")
-    if not os.access(probe, os.W_OK):
-        raise OutputPathError(f"{option} {path}: {str(probe)!r} is not writable")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputPathError(f"{option} {path}: cannot create the folder ({exc.strerror or exc})") from None
+    _probe_write(p, f"{option} {path}: folder")
     return p
+
+
+def _probe_write(folder: Path, what: str) -> None:
+    """Write and remove a file in ``folder`` (permission bits do not tell everything: read-only or
+    virtual file systems, quotas)."""
+    import tempfile
+
+    if not os.access(folder, os.W_OK):
+        raise OutputPathError(f"{what} is not writable")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".invctl-probe-"):
+            pass
+    except OSError as exc:
+        raise OutputPathError(f"{what} is not writable ({exc.strerror or exc})") from None

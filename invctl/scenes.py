@@ -38,6 +38,8 @@ __all__ = ["Scene", "Tracking", "Contact", "Switched", "Report", "ReportContext"
 
 #: every command of ``invctl`` that acts on a scene
 SCENE_COMMANDS = ("analyze", "invert", "design", "simulate", "pipeline", "study")
+#: the magnitudes a ``--set`` value may have (0 aside): a product of three stays inside double precision
+MAGNITUDE = (1e-100, 1e100)
 
 
 def _frozen(mapping, what: str, scene: str = "") -> Mapping:
@@ -84,8 +86,8 @@ class Tracking:
     linearize_at : {"ends", "start"}
         Where the internal dynamics are linearized: the mean of the Jacobians at the start and end
         equilibria of the reference (as 003 Sect. 6 does) or at the start only.
-    split : {"schur", "eig"}
-        How ``T`` of 003 (39) is built.
+    split : {"schur", "eig", "eig-unit"}
+        How ``T`` of 003 (39) is built (:func:`invctl.analysis.linearize.from_matrices`).
     signals : dict
         Extra signals computed from the output, ``name -> (model -> (y -> SX))``, reported with
         their cumulative tracking error (e.g. the end effector).
@@ -127,8 +129,9 @@ class Tracking:
         if self.linearize_at not in ("ends", "start"):
             raise SceneError(f"scene {scene!r}: tracking.linearize_at must be 'ends' or 'start', "
                              f"got {self.linearize_at!r}")
-        if self.split not in ("schur", "eig"):
-            raise SceneError(f"scene {scene!r}: tracking.split must be 'schur' or 'eig', got {self.split!r}")
+        if self.split not in ("schur", "eig", "eig-unit"):
+            raise SceneError(f"scene {scene!r}: tracking.split must be 'schur', 'eig' or 'eig-unit', "
+                             f"got {self.split!r}")
         for k, v in self.plant.items():
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise SceneError(f"scene {scene!r}: tracking.plant[{k!r}] must be a positive factor, got {v!r}")
@@ -265,6 +268,9 @@ class Scene:
         What the scene is for (:class:`Tracking`, :class:`Contact`, :class:`Switched`).
     drawing : callable, optional
         ``drawing(model) -> invctl.plot.animate.Drawing`` (points and links of the mechanism).
+    presets : dict
+        Named parameter sets, ``name -> {parameter or setting: value}`` (``--preset NAME``), applied
+        before the ``--set`` values; e.g. a parameter set identified from a paper's printed numbers.
     reports : tuple of Report
         Numbers the scene wants to see in ``analyze``/``simulate``.
     studies : dict
@@ -285,6 +291,7 @@ class Scene:
     contact: Contact | None = None
     switched: Switched | None = None
     drawing: Callable | None = None
+    presets: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     reports: tuple = ()
     studies: Mapping[str, Callable] = field(default_factory=dict)
     description: str = ""
@@ -313,6 +320,19 @@ class Scene:
             if unknown:
                 raise SceneError(f"scene {name!r}: {what} names unknown values {unknown}")
             object.__setattr__(self, what, names)
+        presets = {}
+        for pname, pvalues in _frozen(self.presets, "presets", name).items():
+            if not isinstance(pname, str) or not pname.isidentifier():
+                raise SceneError(f"scene {name!r}: preset names must be identifier-like strings, got {pname!r}")
+            pvalues = _frozen(pvalues, f"presets[{pname!r}]", name)
+            unknown = sorted(set(pvalues) - set(self.params) - set(self.settings))
+            bad = {k: v for k, v in pvalues.items()
+                   if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)}
+            if unknown or bad:
+                raise SceneError(f"scene {name!r}: preset {pname!r} "
+                                 + (f"names unknown values {unknown}" if unknown else f"has non-numbers {bad}"))
+            presets[pname] = pvalues
+        object.__setattr__(self, "presets", MappingProxyType(presets))
         kinds = [k for k in ("tracking", "contact", "switched") if getattr(self, k) is not None]
         if len(kinds) > 1:
             raise SceneError(f"scene {name!r} declares {kinds}; a scene is one of tracking, contact, switched")
@@ -380,15 +400,21 @@ class Scene:
                          f"{', '.join(self.commands) or 'none'} ({command} needs {need})")
 
     # ------------------------------------------------------------- parameters
-    def split(self, values: Mapping[str, float] | None) -> tuple[dict, dict]:
-        """Split ``--set`` values into (parameter overrides, full settings), checked.
+    def split(self, values: Mapping[str, float] | None, preset: str | None = None) -> tuple[dict, dict]:
+        """Split ``--set`` values into (parameter overrides, full settings), checked; the values of
+        the named ``preset`` (``--preset``) come first and ``values`` override them.
 
         Raises
         ------
         ParameterError
-            Unknown names, non-finite values, non-integers where integers are required, values
-            that must be positive and are not, or what ``validate`` rejects.
+            Unknown preset or names, non-finite values, non-integers where integers are required,
+            values that must be positive and are not, or what ``validate`` rejects.
         """
+        if preset is not None:
+            if preset not in self.presets:
+                raise ParameterError(f"{self.name}: no preset {preset!r}; presets: "
+                                     f"{', '.join(sorted(self.presets)) or 'none'}")
+            values = {**self.presets[preset], **dict(values or {})}
         values = dict(values or {})
         unknown = sorted(set(values) - set(self.params) - set(self.settings))
         if unknown:
@@ -398,6 +424,7 @@ class Scene:
         for k, v in values.items():
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(float(v)):
                 raise ParameterError(f"{self.name}: {k} = {v!r} is not a finite number")
+
         full = {**self.params, **self.settings, **{k: float(v) for k, v in values.items()}}
         self.check_values(full)
         params = {k: float(v) for k, v in values.items() if k in self.params}
@@ -405,7 +432,12 @@ class Scene:
         return params, settings
 
     def check_values(self, full: Mapping[str, float]) -> None:
-        """Apply ``integer``, ``positive`` and ``validate`` to a full set of values."""
+        """Apply the magnitude range, ``integer``, ``positive`` and ``validate`` to a full set of values."""
+        for k, v in full.items():
+            if v != 0 and not MAGNITUDE[0] <= abs(float(v)) <= MAGNITUDE[1]:
+                raise ParameterError(f"{self.name}: {k} = {v!r} is outside [{MAGNITUDE[0]:g}, {MAGNITUDE[1]:g}] in "
+                                     "magnitude: products of a few such values leave double precision (overflow or "
+                                     "underflow to 0); use units in which the value is moderate")
         for k in self.integer:
             if k in full and float(full[k]) != round(float(full[k])):
                 raise ParameterError(f"{self.name}: {k} must be an integer, got {full[k]!r}")
@@ -437,20 +469,22 @@ class Scene:
 
     def _check_model(self, obj) -> None:
         kind = self.kind
+        at = _defined_at(self.build)
         if kind in ("tracking", "contact", "model"):
             from .model import Model
 
             if not isinstance(obj, Model):
                 raise SceneError(f"scene {self.name!r}: build() returned {type(obj).__name__}; a {kind} scene "
-                                 "must return an invctl.model.Model")
+                                 f"must return an invctl.model.Model{at}")
             if kind == "tracking" and self.tracking.reference is not None and obj.ny == 0:
                 raise SceneError(f"scene {self.name!r}: the model has no output h, but the scene declares a "
-                                 "reference; give Model(..., h=...)")
+                                 f"reference; give Model(..., h=...){at}")
             if kind == "contact" and not obj.gaps:
-                raise SceneError(f"scene {self.name!r}: a contact scene's model needs gaps (Model(..., gaps=[...]))")
+                raise SceneError(f"scene {self.name!r}: a contact scene's model needs gaps "
+                                 f"(Model(..., gaps=[...])){at}")
         elif kind == "switched" and not hasattr(obj, "error_system"):
             raise SceneError(f"scene {self.name!r}: build() returned {type(obj).__name__}; a switched scene "
-                             "must return an invctl.studies.switched.SwitchedProblem")
+                             f"must return an invctl.studies.switched.SwitchedProblem{at}")
 
 
 # ---------------------------------------------------------------- results
@@ -489,11 +523,29 @@ def jsonable(obj):
 
 
 # ---------------------------------------------------------------- loading
+def _problems() -> ModuleType:
+    """The shipped ``problems`` package (installed next to ``invctl``), never a folder of that name that
+    comes first on ``sys.path`` (``python -m invctl.cli`` puts the working directory there)."""
+    here = Path(__file__).resolve().parents[1] / "problems"
+    mod = sys.modules.get("problems")
+    if mod is None and (here / "__init__.py").is_file():
+        spec = importlib.util.spec_from_file_location("problems", here / "__init__.py",
+                                                      submodule_search_locations=[str(here)])
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules["problems"] = mod
+        spec.loader.exec_module(mod)
+    elif mod is None:
+        import problems as mod
+    paths = [Path(p).resolve() for p in getattr(mod, "__path__", [])]
+    if here.is_dir() and here not in paths:
+        raise SceneError(f"a package 'problems' in {', '.join(map(str, paths))} hides the shipped scenes in {here}; "
+                         "rename that folder or run invctl from another one")
+    return mod
+
+
 def available_scenes() -> list[str]:
     """Names of the scenes shipped in ``problems/``."""
-    import problems
-
-    return sorted(m.name for m in pkgutil.iter_modules(problems.__path__) if not m.name.startswith("_"))
+    return sorted(m.name for m in pkgutil.iter_modules(_problems().__path__) if not m.name.startswith("_"))
 
 
 def _where(exc: BaseException, source: str) -> str:
@@ -504,6 +556,12 @@ def _where(exc: BaseException, source: str) -> str:
         if Path(fs.filename).resolve() == Path(source).resolve():
             return f" ({fs.filename}:{fs.lineno})"
     return ""
+
+
+def _defined_at(fn) -> str:
+    """`` (file:line)`` where a scene's function is defined, if known."""
+    code = getattr(fn, "__code__", None)
+    return f" ({code.co_filename}:{code.co_firstlineno})" if code is not None else ""
 
 
 def _is_path(text: str) -> bool:
@@ -522,6 +580,8 @@ def load_scene(name_or_path) -> Scene:
     text = str(name_or_path)
     if _is_path(text):
         path = Path(text)
+        if path.is_dir():
+            raise SceneError(f"scene file {text!r} is a folder; give the path to a .py file that defines SCENE")
         if not path.is_file():
             raise SceneError(f"scene file {text!r} does not exist (a shipped scene is given by its name: "
                              f"{', '.join(available_scenes())})")
@@ -530,6 +590,7 @@ def load_scene(name_or_path) -> Scene:
     else:
         if not text.isidentifier():
             raise SceneError(f"{text!r} is neither a scene name nor a path to a .py file")
+        _problems()
         try:
             module = importlib.import_module(f"problems.{text}")
         except ModuleNotFoundError as exc:
@@ -537,16 +598,18 @@ def load_scene(name_or_path) -> Scene:
                 raise SceneError(f"scene {text!r} imports a missing module {exc.name!r}") from None
             raise SceneError(f"no scene named {text!r}; shipped scenes: {', '.join(available_scenes())} "
                              "(or give a path to a scene file)") from None
+        except SceneError:
+            raise
+        except Exception as exc:
+            raise SceneError(f"shipped scene {text!r} failed to import: {type(exc).__name__}: {exc}") from None
         source = getattr(module, "__file__", "") or ""
     return scene_of(module, source)
 
 
 def scene_reference(scene: Scene) -> str:
     """How to load ``scene`` again: its name when it is shipped in ``problems/``, else its file path."""
-    import problems
-
     src = Path(scene.source) if scene.source else None
-    if src is None or src.resolve().parent == Path(problems.__file__).resolve().parent:
+    if src is None or src.resolve().parent == Path(_problems().__file__).resolve().parent:
         return scene.name
     return str(src.resolve())
 
@@ -580,10 +643,14 @@ def _import_file(path: Path) -> ModuleType:
         spec.loader.exec_module(module)
     except SyntaxError as exc:
         sys.modules.pop(modname, None)
-        raise SceneError(f"scene file {exc.filename}:{exc.lineno}: syntax error: {exc.msg}"
+        where = f"{exc.filename or resolved}" + (f":{exc.lineno}" if exc.lineno else "")
+        raise SceneError(f"scene file {where}: syntax error: {exc.msg}"
                          + (f"\n    {exc.text.rstrip()}" if exc.text else "")) from None
-    except SceneError:
+    except SceneError as exc:  # e.g. Scene(...) rejecting what the file declares: say where
         sys.modules.pop(modname, None)
+        where = _where(exc, str(resolved))
+        if where:
+            raise SceneError(f"{exc}{where}") from None
         raise
     except Exception as exc:
         sys.modules.pop(modname, None)

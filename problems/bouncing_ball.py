@@ -68,8 +68,10 @@ def closed_form_report(ctx) -> dict:
     ti, _, _, post, _ = tr.impacts()
     ex_t, _, ex_post, rest = exact_impacts(s["H"], p["g"], p["e"], float(tr.t[-1]))
     k = min(len(ti), len(ex_t), 5)
+    t_rest = tr.rest_time()
     return {"impact times": ti[:k], "closed form": ex_t[:k], "impact time errors": ti[:k] - ex_t[:k],
-            "post-impact velocity errors": post[:k] - ex_post[:k], "rest time": tr.rest_time(),
+            "post-impact velocity errors": post[:k] - ex_post[:k],
+            "rest time": t_rest if np.isfinite(t_rest) else f"not at rest by t_end = {float(tr.t[-1]):.6g} s",
             "rest time, closed form": rest}
 
 
@@ -81,16 +83,20 @@ def drawing(model: Model):
 
 
 def _check(v: dict) -> None:
-    if not 0 <= v["e"] <= 1:
-        from invctl.errors import ParameterError
+    from invctl.errors import ParameterError
 
+    if not 0 <= v["e"] <= 1:
         raise ParameterError(f"bouncing_ball: restitution e must lie in [0, 1], got {v['e']}")
+    if not 0 <= v["theta"] <= 1:
+        raise ParameterError(f"bouncing_ball: theta of the theta-method must lie in [0, 1], got {v['theta']}")
+    if v["projection"] not in (0, 1):
+        raise ParameterError(f"bouncing_ball: projection is a switch, 0 or 1, got {v['projection']}")
 
 
 SCENE = Scene(
     "bouncing_ball", build, params={k: PARAMS[k] for k in MODEL_PARAMS},
     settings={k: v for k, v in PARAMS.items() if k not in MODEL_PARAMS},
-    positive=("m", "g", "H", "h", "t_end"), validate=_check,
+    integer=("projection",), positive=("m", "g", "H", "h", "t_end"), validate=_check,
     contact=Contact(initial_state=lambda model, settings, controller: ([settings["H"]], [0.0]),
                     potential=potential, exact_impacts=_exact),
     reports=(Report("closed form (Newton's law, free fall)", closed_form_report),),

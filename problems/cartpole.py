@@ -73,8 +73,15 @@ def drawing(model: Model):
                    links=[("cart", "tip")], segments=[((-1.0, 0.0), (1.5, 0.0))])
 
 
+def _check(v: dict) -> None:
+    if v["D"] < 0:
+        from invctl.errors import ParameterError
+
+        raise ParameterError(f"cartpole: the pole damping D must be >= 0, got {v['D']}")
+
+
 SCENE = Scene(
-    "cartpole", build, params=PARAMS, positive=("mc", "mp", "l", "I", "g"),
+    "cartpole", build, params=PARAMS, positive=("mc", "mp", "l", "I", "g"), validate=_check,
     tracking=Tracking(reference=reference, plant={"mp": 1.2}, initial_configuration=lambda model: [0.0, 0.0]),
     drawing=drawing,
     description="cart-pole, output = cart position: non-minimum phase (the zero dynamics are the inverted "

@@ -18,6 +18,7 @@ from invctl.model.params import resolve_params
 from invctl.scenes import Scene, Switched
 
 from problems.stiff_wall import PARAMS as _WALL
+from problems.stiff_wall import check as _check_wall
 
 PARAMS = {**_WALL, "Mt": 0.05, "kt": 5.0e4, "bt": 171.0, "switch_on_tip": 0.0,
           "ke_hat": 5.0e4 * 1e6 / (5.0e4 + 1e6), "be_hat": 171.0 * 1e6 / (5.0e4 + 1e6)}
@@ -35,8 +36,12 @@ def build(**overrides: float):
     return SwitchedProblem("compliant_wrist", resolve_params(PARAMS, DERIVED, overrides))
 
 
+def _check(v: dict) -> None:
+    _check_wall(v, "compliant_wrist")
+
+
 SCENE = Scene(
-    "compliant_wrist", build, params=PARAMS,
+    "compliant_wrist", build, params=PARAMS, validate=_check,
     positive=("M", "ke", "Ma", "ke_hat", "t_b", "gamma1", "gamma2", "t_end", "h_max",
               "Mt", "kt", "bt"),
     switched=Switched(),

@@ -41,6 +41,20 @@ def _check(v: dict) -> None:
         raise ParameterError(f"gear_backlash: c4 selects the f4 variant and must be +1 or -1, got {v['c4']}")
     if not 0 <= v["e"] <= 1:
         raise ParameterError(f"gear_backlash: restitution e must lie in [0, 1], got {v['e']}")
+    # the gaps add angles of size 1 + |qd| rad: their round-off must stay below a millionth of each mesh's
+    # backlash alpha1 + alpha2, alpha3 + alpha4
+    S = 1.0 + abs(v["qd"])
+    for a, b in (("alpha1", "alpha2"), ("alpha3", "alpha4")):
+        if v[a] + v[b] < 1e-9 * S:
+            raise ParameterError(f"gear_backlash: the backlash {a} + {b} = {v[a] + v[b]:.3g} rad is below 1e-9 of the "
+                                 f"angles' size {S:.3g} rad: the gap expressions cannot resolve it; use a larger one")
+    if not 0 <= v["theta"] <= 1:
+        raise ParameterError(f"gear_backlash: theta of the theta-method must lie in [0, 1], got {v['theta']}")
+    if v["activation_tol"] < 0:
+        raise ParameterError(f"gear_backlash: activation_tol must be >= 0, got {v['activation_tol']}")
+    for k in ("Kp", "Kv"):
+        if v[k] < 0:
+            raise ParameterError(f"gear_backlash: the gain {k} must be >= 0, got {v[k]}")
 
 
 def build(**overrides: float) -> Model:

@@ -49,8 +49,15 @@ def build_position_output(**overrides: float) -> Model:
     return _build("knife_edge_xy", "x_y", overrides)
 
 
+def _check(v: dict) -> None:
+    if v["Dth"] < 0:
+        from invctl.errors import ParameterError
+
+        raise ParameterError(f"knife_edge: the steering damping Dth must be >= 0, got {v['Dth']}")
+
+
 SCENE = Scene(
-    "knife_edge", build, params=PARAMS, positive=("m", "I"),
+    "knife_edge", build, params=PARAMS, positive=("m", "I"), validate=_check,
     tracking=Tracking(point=[0.0, 0.0, 0.3]),
     description="knife edge (skate) with a non-holonomic constraint, outputs (x, theta); analysis only",
 )

@@ -10,7 +10,12 @@ only (PD (36) regulation, or the switching strategy of Remark 4).
 Controllers (``--controller``): ``pd`` (default with one actuator),
 ``preload`` (default with two), ``switching`` (one actuator), ``juggling``
 (two actuators: I/O linearization (25) of ``y = f1``, gap driven to a
-quarter of the clearance), ``none``.
+quarter of the clearance), ``juggling_design`` (one actuator: the recursive
+impact design (29)-(33), :mod:`invctl.control.juggling_design`: body 2 leaves
+wall f1 at ``v20`` and is brought in ``jcycles`` cycles
+Sigma_1 -> Sigma_2 -> Sigma_1 to the post-impact state ``(jq2, jv2)`` at its
+last impact on f1, through targets spaced evenly between; a target that step 2
+cannot reach stops the command with a ``JugglingInfeasible`` error), ``none``.
 """
 from __future__ import annotations
 
@@ -24,7 +29,7 @@ PARAMS = {
     "m1": 1.0, "m2": 0.5, "l": 0.05, "L": 0.11, "e": 0.5,
     "actuators": 1.0,
     "Kp": 100.0, "Kv": 20.0, "qd": 0.2, "beta": 1.0,
-    "v20": 0.3, "period": 2.0, "amp": 0.1,
+    "v20": 0.3, "period": 2.0, "amp": 0.1, "jq2": 0.2, "jv2": 0.1, "jcycles": 3.0,
     "h": 1e-4, "theta": 0.5, "t_end": 2.0, "projection": 0.0, "activation_tol": 1e-12,
 }
 MODEL_PARAMS = ("m1", "m2", "l", "L", "e")
@@ -126,6 +131,57 @@ def _juggling(model, s):
     return juggling_law(model, [0], Ky=s["Kp"], Dy=s["Kv"], y_d=0.25 * (p["L"] - 2 * p["l"]))
 
 
+def juggling_plan(model, s):
+    """The plan of the ``juggling_design`` controller (000 (29)-(33)) for the settings ``s``."""
+    from invctl.control.juggling_design import Juggler, JugglerState, design
+
+    p = model.values
+    j = Juggler(p["m1"], p["m2"], p["l"], p["L"], p["e"])
+    start = JugglerState(0.0, 0.0, 0.0, p["l"], s["v20"])
+    K = int(s["jcycles"])
+    targets = [(p["l"] + (s["jq2"] - p["l"]) * k / K, s["v20"] + (s["jv2"] - s["v20"]) * k / K) for k in range(1, K + 1)]
+    return design(j, start, targets)
+
+
+def _juggling_design(model, s):
+    from invctl.control.juggling_design import juggling_plan_law
+
+    _need(model, 1, "juggling_design", "the juggler drives body 1 only")
+    return juggling_plan_law(model, juggling_plan(model, s), Kp=s["Kp"], Kv=s["Kv"])
+
+
+def juggling_report(ctx) -> dict:
+    """Planned impacts (000 (29)-(33)) against the simulated ones."""
+    from invctl.control.juggling_design import plan_vs_run
+
+    plan = juggling_plan(ctx.model, ctx.settings)
+    out = {f"cycle {k + 1}: D0, D1, A = y2'(t1-), B = y1'(t2-)": [c.D0, c.D1, c.A, c.B]
+           for k, c in enumerate(plan.cycles)}
+    out["designed final post-impact state (q2, q2')"] = [plan.cycles[-1].end.q2, plan.cycles[-1].end.v2]
+    out.update(plan_vs_run(plan, ctx.result))
+    return out
+
+
+def juggling_design_analysis(ctx) -> dict:
+    """000 (29)-(33) without a run: the default plan, and step 2 failing where it must (body 2 leaving
+    wall f1 backwards, target ahead)."""
+    from invctl.control.juggling_design import Juggler, JugglerState, design_cycle
+    from invctl.errors import JugglingInfeasible
+
+    s = {**PARAMS, **ctx.settings}
+    plan = juggling_plan(ctx.model, s)
+    p = ctx.model.values
+    out = {"cycles": len(plan.cycles), "planned impacts (t, wall, q2, q2' after)":
+           [[round(float(x), 6) for x in r] for r in plan.impact_table()]}
+    j = Juggler(p["m1"], p["m2"], p["l"], p["L"], p["e"])
+    try:
+        design_cycle(j, JugglerState(0.0, 0.0, -0.5, p["l"], -0.2), p["l"] + 0.1, 0.2)
+        out["body 2 leaving backwards, target 0.1 m ahead"] = "feasible"
+    except JugglingInfeasible as exc:
+        out["body 2 leaving backwards, target 0.1 m ahead"] = str(exc).split(";")[0]
+    return out
+
+
 def _need(model, act, name, why):
     if model.m != act:
         from invctl.errors import SceneError
@@ -139,6 +195,8 @@ def _initial(model, s, controller):
     l, L = p["l"], p["L"]
     if controller in ("preload", "switching"):
         return [0.0, l], [0.0, 0.0]
+    if controller == "juggling_design":
+        return [0.0, l], [0.0, s["v20"]]                    # just after an impact on f1 (000 Sect. 4)
     return [0.0, l + 0.5 * (L - 2 * l)], [0.0, s["v20"]]
 
 
@@ -160,6 +218,29 @@ def _check(v: dict) -> None:
     if not v["L"] > 2 * v["l"]:
         raise ParameterError(f"prismatic_clearance: the clearance L - 2 l = {v['L'] - 2 * v['l']:.3g} must be "
                              "positive")
+    # the gaps are differences of positions of size S: their round-off (~1e-16 S) must stay below a
+    # millionth of the clearance, or the contact decisions are made on round-off
+    S = v["L"] + abs(v["qd"]) + abs(v["amp"])
+    if v["L"] - 2 * v["l"] < 1e-9 * S:
+        raise ParameterError(f"prismatic_clearance: the clearance L - 2 l = {v['L'] - 2 * v['l']:.3g} is below "
+                             f"1e-9 of the positions' size {S:.3g}: the gap expressions cannot resolve it in double "
+                             "precision; use a larger clearance")
+    _common(v)
+
+
+def _common(v: dict, name: str = "prismatic_clearance") -> None:
+    """Checks shared by the time-stepping settings and the PD/pre-loading gains."""
+    from invctl.errors import ParameterError
+
+    if not 0 <= v["theta"] <= 1:
+        raise ParameterError(f"{name}: theta of the theta-method must lie in [0, 1], got {v['theta']}")
+    if v["projection"] not in (0, 1):
+        raise ParameterError(f"{name}: projection is a switch, 0 or 1, got {v['projection']}")
+    if v["activation_tol"] < 0:
+        raise ParameterError(f"{name}: activation_tol (a gap threshold) must be >= 0, got {v['activation_tol']}")
+    for k in ("Kp", "Kv"):
+        if v[k] < 0:
+            raise ParameterError(f"{name}: the gain {k} must be >= 0, got {v[k]}")
 
 
 def drawing(model: Model):
@@ -177,11 +258,15 @@ def drawing(model: Model):
 SCENE = Scene(
     "prismatic_clearance", build, params={k: PARAMS[k] for k in (*MODEL_PARAMS, "actuators")},
     settings={k: v for k, v in PARAMS.items() if k not in (*MODEL_PARAMS, "actuators")},
-    integer=("actuators",), positive=("m1", "m2", "l", "L", "h", "t_end", "period"), validate=_check,
-    contact=Contact(controllers={"pd": _pd, "preload": _preload, "switching": _switching, "juggling": _juggling},
+    integer=("actuators", "projection", "jcycles"),
+    positive=("m1", "m2", "l", "L", "h", "t_end", "period", "beta", "jcycles"), validate=_check,
+    contact=Contact(controllers={"pd": _pd, "preload": _preload, "switching": _switching, "juggling": _juggling,
+                                 "juggling_design": _juggling_design},
                     initial_state=_initial,
                     default_controller=lambda model, s: "pd" if model.m == 1 else "preload"),
-    reports=(Report("Remark 4 switching modes", modes_report, controllers=("switching",)),),
+    reports=(Report("Remark 4 switching modes", modes_report, controllers=("switching",)),
+             Report("000 (29)-(33): planned and simulated impacts", juggling_report, controllers=("juggling_design",)),
+             Report("000 (29)-(33): recursive juggling design", juggling_design_analysis, command="analyze")),
     drawing=drawing,
     description="one-DoF prismatic joint with clearance (000 Fig. 2(b), Example 3, Remark 4)",
 )

@@ -93,6 +93,18 @@ def _check(v: dict) -> None:
     if v["Lr"] <= v["r"]:
         raise ParameterError(f"slider_crank_clearance: the rod (Lr = {v['Lr']}) must be longer than the crank "
                              f"(r = {v['r']})")
+    # the gap (c^2 - |A - B|^2) / (2 c) subtracts points of size r + Lr: its round-off (~1e-16 (r + Lr))
+    # must stay below a millionth of the clearance
+    if v["c"] < 1e-9 * (v["r"] + v["Lr"]):
+        raise ParameterError(f"slider_crank_clearance: the clearance c = {v['c']:.3g} is below 1e-9 of the "
+                             f"mechanism's size r + Lr = {v['r'] + v['Lr']:.3g}: the gap expression cannot resolve it "
+                             "in double precision; use a larger clearance")
+    if not 0 <= v["theta"] <= 1:
+        raise ParameterError(f"slider_crank_clearance: theta of the theta-method must lie in [0, 1], got {v['theta']}")
+    if v["projection"] not in (0, 1):
+        raise ParameterError(f"slider_crank_clearance: projection is a switch, 0 or 1, got {v['projection']}")
+    if v["activation_tol"] < 0:
+        raise ParameterError(f"slider_crank_clearance: activation_tol must be >= 0, got {v['activation_tol']}")
 
 
 def drawing(model: Model):
@@ -110,7 +122,8 @@ def drawing(model: Model):
 SCENE = Scene(
     "slider_crank_clearance", build, params={k: PARAMS[k] for k in MODEL_PARAMS},
     settings={k: v for k, v in PARAMS.items() if k not in MODEL_PARAMS},
-    positive=("J1", "r", "Lr", "mr", "ms", "c", "h", "t_end", "period", "Kp", "Kv"), validate=_check,
+    integer=("projection",), positive=("J1", "r", "Lr", "mr", "ms", "c", "h", "t_end", "period", "Kp", "Kv"),
+    validate=_check,
     contact=Contact(controllers={"pd": _pd, "pdplus": _pdplus},
                     initial_state=lambda model, s, controller: (centered_configuration(model, s["theta0"]),
                                                                 np.zeros(3))),

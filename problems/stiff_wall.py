@@ -46,9 +46,28 @@ def build(**overrides: float):
     return SwitchedProblem("stiff_wall", resolve_params(PARAMS, DERIVED, overrides))
 
 
+def check(v: dict, name: str = "stiff_wall") -> None:
+    """Physical signs and the order of the scenario's events (shared with the compliant wrist)."""
+    from invctl.errors import ParameterError
+
+    # (controller gains may be anything: the analysis reports unstable choices)
+    for k in ("b", "be", "be_hat", "F_max", "overshoot", "bt"):
+        if k in v and v[k] < 0:
+            raise ParameterError(f"{name}: {k} (a damping, force or time) must be >= 0, got {v[k]}")
+    if not 0 < v["t_c"] < v["t_b"]:
+        raise ParameterError(f"{name}: the contact window needs 0 < t_c < t_b, got t_c = {v['t_c']}, t_b = {v['t_b']}")
+    if not v["v_app"] > 0:
+        raise ParameterError(f"{name}: the approach speed v_app must be positive, got {v['v_app']}")
+    if not v["x_ret"] < 0:
+        raise ParameterError(f"{name}: the retract position x_ret must be in free space (< 0), got {v['x_ret']}")
+    for k in ("glue_at_crossing", "switch_on_tip"):
+        if k in v and v[k] not in (0, 1):
+            raise ParameterError(f"{name}: {k} is a switch, 0 or 1, got {v[k]}")
+
+
 SCENE = Scene(
     "stiff_wall", build, params=PARAMS,
-    positive=("M", "ke", "Ma", "ke_hat", "t_b", "gamma1", "gamma2", "t_end", "h_max"),
+    positive=("M", "ke", "Ma", "ke_hat", "t_b", "gamma1", "gamma2", "t_end", "h_max"), validate=check,
     switched=Switched(),
     description="1-DOF manipulator against a stiff Kelvin-Voigt wall under switched motion/force control (002)",
 )

@@ -157,7 +157,8 @@ def test_A1_design_point_margin_is_evaluated_at_the_design_point(manipulator):
     from invctl.analysis import schur_complement
 
     lin = tracking_linearization(scene.SCENE, manipulator, scene.reference(manipulator))
-    K = np.array([[0.1 * lin.P_tilde[0, 0], 0.1 * lin.P_tilde[0, 1]], [1.0, 0.01]])
+    k1 = scene.A1_SCENE["K"][0][0]
+    K = np.array([[k1 * lin.P_tilde[0, 0], k1 * lin.P_tilde[0, 1]], [1.0, 0.01]])
     S = np.array(schur_complement(manipulator)(lin.internal.point, np.zeros(5), manipulator.theta_values))
     KS = K @ S
     expected = np.linalg.eigvalsh(0.5 * (KS + KS.T))[0]

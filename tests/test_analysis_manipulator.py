@@ -187,8 +187,10 @@ def test_linearization_structure_51_52(manipulator, lin):
     mu = D * C0 / 2 + np.array([-1, 1]) * np.sqrt((D * C0 / 2) ** 2 + C0 * c)
     np.testing.assert_allclose(np.sort(lin.eigenvalues.real), mu, rtol=1e-10)
     assert lin.k == 1 and mu[0] < 0 < mu[1]
-    # T of (39) is the inverse of the paper's T = [mu2/c mu1/c; 1 1]
-    np.testing.assert_allclose(np.linalg.inv(lin.T), [[mu[1] / c, mu[0] / c], [1, 1]], rtol=1e-9)
+    # T of (39) is the inverse of the paper's T = [mu2/c mu1/c; 1 1] with its columns scaled to unit length
+    # and negated (split "eig-unit": the normalization of the printed T^-1 P)
+    Tp = np.array([[mu[1] / c, mu[0] / c], [1, 1]])
+    np.testing.assert_allclose(np.linalg.inv(lin.T), -Tp / np.linalg.norm(Tp, axis=0), rtol=1e-9)
     np.testing.assert_allclose(lin.T @ lin.Q @ np.linalg.inv(lin.T), np.diag(mu), atol=1e-9)
     assert lin.Q_tilde[0, 0] == pytest.approx(mu[1])
 
@@ -287,3 +289,217 @@ def test_sect3_velocity_reconstruction_is_28(manipulator):
         v28 = np.linalg.solve(M, Bt) @ np.linalg.solve(Gam, np.concatenate([np.zeros(2), yd])) + V @ eta2
         np.testing.assert_allclose(vs, v28, rtol=1e-9, atol=1e-10)
         np.testing.assert_allclose(P2 @ np.linalg.solve(M, Bt), 0, atol=1e-12)
+
+
+# ------------------------------------------------------- the printed numbers of Sect. 6 (issue 12)
+def closed_form_split(p, b0, bf):
+    """T^-1 Q T and T^-1 P from the closed forms (51)-(52) (C2 with 2 kappa L2), T = unit-length eigenvector
+    columns with negative last entry, built by hand (no AD, no invctl linearization)."""
+    L2, L3, m3, c, D, kap, dl = consts(p)
+    C0 = (2 * L2 + 4 * L3) / (kap * L2)
+    C1 = -L3 * m3 * (L2 + 2 * L3) / (2 * kap * L2) * (np.sin(b0) + np.sin(bf))
+    C2 = (4 * kap + L2 * L3 * m3) / (2 * kap * L2) * (L2 + 2 * L3)
+    Q = np.array([[0, -C0], [-c, D * C0]])
+    P = Q @ np.array([[C1, C2], [-D * C1, -D * C2]])
+    mu = D * C0 / 2 + np.array([-1, 1]) * np.sqrt((D * C0 / 2) ** 2 + C0 * c)
+    T = np.array([[mu[1] / c, mu[0] / c], [1.0, 1.0]])      # eigenvector columns (mu1, mu2), last entry 1
+    T = -T / np.linalg.norm(T, axis=0)
+    return np.linalg.solve(T, Q @ T), np.linalg.solve(T, P)
+
+
+def test_paper_preset_reproduces_the_printed_split_to_its_digits():
+    """003 Sect. 6 prints T^-1 Q T = diag(-24.8623, 28.3917) and T^-1 P to 4 decimals: the 'paper' preset
+    reproduces every entry within half a unit of the 4th decimal, both by the closed forms (51)-(52) and by
+    the AD linearization the controllers use (which agree to 1e-9 relative: round-off and Newton 1e-12)."""
+    from invctl.analysis.identify import linearization_features
+
+    printed = scene.PRINTED_LINEARIZATION
+    model = scene.build(**scene.PRESETS["paper"])
+    ref = scene.reference(model)
+    b0, bf = ref(ref.t0)[1, 0], ref(ref.tf)[1, 0]
+    TQT, TP = closed_form_split(model.values, b0, bf)
+    f = linearization_features(tracking_linearization(scene.SCENE, model, ref), printed["normalization"])
+    for ours, ad, key in ((TQT, f["TinvQT"], "TinvQT"), (TP, f["TinvP"], "TinvP")):
+        np.testing.assert_allclose(ad, ours, rtol=1e-9, atol=1e-9)
+        assert np.max(np.abs(ours - np.asarray(printed[key]))) < 0.5e-4, (key, ours)
+    # the printed T = [mu2/c mu1/c; 1 1] itself ("last-one") gives another T^-1 P: rows rescaled, sign flipped
+    last = linearization_features(tracking_linearization(scene.SCENE, model, ref), "last-one")["TinvP"]
+    assert np.all(np.sign(last) == -np.sign(np.asarray(printed["TinvP"])))
+    # and the default parameters do not reproduce them (a different plant)
+    d = linearization_features(tracking_linearization(scene.SCENE, scene.build(), scene.reference(scene.build())))
+    assert np.max(np.abs(d["TinvP"] - np.asarray(printed["TinvP"]))) > 100
+
+
+def test_cli_analyze_preset_paper_prints_the_printed_split(capsys):
+    assert main(["analyze", "manipulator", "--preset", "paper", "--samples", "20", "--json"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    data = json.loads(out[-1])
+    assert data["params"]["m3"] == 3.4 and data["params"]["c"] == 50.0 and data["params"]["D"] == 0.25
+    rep = data["reports"]["003 Sect. 6: T^-1 Q T and T^-1 P (printed numbers)"]
+    assert rep["values"]["equal to the printed 4 decimals"] is True
+    assert max(rep["differences"].values()) < 0.5e-4
+    assert any("T^-1 P" in line and "paper:" in line for line in out)
+    # a preset name that does not exist is a ParameterError naming the presets (exit 2)
+    assert main(["analyze", "manipulator", "--preset", "papr", "--samples", "5"]) == 2
+    assert "presets: paper" in capsys.readouterr().err
+
+
+# ------------------------------------------------------- the boundary selection (36) (issue 12)
+@pytest.fixture(scope="module", params=["default", "paper"])
+def inverse_modes(request):
+    """The index-reduced inverse model linearized at the start and end equilibria of y_ref."""
+    from invctl.inversion.boundary import tangent_dynamics
+    from invctl.inversion.solve import _equilibrium_solver, servo_model
+
+    model = scene.build(**({} if request.param == "default" else scene.PRESETS["paper"]))
+    ref = scene.reference(model)
+    sv = servo_model(model)
+    th = model.theta_values
+    eq = _equilibrium_solver(model)
+    Y = sv.reference_samples(ref, np.array([ref.t0, ref.tf]))
+    out = {"model": model, "ref": ref, "servo": sv}
+    for end, t, col in (("start", ref.t0, Y[:, :1]), ("end", ref.tf, Y[:, 1:])):
+        E, _ = eq.solve(ref(t).ravel(), guess_q=scene.initial_configuration(model))
+        A, T, _ = tangent_dynamics(sv, E, col, th)
+        out[end] = (E, col, A, T)
+    out["labels"] = [f"{k}:{n}" for k in ("q", "v", "lam", "mu", "u") for n in sv.names[k]]
+    return out
+
+
+def _gamma_coordinates(modes, end):
+    """The tangent space of the constraint manifold at an equilibrium in the coordinates (gamma, gamma_dot):
+    row i = how entry i of X = (q, v, lam, u) moves with (gamma, gamma_dot)."""
+    T = modes[end][3]
+    lab = modes["labels"]
+    C = T[[lab.index("q:gamma"), lab.index("v:gamma_dot")]]
+    return T @ np.linalg.inv(C)
+
+
+def test_consistent_states_at_the_equilibria_depend_on_gamma_gamma_dot_as_claimed(inverse_modes):
+    """The argument of issue 12, first way: at both equilibria the tangent space is 2-dim (the internal
+    state); q moves with gamma only, v with gamma_dot only (every consistent velocity is proportional to
+    gamma_dot), s2 and s2_dot not at all (servo constraint), and lam, u only through c gamma + D gamma_dot.
+    Tolerance 1e-9 relative: a null-space basis of an exact Jacobian (round-off)."""
+    lab = inverse_modes["labels"]
+    c, D = inverse_modes["model"].values["c"], inverse_modes["model"].values["D"]
+    for end in ("start", "end"):
+        assert inverse_modes[end][3].shape[1] == 2
+        R = _gamma_coordinates(inverse_modes, end)
+        scale = np.abs(R).max()
+        for i, name in enumerate(lab):
+            if name in ("q:s2", "v:s2_dot"):
+                assert np.abs(R[i]).max() < 1e-9 * scale
+            elif name.startswith("q:"):
+                assert abs(R[i, 1]) < 1e-9 * scale and abs(R[i, 0]) > 1e-3
+            elif name.startswith("v:"):
+                assert abs(R[i, 0]) < 1e-9 * scale and abs(R[i, 1]) > 1e-3
+            else:   # lam, u: multiples of (c, D)
+                assert R[i, 1] * c == pytest.approx(R[i, 0] * D, rel=1e-9, abs=1e-9 * scale)
+                assert abs(R[i, 0]) > 1e-3
+
+
+def test_every_binary_selection_fixes_both_internal_modes_at_T0(inverse_modes):
+    """Second way, ranks of selected rows: the printed (36) has rank 2 on the tangent space at T0 (gamma by q,
+    gamma_dot by s1_dot: the unstable mode is fixed at T0) and rank 2 at Tf (gamma and c gamma + D gamma_dot by
+    lam2, u: the stable mode is fixed at Tf), while the dichotomy of the stabilized model needs 13 decaying
+    modes at T0 and 1 growing mode at Tf.  Every choice of 13 entries at T0 has rank 2 there; the largest set of
+    entries with rank <= 1 has 6 (s2, s2_dot and one family).  What a selection can do is keep the
+    inconsistency small that the decaying constraint-drift modes absorb: |C Zs (S Zs)^-1 S W| (C the Jacobian of
+    the invariants, Zs the decaying modes, W the growing one scaled to gamma = 1); the automatic plan's choice
+    needs far less of it than the former hand selection."""
+    import itertools
+
+    import scipy.linalg as sla
+
+    from invctl.inversion.boundary import resolve_selection
+    from invctl.inversion.plan import plan_inversion
+
+    sv, lab = inverse_modes["servo"], inverse_modes["labels"]
+    nx = len(lab)
+    T0b, Tfb = inverse_modes["start"][3], inverse_modes["end"][3]
+
+    def rank(rows, T):
+        return np.linalg.matrix_rank(np.eye(nx)[list(rows)] @ T, tol=1e-8)
+
+    paper = resolve_selection(sv, scene.BOUNDARY_PAPER["start"], scene.BOUNDARY_PAPER["end"])
+    assert (rank(paper.start, T0b), rank(paper.end, Tfb)) == (2, 2)
+    assert {rank(c, T0b) for c in itertools.combinations(range(nx), nx - 1)} == {2}
+    assert max(len(c) for k in range(1, 8) for c in itertools.combinations(range(nx), k) if rank(c, T0b) <= 1) == 6
+    E0, Y0, A0, _ = inverse_modes["start"]
+    th = inverse_modes["model"].values
+    C0 = np.array(sv.constraint_jacobian(E0, Y0, inverse_modes["model"].theta_values))
+    w, V = np.linalg.eig(A0)
+    W = np.real(V[:, np.argmax(w.real)])
+    W = W / W[lab.index("q:gamma")]
+    Zs = sla.schur(A0, output="real", sort=lambda re, im: re < 0)[1][:, :nx - 1]
+
+    def absorbed(rows):
+        S = np.eye(nx)[list(rows)]
+        return np.linalg.norm(C0 @ Zs @ np.linalg.solve(S @ Zs, S @ W))
+
+    hand = resolve_selection(sv, scene.BOUNDARY["start"], scene.BOUNDARY["end"])
+    plan = plan_inversion(inverse_modes["model"], inverse_modes["ref"],
+                          q_guess=scene.initial_configuration(inverse_modes["model"]))
+    auto = resolve_selection(sv, plan.start, plan.end)
+    print(f"c = {th['c']}: absorbed inconsistency per unit unstable tail: hand {absorbed(hand.start):.4g}, "
+          f"plan {absorbed(auto.start):.4g}")
+    assert absorbed(auto.start) < 0.2 * absorbed(hand.start)
+    assert min(absorbed(c) for c in itertools.combinations(range(nx), nx - 1)) > 1.0
+
+
+def test_printed_58_has_two_signs_that_conflict_with_52_and_phi10():
+    """(58) prints Psi(x) = [0,1] T^-1 (x5; +(m3 L3/2) sin(x4+x5) x7 + kappa (x9+x10) + (m3 L2 L3/4) cos(x5) x9)
+    + [0,1] T^-1 P2 (x2; x4 + delta x5).  (i) The eta2 entry must be phi~10(q) v = e5^T M v, whose s2_dot
+    coefficient is -(m3 L3/2) sin(beta+gamma) (as printed before (54)); only that sign satisfies L_K phi = 0,
+    phi~10 M^-1 [G^T B] = 0, the condition of Lemma 3.1.  (ii) (52) subtracts P2 y: at rest (v = 0, gamma = 0)
+    Psi must be the equilibrium -Q~^-1 P~ y of (40), which -[0,1] T^-1 P2 y is and the printed + is not.
+    invctl's Psi is the consistent form.  Tolerances: exact formulas, round-off (1e-10 relative)."""
+    model = scene.build(**scene.PRESETS["paper"])
+    ref = scene.reference(model)
+    lin = tracking_linearization(scene.SCENE, model, ref)
+    p = model.values
+    L2, L3, m3, c, D, kap, dl = consts(p)
+    th = model.theta_values
+    rng = np.random.default_rng(7)
+    q0 = scene.initial_configuration(model)
+    for _ in range(4):
+        q, v = consistent_state(model, q0 + rng.uniform(-0.1, 0.1, 5), rng.uniform(-1, 1, 5))
+        be, ga = q[3], q[4]
+        M = model.evaluate("M", q)
+        GB = np.hstack([model.evaluate("G", q).T, model.evaluate("B", q)])
+        row = {s: np.array([0, s * m3 * L3 / 2 * np.sin(be + ga), 0, kap + m3 * L2 * L3 / 4 * np.cos(ga), kap])
+               for s in (-1, +1)}
+        np.testing.assert_allclose(row[-1], M[4], rtol=1e-12, atol=1e-12)
+        scale = np.abs(np.linalg.solve(M, GB)).max() * np.abs(M[4]).max()
+        assert np.abs(row[-1] @ np.linalg.solve(M, GB)).max() < 1e-12 * scale
+        assert np.abs(row[+1] @ np.linalg.solve(M, GB)).max() > 1e-2 * scale
+    psi = lin.psi_function()
+    for t in (ref.t0, ref.tf):
+        y = ref(t).ravel()
+        q = np.array(lin.internal.state(y_0=y, y_1=[0, 0], eta=[0, 0], theta=th)["q"]).ravel()
+        consistent = -(lin.T[1] @ lin.P_list[1] @ y)
+        as_printed = +(lin.T[1] @ lin.P_list[1] @ y)
+        equilibrium = -np.linalg.solve(lin.Q_tilde, lin.P_tilde @ y)[0]
+        assert consistent == pytest.approx(equilibrium, rel=1e-10)
+        assert float(psi(q, np.zeros(5), th)) == pytest.approx(consistent, rel=1e-10)
+        assert abs(as_printed - equilibrium) > 0.5 * abs(equilibrium)
+
+
+def test_scene_presets_apply_before_set_and_are_checked():
+    from invctl.errors import ParameterError
+    from invctl.scenes import Scene
+
+    params, _ = scene.SCENE.split({"m3": 4.0}, preset="paper")
+    assert params == {"m3": 4.0, "c": 50.0, "D": 0.25}          # --set overrides the preset
+    assert scene.SCENE.split({}, preset=None) == scene.SCENE.split({})
+    with pytest.raises(ParameterError, match="no preset 'x'; presets: paper"):
+        scene.SCENE.split({}, preset="x")
+    with pytest.raises(ParameterError, match="positive"):        # preset values go through the same checks
+        Scene("s", scene.build, params=scene.PARAMS, positive=("m3",), presets={"bad": {"m3": -1.0}}).split(
+            {}, preset="bad")
+    with pytest.raises(SceneError, match="unknown values"):
+        Scene("s", scene.build, params=scene.PARAMS, presets={"p": {"nope": 1.0}})
+    with pytest.raises(SceneError, match="non-numbers"):
+        Scene("s", scene.build, params=scene.PARAMS, presets={"p": {"m3": float("nan")}})
+    with pytest.raises(SceneError, match="identifier-like"):
+        Scene("s", scene.build, params=scene.PARAMS, presets={"a b": {"m3": 1.0}})

@@ -1,4 +1,9 @@
-"""The C1/C2/C3 study of 003 Sect. 6 (needs the servo-constraint inverse of the reference model)."""
+"""The C1/C2/C3 study of 003 Sect. 6 (needs the servo-constraint inverse of the reference model).
+
+C1 is the paper's C1 (feedforward + funnel controller with the new reference (42)/(43), 003 (60)-(61)),
+C1-inv invctl's extension (new reference from the inverse's states).  The study runs with the paper's
+parameters (``--preset paper``, identified from the printed numbers) and with the default ones.
+"""
 import json
 
 import numpy as np
@@ -8,15 +13,22 @@ import problems.manipulator as scene
 from invctl.cli import main as cli_main
 from invctl.studies.tracking import TrackingStudy, run_tracking_study, setup_tracking
 
+PAPER = scene.SCENE.split({}, preset="paper")[0]
+
 
 @pytest.fixture(scope="module")
 def setup():
-    return setup_tracking(scene.SCENE, invert=True)
+    return setup_tracking(scene.SCENE, PAPER, invert=True)
 
 
 @pytest.fixture(scope="module")
 def study(setup):
-    return run_tracking_study(scene.SCENE, setup=setup, progress=False)
+    return run_tracking_study(scene.SCENE, PAPER, setup=setup, progress=False)
+
+
+@pytest.fixture(scope="module")
+def study_default():
+    return run_tracking_study(scene.SCENE, progress=False)
 
 
 def test_feedforward_is_causal_and_matches_reference_model(setup):
@@ -37,21 +49,38 @@ def test_feedforward_is_causal_and_matches_reference_model(setup):
 
 
 def test_study_ordering_and_reductions(study):
+    """The paper's C1 against C2 with the paper's parameters: C1 < C2 < C3 for both cumulative errors (as in
+    003 Fig. 7) and a positive reduction of both (printed: 40 % and 50 %; Table 2's funnel parameters are
+    missing, docs/tracking.md scans them); C1's feedback works less than C2's (Figs. 8, 9)."""
     runs = study.runs
     print("\n" + study.table())
-    for name in ("C1", "C2", "C3"):
+    assert set(runs) == {"C1", "C2", "C3", "C1-inv"}
+    for name in runs:
         assert runs[name].status == "ok", (name, runs[name].message)
     for kind in ("output", "end effector"):
         e = [runs[c].cumulative_errors[kind] for c in ("C1", "C2", "C3")]
         assert e[0] < e[1] < e[2], (kind, e)
     red = study.reductions
-    assert red["output"] >= 0.30 and red["end effector"] >= 0.30, red
-    for name in ("C1", "C2"):
+    assert red["output"] >= 0.3 and red["end effector"] >= 0.1, red
+    for name in ("C1", "C2", "C1-inv"):
         assert runs[name].max_funnel_ratio < 1.0
         assert runs[name].max_constraint_drift < 1e-6
-    # C1's feedback works less than C2's: smaller funnel ratio (Fig. 9) and smaller feedback input
     assert runs["C1"].max_funnel_ratio < runs["C2"].max_funnel_ratio
     assert np.abs(runs["C1"].u_fb).max() < np.abs(runs["C2"].u_fb).max()
+    # C3 does not reach the final point (Fig. 6), C1 and C2 do
+    assert runs["C3"].output_error[-1] > 10 * max(runs["C1"].output_error[-1], runs["C2"].output_error[-1])
+
+
+def test_extension_beats_the_papers_c1_on_both_parameter_sets(study, study_default):
+    """invctl's C1-inv (new reference along the inverse's states) reduces C2's output error more than the
+    paper's C1 does, with the paper's and with the default parameters; with the default ones the paper's C1
+    gains (almost) nothing over C2 (docs/reproduction.md)."""
+    print("\n" + study_default.table())
+    for st in (study, study_default):
+        ext, red = st.extension_reductions, st.reductions
+        assert ext["output"] > red["output"] + 0.1, (ext, red)
+        assert ext["output"] > 0.25 and ext["end effector"] > 0.15, ext
+    assert abs(study_default.reductions["output"]) < 0.1
 
 
 def test_study_save_load_plot(study, tmp_path):
@@ -74,23 +103,37 @@ def test_cli_simulate_json(capsys):
     assert data["max_funnel_ratio"] < 1
 
 
-def test_c1_on_the_reference_model_is_nearly_exact(setup):
-    """Along the inverse's trajectory every error level of C1 vanishes; on the reference model only the
-    clipped pre-actuation remains, which the feedback removes: C1 error << C3 error, small u_fb."""
+def test_c1_inv_on_the_reference_model_is_nearly_exact_and_c1_is_not(setup):
+    """Along the inverse's trajectory every error level of C1-inv vanishes; on the reference model only the
+    clipped pre-actuation remains, which the feedback removes: C1-inv error << C3 error, small u_fb.  The
+    paper's C1 compares the plant with the linearized reference (42): its feedback works against the
+    feedforward even without mismatch (larger u_fb, larger error than C1-inv)."""
     from invctl.simulate.closed_loop import ClosedLoop
 
     uff = setup.u_ff_samples()
-    c1 = ClosedLoop(setup.model, setup.reference, controller=setup.c1_controller(), u_ff=uff,
-                    signals=setup.signals).run(setup.q0)
-    c3 = ClosedLoop(setup.model, setup.reference, u_ff=uff, signals=setup.signals).run(setup.q0)
-    print(f"reference model: C1 {c1.cumulative_output_error:.3g}, C3 {c3.cumulative_output_error:.3g}, "
-          f"max |u_fb| {np.abs(c1.u_fb).max():.3g}")
-    assert c1.cumulative_output_error < 0.05 * c3.cumulative_output_error
-    assert np.abs(c1.u_fb).max() < 0.5 * np.abs(c1.u_ff).max()
+    ctrls = (("C1-inv", setup.inverse_reference_controller()), ("C1", setup.c1_controller()), ("C3", None))
+    runs = {name: ClosedLoop(setup.model, setup.reference, controller=ctrl, u_ff=uff,
+                             signals=setup.signals).run(setup.q0) for name, ctrl in ctrls}
+    # after the start (t > 0.2 s), where the feedback has removed what the clipped pre-actuation left
+    late = {k: float(np.abs(r.u_fb[:, r.t > 0.2]).max()) for k, r in runs.items() if k != "C3"}
+    print("reference model: " + ", ".join(f"{k} {r.cumulative_output_error:.3g}" for k, r in runs.items())
+          + f"; max |u_fb| after 0.2 s: {late}")
+    assert runs["C1-inv"].cumulative_output_error < 0.05 * runs["C3"].cumulative_output_error
+    assert late["C1-inv"] < 0.01 * np.abs(runs["C1-inv"].u_ff).max()
+    assert late["C1"] > 10 * late["C1-inv"]
+    assert runs["C1"].cumulative_output_error > 10 * runs["C1-inv"].cumulative_output_error
+
+
+def test_old_controller_name_is_explained():
+    from invctl.errors import SceneError
+    from invctl.studies.tracking import check_controller
+
+    with pytest.raises(SceneError, match="now called C1 .*'C1-inv'"):
+        check_controller("C1-42")
 
 
 def _run_or_violation(s, name):
-    from invctl.errors import FunnelViolation
+    from invctl.errors import FunnelViolation, SimulationFailed
     from invctl.studies.tracking import run_controller
 
     try:
@@ -99,6 +142,9 @@ def _run_or_violation(s, name):
     except FunnelViolation as exc:
         assert exc.partial is not None and exc.diagnostics["t"] == pytest.approx(exc.partial.t[-1])
         return "violation", exc.partial
+    except SimulationFailed as exc:   # only by leaving the operating region, said so
+        assert exc.diagnostics.get("left_region") is not None and "operating region" in str(exc)
+        return "left region", exc.partial
 
 
 @pytest.mark.parametrize("case", ["m3x1.5", "tight", "tf=0.5"])
@@ -107,15 +153,16 @@ def test_c1_extremes(setup, case):
             "tight": dict(inverse=setup.inverse, feedback={"phi_bar": (1.0, 3.0, 0.002),
                                                            "funnels": [(1.0, 3.0, 0.005)] * 2}),
             "tf=0.5": dict(reference=lambda m: scene.reference(m, tf=0.5))}[case]
-    s = setup_tracking(scene.SCENE, **opts)
+    s = setup_tracking(scene.SCENE, PAPER, **opts)
     kinds = {}
-    for name in ("C1", "C2"):
+    for name in ("C1", "C2", "C1-inv"):
         kind, r = _run_or_violation(s, name)
         kinds[name] = kind
         print(f"{case} {name}: {kind} (t = {r.t[-1]:.3f}), cum. err {r.cumulative_output_error:.4g}, "
               f"max ratio {r.max_funnel_ratio:.3f}, input peaks {r.input_peaks.round(2)}")
-    # with the feedforward the feedback has less to do: C1 never fails where C2 succeeds
-    assert not (kinds["C1"] == "violation" and kinds["C2"] == "inside")
+    # with the feedforward the feedback has less to do: C1 and C1-inv never fail where C2 succeeds
+    for name in ("C1", "C1-inv"):
+        assert not (kinds[name] != "inside" and kinds["C2"] == "inside"), kinds
 
 
 def test_cli_set_options_and_bad_controller(capsys):
@@ -133,25 +180,44 @@ def test_cli_pipeline(tmp_path, capsys):
     import matplotlib.pyplot as plt
 
     open_before = set(plt.get_fignums())
-    rc = cli_main(["pipeline", "manipulator", "--out-dir", str(tmp_path), "--quiet", "--json"])
+    rc = cli_main(["pipeline", "manipulator", "--preset", "paper", "--out-dir", str(tmp_path), "--quiet", "--json"])
     out = capsys.readouterr().out.strip().splitlines()
     assert rc == 0
     data = json.loads(out[-1])
-    assert set(data["runs"]) == {"C1", "C2", "C3", "C1-42"}
+    assert set(data["runs"]) == {"C1", "C2", "C3", "C1-inv"}
+    assert data["info"]["params"] == {"m3": 3.4, "c": 50.0, "D": 0.25}
     assert data["reductions"]["output"] >= 0.3
-    assert any("C1 reduces C2" in line for line in out)
+    assert data["extension_reductions"]["output"] > data["reductions"]["output"]
+    assert any("C1 reduces C2" in line and "paper: 40 %" in line for line in out)
+    assert any("C1-inv (invctl's extension)" in line for line in out)
     for f in ("states", "path_end_effector", "errors", "inputs", "funnel"):
         assert (tmp_path / f"{f}.png").exists()
     assert set(plt.get_fignums()) == open_before  # written figures are closed
 
 
-def test_a1_for_our_gains(setup, study):
-    """(A1) for FEEDBACK: holds at the design point and along every simulated trajectory (it is only local:
-    the whole region U is not covered, as for the paper's own choice)."""
-    fb = scene.FEEDBACK
+def test_a1_for_the_printed_K(setup, study):
+    """(A1) for the printed K (K_1 = -0.1, K_2 = [1, 0.01], in the T normalization of the printed numbers):
+    it holds at the design point, as the paper says only in a neighbourhood of it, and it is violated along
+    the simulated runs (which stay inside their funnels all the same).  K_2 = [1, 1] has a larger margin."""
+    fb = scene.A1_PAPER
     rep = setup.lin.check_A1(fb["K"], rho=fb["rho"], k_i=fb["k_i"], samples=200)
+    alt = setup.lin.check_A1(scene.A1_K2_ONE["K"], rho=1, k_i=[1], samples=200)
+    print(f"(A1) printed K: design point {rep.min_eig_at_design_point:.3g}, {100 * rep.fraction_satisfied:.0f} % of "
+          f"U; K_2 = [1, 1]: {alt.min_eig_at_design_point:.3g}, {100 * alt.fraction_satisfied:.0f} %")
     assert rep.zero_conditions_residual == 0.0
-    assert rep.min_eig_at_design_point > 0.1
-    assert 0.5 < rep.fraction_satisfied < 1.0
+    assert rep.min_eig_at_design_point > 0.1 and 0 < rep.fraction_satisfied < 0.5
+    assert alt.min_eig_at_design_point > rep.min_eig_at_design_point
     for name, a1 in study.info["a1_along_trajectory"].items():
-        assert a1["fraction_positive"] == 1.0 and a1["min_eig"] > 0.3, name
+        print(name, a1)
+        assert a1["min_eig"] < 0 < a1["fraction_positive"] < 1, name
+
+
+def test_controller_names_ignore_case_and_the_extension_inverts_on_demand():
+    """--controller c1-inv (any case) runs the extension; a setup made without the inverse inverts when a
+    controller needs it (the command glue may ask for invert=False)."""
+    from invctl.studies.tracking import CONTROLLERS, check_controller, run_controller
+
+    assert check_controller("c1-INV") == "C1-inv" and "c2" in CONTROLLERS and CONTROLLERS["c3"] == CONTROLLERS["C3"]
+    s = setup_tracking(scene.SCENE, PAPER, invert=False, t_end=0.2)
+    r = run_controller(s, "C1-INV")
+    assert s.inverse is not None and r.controller == "C1-inv" and r.status == "ok"

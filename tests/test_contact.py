@@ -47,7 +47,7 @@ def test_lcp_pgs_fallback_accuracy():
     A = _rand_pd(rng, m) + 3 * np.eye(m)
     b = rng.normal(size=m)
     As, bs = ca.SX.sym("A", m, m), ca.SX.sym("b", m)
-    z = np.array(ca.Function("f", [As, bs], [lcp_sx(As, bs, max_enum=4, pgs_sweeps=80)])(A, b)).ravel()
+    z = np.array(ca.Function("f", [As, bs], [lcp_sx(As, bs, method="pgs", pgs_sweeps=80)])(A, b)).ravel()
     np.testing.assert_allclose(z, solve_lcp(A, b).z, atol=1e-9)
 
 

@@ -199,9 +199,9 @@ def _run(plant, ref, ctrl, q0, t_end=2.0, u_ff=None, signals=None):
 
 
 def test_manipulator_c1_and_c2_inside_the_funnels_on_the_mismatched_plant(manip, manip_design, manip_inverse):
-    """C2 (funnel only) and C1 (feedforward + funnel, new reference along the inverse, as the study builds
-    it) on m3 x 1.2: inside every funnel for the whole 2 s, (A1) > 0 along both runs (reference model and
-    plant).  Cumulative errors are printed next to the hand-tuned FEEDBACK (not asserted equal)."""
+    """C2 (funnel only), C1 (the paper's: new reference (42)/(43)) and C1-inv (invctl's: new reference along
+    the inverse's states) on m3 x 1.2: inside every funnel for the whole 2 s, (A1) > 0 along the runs
+    (reference model and plant).  Cumulative errors are printed next to the scene's declared feedback."""
     from invctl.studies.tracking import run_controller, setup_tracking
 
     model, ref, lin, q0 = manip
@@ -209,7 +209,7 @@ def test_manipulator_c1_and_c2_inside_the_funnels_on_the_mismatched_plant(manip,
     out = {}
     for label, feedback in (("auto", d.controller_options()), ("hand", {})):
         s = setup_tracking(scene.SCENE, inverse=manip_inverse, feedback=feedback)
-        out[label] = {name: run_controller(s, name) for name in ("C1", "C2")}
+        out[label] = {name: run_controller(s, name) for name in ("C1", "C2", "C1-inv")}
     for name, r in out["auto"].items():
         assert r.status == "ok" and r.t[-1] == pytest.approx(2.0) and r.max_funnel_ratio < 1
         assert a1_margin_along(d, model, r.q, r.v).min_eig > 0
@@ -218,8 +218,11 @@ def test_manipulator_c1_and_c2_inside_the_funnels_on_the_mismatched_plant(manip,
         print(f"{label}: " + ", ".join(f"{n} cum. y {r.cumulative_output_error:.4f} cum. r "
                                        f"{r.cumulative_errors['end effector']:.4f} margin {r.funnel_margin:.3f} "
                                        f"peaks {np.round(r.input_peaks, 2).tolist()}" for n, r in runs.items()))
-    # the feedforward still pays off with the designed feedback (the paper: 40 %)
-    assert out["auto"]["C1"].cumulative_output_error < 0.7 * out["auto"]["C2"].cumulative_output_error
+    # the feedforward pays off with the designed feedback: a little with the paper's new reference (42), whose
+    # start differs from the inverse's pre-actuated state, much more with the one along the inverse
+    auto = {k: r.cumulative_output_error for k, r in out["auto"].items()}
+    assert auto["C1-inv"] < auto["C1"] < auto["C2"]
+    assert auto["C1-inv"] < 0.7 * auto["C2"]
 
 
 def test_a1_margin_along_matches_check_a1_and_the_study(manip):

@@ -17,6 +17,9 @@ def model():
     return scene.build()
 
 
+HAND = {k: scene.INVERSION[k] for k in ("T0", "Tf", "start", "end")}
+
+
 @pytest.fixture(scope="module")
 def ref(model):
     return scene.reference(model)
@@ -24,7 +27,8 @@ def ref(model):
 
 @pytest.fixture(scope="module")
 def inv160(model, ref):
-    return invert_tracking(scene.SCENE, model, ref, N=160, backend="newton")
+    # the former hand setup (the scene now derives selection and horizon): gamma(Tf) = 0, [T0, Tf] = [-1, 2]
+    return invert_tracking(scene.SCENE, model, ref, N=160, backend="newton", **HAND)
 
 
 def test_manipulator_inverse_reproduces_reference(model, ref, inv160):
@@ -225,7 +229,7 @@ def test_invert_command_json(tmp_path):
 
 def test_compiled_evaluation_matches_virtual_machine(model, ref, inv160):
     # C code generated from the same SX functions, compiled once and cached on disk
-    inv = invert_tracking(scene.SCENE, model, ref, N=160, backend="ipopt", compiled=True)
+    inv = invert_tracking(scene.SCENE, model, ref, N=160, backend="ipopt", compiled=True, **HAND)
     assert inv.diagnostics["compiled"] and inv.diagnostics["status"] == "Solve_Succeeded"
     np.testing.assert_allclose(inv.X_mesh, inv160.X_mesh, atol=1e-8)
 
@@ -234,8 +238,8 @@ def test_input_energy_selects_among_non_unique_inverses(model, ref):
     # dropping gamma(Tf) = 0 leaves a one-parameter family of inverses; IPOPT picks the one of least
     # input energy, so its energy cannot exceed that of the square problem's solution (which is
     # feasible for the relaxed problem); quadrature differences are O(h^4), tolerance 1e-3 relative
-    sq = invert_tracking(scene.SCENE, model, ref, N=30)
-    free = invert_tracking(scene.SCENE, model, ref, N=30, end={}, allow_underdetermined=True)
+    sq = invert_tracking(scene.SCENE, model, ref, N=30, **HAND)
+    free = invert_tracking(scene.SCENE, model, ref, N=30, **{**HAND, "end": {}}, allow_underdetermined=True)
     t = np.linspace(-1, 2, 3001)
     e_sq = np.trapezoid(np.sum(sq.u(t) ** 2, axis=0), t)
     e_free = np.trapezoid(np.sum(free.u(t) ** 2, axis=0), t)

@@ -90,3 +90,15 @@ def test_two_scene_files_with_the_same_name_are_different_scenes(tmp_path):
     first, second = load_scene(str(tmp_path / "a" / "scene.py")), load_scene(str(tmp_path / "b" / "scene.py"))
     assert (first.name, first.params["l"]) == ("first", 0.5)
     assert (second.name, second.params["l"]) == ("second", 0.8)
+
+
+def test_a_flat_output_goes_through_the_generic_commands(capsys):
+    """The crane's load position (relative degree (4, 4), r_bar = 2n): analyze says it is flat, invert
+    chooses the normal form (no pre-actuation, T0 = t0) and the forward check holds."""
+    assert main(["analyze", "crane", "--samples", "20", "--json"]) == 0
+    data = _json(capsys)
+    assert data["flat"] and data["r_hat"] == 4 and data["internal_dim"] == 0
+    assert main(["invert", "crane", "--quiet", "--json"]) == 0
+    data = _json(capsys)
+    assert data["method"] == "normal-form" and data["T0"] == data["t0"] and data["Tf"] == data["tf"]
+    assert data["max_output_error"] < 1e-6 and data["max_u_pre_actuation"] == 0.0

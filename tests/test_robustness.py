@@ -33,9 +33,10 @@ def test_funnel_mismatch_process_pool(tmp_path):
     res = plant_mismatch("manipulator", m3=[1.0, 1.5, 10.0], m2=[1.0, 1.3], controller="C2", max_workers=2,
                          progress=False)
     assert res.shape == (3, 2)
-    # m3 x 10: pure feedback reaches the funnel boundary; reported with the reason, not dropped
+    # m3 x 10: pure feedback reaches the funnel boundary (or the integrator gives up just before it);
+    # reported with the reason, not dropped
     assert res.n_failed == 2
-    assert all(p["m3"] == 10.0 and e.startswith("FunnelViolation") for p, e in res.failed)
+    assert all(p["m3"] == 10.0 and e.startswith(("FunnelViolation", "SimulationFailed")) for p, e in res.failed)
     err = res.array("cumulative_output_error")
     assert np.all(np.isnan(err[2]))
     # the mismatch in the mass carried on the unstable internal dynamics costs accuracy

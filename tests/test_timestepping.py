@@ -315,7 +315,7 @@ def test_simultaneous_impacts_in_time_stepping():
 
 def test_save_load_and_plot(tmp_path, ball):
     tr = ball.run([1.0], [0.0], 1.0, 1e-3)
-    path = tr.save(tmp_path / "ball.npz")
+    path = tr.to_npz(tmp_path / "ball.npz")
     tr2 = type(tr).load(path)
     np.testing.assert_array_equal(tr.q, tr2.q)
     np.testing.assert_array_equal(tr.impact_times, tr2.impact_times)

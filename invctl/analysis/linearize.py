@@ -42,9 +42,11 @@ class LinearizedInternal:
     eigenvalues : ndarray
         Eigenvalues of Q (sorted by real part).
     split : str
-        ``"schur"`` (orthogonal T from the ordered real Schur form) or ``"eig"``
-        (T = inverse of the eigenvector matrix, each eigenvector scaled to last entry 1,
-        as 003 Sect. 6 does; then ``T Q T^-1`` is diagonal).
+        ``"schur"`` (orthogonal T from the ordered real Schur form), ``"eig"`` (T = inverse of
+        the eigenvector matrix, each eigenvector scaled to last entry 1, as the printed
+        ``T = [mu2/c mu1/c; 1 1]`` of 003 Sect. 6) or ``"eig-unit"`` (eigenvectors of unit length
+        with negative last entry: the normalization of the printed ``T^-1 P`` of 003 Sect. 6, see
+        :func:`eigenvector_columns`); with either ``"eig"`` form ``T Q T^-1`` is diagonal.
     """
 
     model: object
@@ -373,6 +375,28 @@ def jacobian_function(internal) -> ca.Function:
     return fn
 
 
+#: normalizations of eigenvector columns (:func:`eigenvector_columns`)
+EIG_NORMALIZATIONS = ("last-one", "unit-last-positive", "unit-last-negative")
+
+
+def eigenvector_columns(V, normalization: str) -> np.ndarray:
+    """Real eigenvector columns ``V`` rescaled: ``"last-one"`` (last entry 1; the printed
+    ``T = [mu2/c mu1/c; 1 1]`` of 003 Sect. 6), ``"unit-last-positive"`` or ``"unit-last-negative"``
+    (Euclidean length 1, the sign fixed by the last entry; the printed ``T^-1 P`` of 003 Sect. 6
+    uses ``"unit-last-negative"``, which is what LAPACK's ``dgeev`` (MATLAB ``eig``) returns there).
+    A zero last entry keeps the scale (``"last-one"``) or the sign of the largest entry."""
+    V = np.array(V, float, copy=True)
+    if normalization not in EIG_NORMALIZATIONS:
+        raise CoordinateError(f"eigenvector normalization must be one of {EIG_NORMALIZATIONS}, got {normalization!r}")
+    last = V[-1]
+    if normalization == "last-one":
+        return V / np.where(np.abs(last) > 1e-12, last, 1.0)
+    V = V / np.linalg.norm(V, axis=0)
+    ref = np.where(np.abs(V[-1]) > 1e-12, V[-1], V[np.argmax(np.abs(V), axis=0), np.arange(V.shape[1])])
+    sign = np.sign(ref) * (1.0 if normalization == "unit-last-positive" else -1.0)
+    return V * sign
+
+
 def linearize_internal(model, internal, points, combine: str = "mean", *, split: str = "schur") -> LinearizedInternal:
     """Linearize ``eta' = q(y, ..., eta)`` at one or more points and split it (37)-(39).
 
@@ -381,7 +405,7 @@ def linearize_internal(model, internal, points, combine: str = "mean", *, split:
     points : list of ``(ys, eta)``
         ``ys = (y, y', ..., y^(r_hat-1))``; one point, or several whose Jacobians are
         combined (``combine="mean"``, as 003 Sect. 6 does with the start and end of the path).
-    split : {"schur", "eig"}
+    split : {"schur", "eig", "eig-unit"}
         How T of (39) is built (see :class:`LinearizedInternal`).
     """
     if combine != "mean":
@@ -431,17 +455,16 @@ def from_matrices(model, internal, Q, P_list, *, split="schur", points=None) -> 
     ev = ev[np.argsort(ev.real)]
     tol = _IMAG_TOL * max(1.0, np.abs(Q).max(initial=0.0))
     k = int(np.sum(ev.real >= -tol))
-    if split not in ("schur", "eig"):
-        raise CoordinateError(f"split must be 'schur' or 'eig', got {split!r}")
+    if split not in ("schur", "eig", "eig-unit"):
+        raise CoordinateError(f"split must be 'schur', 'eig' or 'eig-unit', got {split!r}")
     if d == 0:  # no internal dynamics (flat output): nothing to split
         T = np.eye(0)
-    elif split == "eig":
+    elif split in ("eig", "eig-unit"):
         if np.any(np.abs(ev.imag) > 0):
-            raise CoordinateError("split='eig' needs real eigenvalues; use split='schur'")
+            raise CoordinateError(f"split={split!r} needs real eigenvalues; use split='schur'")
         w, V = np.linalg.eig(Q)
         order = np.argsort(w.real)
-        V = np.real(V[:, order])
-        V = V / np.where(np.abs(V[-1]) > 1e-12, V[-1], 1.0)
+        V = eigenvector_columns(np.real(V[:, order]), "last-one" if split == "eig" else "unit-last-negative")
         T = np.linalg.inv(V)
     else:
         _, Z, sdim = sla.schur(Q, output="real", sort=lambda re, im: re < -tol)

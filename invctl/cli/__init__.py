@@ -3,7 +3,11 @@
 ``invctl <command> <scene> [--set name=value ...] [--json] [options]`` runs one of the commands of
 :mod:`invctl.studies.commands` (the same calls notebooks and scripts use); ``invctl animate RUN.npz``
 draws a saved run.  With ``--json`` the last line of output is one JSON object: the command's data,
-or ``{"error": <class>, "message": ..., "diagnostics": ...}`` with exit code 2.
+or ``{"error": <class>, "message": ..., "diagnostics": ...}``.
+
+Exit codes: 0 success; 2 a specific error (:mod:`invctl.errors`, docs/errors.md; usage errors too);
+3 an internal error (a bug: ``INVCTL_DEBUG=1`` shows the traceback); 130 interrupted (Ctrl-C), with
+what was complete saved next to the requested output (``"partial"``: the files).
 """
 from __future__ import annotations
 
@@ -12,7 +16,7 @@ import json
 import sys
 import time
 
-from ..errors import InvctlError
+from ..errors import InvctlError, ResourceLimitError
 from ..scenes import jsonable
 
 _HELP = {
@@ -23,6 +27,7 @@ _HELP = {
     "pipeline": "the scene's whole job (tracking: invert, design, C1/C2/C3, compare, figures)",
     "study": "studies: speed-versus-accuracy trade-off",
     "animate": "draw a saved run of a scene as a GIF/MP4",
+    "generate": "a trajectory library: stable inverses over a grid of end points, durations, parameters",
 }
 
 
@@ -40,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = _Parser(prog="invctl", description="Model inversion and tracking control of multibody systems.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
-    for name in ("analyze", "invert", "design", "simulate", "pipeline", "study"):
+    for name in ("analyze", "invert", "design", "simulate", "pipeline", "study", "generate"):
         p = sub.add_parser(name, help=_HELP[name], description=_HELP[name])
         if name == "study":
             p.add_argument("kind", help="which study: tradeoff")
@@ -97,9 +102,22 @@ def main(argv: list[str] | None = None) -> int:
 
             options = {k: v for k, v in vars(args).items() if k not in ("command", "scene", "set", "json")}
             values = parse_assignments(args.set)
-            result = run_command(args.command, args.scene, values, **options)
+            if args.command == "generate":
+                from ..studies.commands import generate
+
+                result = generate(args.scene, values, **options)
+            else:
+                result = run_command(args.command, args.scene, values, **options)
     except InvctlError as exc:
         return _error(args.command, target, exc, args.json)
+    except MemoryError as exc:  # an allocation no estimate foresaw: a resource limit, not a bug
+        import os
+
+        if os.environ.get("INVCTL_DEBUG"):
+            raise
+        return _error(args.command, target, ResourceLimitError(
+            f"ran out of memory ({exc or 'MemoryError'}); shorten the run (--t-end, --set t_end=...), use a larger "
+            "step (--set h=...) or fewer samples"), args.json)
     except Exception as exc:  # a bug: say so, without a traceback unless asked for
         import os
 
@@ -111,10 +129,22 @@ def main(argv: list[str] | None = None) -> int:
         if args.json:
             print(json.dumps(jsonable({"error": "InternalError", "message": exc_msg, "diagnostics": {}})))
         return 3
-    except KeyboardInterrupt:
-        print(f"invctl {args.command} {target}: interrupted", file=sys.stderr)
-        if args.json:
-            print(json.dumps({"error": "Interrupted", "message": "interrupted by the user", "diagnostics": {}}))
+    except KeyboardInterrupt as exc:
+        saved = list(getattr(exc, "saved", []) or [])
+        msg = str(exc) or "interrupted by the user"
+        if saved:
+            where = f"; partial results written to {', '.join(saved)}"
+        elif getattr(exc, "partial", None) is not None:
+            where = "; the partial result was not saved: no output was requested (--out)"
+        else:
+            where = ""
+        try:
+            print(f"invctl {args.command} {target}: interrupted: {msg}{where}", file=sys.stderr)
+            if args.json:
+                print(json.dumps(jsonable({"error": "RunInterrupted", "message": msg + where, "partial": saved,
+                                           "diagnostics": getattr(exc, "diagnostics", {})})))
+        except KeyboardInterrupt:  # a second Ctrl-C while reporting
+            pass
         return 130
     wall = time.perf_counter() - t0
     try:

@@ -29,15 +29,25 @@ IPOPT_SQUARE_DEFAULTS = {
 }
 
 
+#: IPOPT statuses of a solve stopped by its time limit (no continuation after those)
+_TIME_LIMIT = ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
+
+
 class _Progress(ca.Callback):
-    """IPOPT iteration callback printing one line per iteration to stderr."""
+    """IPOPT iteration callback printing one line per iteration to stderr.
+
+    One per transcription (:func:`_progress_of`), kept alive with it: a cached solver keeps
+    calling the callback it was built with, so the callback must not be part of what makes a
+    solver new (and must outlive the solve)."""
 
     def __init__(self, nx, ng, np_, label):
         ca.Callback.__init__(self)
         self.nx, self.ng, self.np_, self.label = nx, ng, np_, label
-        self.k = 0
-        self.t = time.perf_counter()
+        self.restart(label)
         self.construct("progress", {})
+
+    def restart(self, label):
+        self.label, self.k, self.t = label, 0, time.perf_counter()
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -70,6 +80,14 @@ class _Progress(ca.Callback):
               file=sys.stderr, flush=True)
         self.k += 1
         return [0]
+
+
+def _progress_of(tr, label) -> _Progress:
+    cb = getattr(tr, "_progress", None)
+    if cb is None:
+        cb = tr._progress = _Progress(tr.nX, tr.ng, tr.np, label)
+    cb.restart(label)
+    return cb
 
 
 def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label, banded=True):

@@ -24,8 +24,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import InfeasibleBoundsError, InversionFailed, OptionError
-from .backends import IPOPT_DEFAULTS
+from ..errors import (InfeasibleBoundsError, InversionFailed, OptionError, RunInterrupted, WallTimeLimitError,
+                      watch_sigint)
+from .backends import _TIME_LIMIT, IPOPT_DEFAULTS
 from .cache import ocp_transcription, servo_model
 from .ocp import slack_scale
 from .options import Objective, Options
@@ -194,8 +195,10 @@ def solve_scaled(tr, slv, x0, params, limits, *, hessian: str, scale: float = 1e
     if slv.progress:
         opts["iteration_callback"] = _progress(tr)
     solver = tr.ipopt(opts, hessian=hessian)
-    sol = solver(x0=x0, p=params(scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    with watch_sigint() as sigint:  # Ctrl-C inside IPOPT ends as User_Requested_Stop: an interruption
+        sol = solver(x0=x0, p=params(scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     st = dict(solver.stats())
+    _interrupted(sigint, st, tr)
     st["iterations"] = int(st.get("iter_count", -1))
     f = float(sol["f"]) / scale
     inequalities = bool(tr.bounded or tr.rated)  # without them there is nothing to sharpen
@@ -207,21 +210,37 @@ def solve_scaled(tr, slv, x0, params, limits, *, hessian: str, scale: float = 1e
                              "ipopt.max_iter": min(int(opts["ipopt.max_iter"]), 50)})
         solver2 = tr.ipopt(warm, hessian=hessian)
         k = s2 / scale
-        sol2 = solver2(x0=sol["x"], lam_x0=sol["lam_x"] * k, lam_g0=sol["lam_g"] * k, p=params(s2), lbx=lbx,
-                       ubx=ubx, lbg=lbg, ubg=ubg)
+        with watch_sigint() as sigint:
+            sol2 = solver2(x0=sol["x"], lam_x0=sol["lam_x"] * k, lam_g0=sol["lam_g"] * k, p=params(s2), lbx=lbx,
+                           ubx=ubx, lbg=lbg, ubg=ubg)
         st2 = dict(solver2.stats())
+        _interrupted(sigint, st2, tr)
         if st2.get("success"):
             st2["iterations"] = st["iterations"] + int(st2.get("iter_count", 0))
             return sol2, st2, s2
     return sol, st, scale
 
 
+def _interrupted(sigint, st, tr):
+    if sigint.seen and not st.get("success", False):
+        raise RunInterrupted(f"interrupted during the IPOPT solve of the {'free-time' if tr.free_time else 'bounded'} "
+                             f"problem ({tr.scheme.name} N={tr.N}) after {st.get('iter_count', '?')} iterations",
+                             diagnostics={"status": st.get("return_status", "?"),
+                                          "iterations": int(st.get("iter_count", -1))})
+
+
 def _progress(tr):
-    """IPOPT iteration callback: objective and largest equality violation (defects, boundary rows)."""
+    """IPOPT iteration callback: objective and largest equality violation (defects, boundary rows);
+    one per transcription (restarted per solve), so it never makes a cached solver new."""
     import sys
 
     from .backends import _Progress
 
+    label = f"{tr.scheme.name} N={tr.N} {'free time' if tr.free_time else 'bounded'}"
+    cb = getattr(tr, "_progress", None)
+    if cb is not None:
+        cb.restart(label)
+        return cb
     n_eq = tr.n_defect + tr.n_bc
 
     class OCPProgress(_Progress):
@@ -237,7 +256,8 @@ def _progress(tr):
             self.k += 1
             return [0]
 
-    return OCPProgress(tr.nX, tr.ng, tr.np, f"{tr.scheme.name} N={tr.N} {'free time' if tr.free_time else 'bounded'}")
+    tr._progress = OCPProgress(tr.nX, tr.ng, tr.np, label)
+    return tr._progress
 
 
 def _hessian(slv, auto: str) -> str:
@@ -359,6 +379,12 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
     status = st.get("return_status", "?")
     ok = bool(st.get("success", False)) or (status == "Solved_To_Acceptable_Level" and viol < 1e-8)
     inv = _inverse(tr, servo, reference, sch, t_mesh, x, Y, theta, c, make_inverse)
+    if not ok and status in _TIME_LIMIT:
+        raise WallTimeLimitError(
+            f"bounded inversion stopped at the wall-time limit of {slv.max_wall_time:g} s after "
+            f"{st['iterations']} iterations ({sch.name} N={N}); raise max_wall_time or use fewer intervals (N); "
+            "the last iterate is in exc.partial", partial=inv, diagnostics={"status": status, "constraint_violation":
+                                                                           viol})
     if not ok and (status in INFEASIBLE or viol > 1e-6):
         raise _infeasible(model, reference, servo, setup, rb, sch, t_mesh, Y, theta, c, objective, slv, x0, status,
                           make_inverse, viol)

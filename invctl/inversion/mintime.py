@@ -23,7 +23,8 @@ from dataclasses import replace
 import casadi as ca
 import numpy as np
 
-from ..errors import InfeasibleBoundsError, InversionFailed, OptionError
+from ..errors import InfeasibleBoundsError, InversionFailed, OptionError, WallTimeLimitError
+from .backends import _TIME_LIMIT
 from .bounded import _inverse, _limits, _violation, active_bounds, constraint_points, solve_scaled
 from .cache import ocp_transcription, servo_model
 from .options import Bounds, from_keywords
@@ -194,6 +195,11 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
             f"minimum_time: the solution violates the position-level constraints by {res[key]:.3g} > residual_tol "
             f"= {slv.residual_tol:.3g} at the mesh ({sch.name} N={N}); refine the mesh", partial=inv,
             diagnostics=inv.diagnostics)
+    if not ok and status in _TIME_LIMIT:
+        raise WallTimeLimitError(
+            f"minimum_time stopped at the wall-time limit of {slv.max_wall_time:g} s after "
+            f"{inv.diagnostics['iterations']} iterations ({sch.name} N={N}); raise max_wall_time or use fewer "
+            "intervals (N); the last iterate is in exc.partial", partial=inv, diagnostics=inv.diagnostics)
     if not ok:
         if status in ("Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeasibility"):
             raise InfeasibleBoundsError(

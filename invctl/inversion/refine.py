@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import InversionFailed
+from ..errors import InversionFailed, RunInterrupted
 from .collocation import get_scheme
 from .guess import _split
 
@@ -34,14 +34,34 @@ def refine(model, reference, options, warm_start, solve_once, servo):
     """Refine until ``options.discretization.tol`` is met.
 
     ``solve_once(options, warm_start) -> Inverse`` solves on ``options.discretization``'s mesh
-    (``N`` or ``mesh``); the refined meshes are passed as ``mesh``.
+    (``N`` or ``mesh``); the refined meshes are passed as ``mesh``.  On Ctrl-C,
+    :class:`RunInterrupted` with the last accepted mesh's inverse (solved and forward-checked,
+    ``tol`` not met yet) in ``partial``.
     """
+    state = {"meshes": [], "accepted": None}
+    tol = options.discretization.tol
+    try:
+        return _refine_meshes(model, reference, options, warm_start, solve_once, servo, state)
+    except KeyboardInterrupt as exc:
+        last, meshes = state["accepted"], state["meshes"]
+        note = f"mesh refinement interrupted after {len(meshes)} complete mesh(es)"
+        if last is not None:
+            last.diagnostics.update({"meshes": meshes, "max_output_error": meshes[-1]["error"], "tol": tol,
+                                     "partial": note})
+        raise RunInterrupted(
+            note + ("; the last accepted mesh (N = {}, forward-check error {:.3g}, tol {:.2g} not met) is in "
+                    "exc.partial".format(last.N, meshes[-1]["error"], tol) if last is not None
+                    else "; no mesh was complete") + (f" ({exc})" if str(exc) else ""),
+            partial=last, diagnostics={"meshes": meshes}) from None
+
+
+def _refine_meshes(model, reference, options, warm_start, solve_once, servo, state):
     from .verify import forward_check
 
     disc = options.discretization
     tol = disc.tol
     sch = get_scheme(disc.scheme)
-    meshes = []
+    meshes = state["meshes"]
     inv = warm_start
     total_build = total_solve = 0.0
     current = replace(disc, tol=None)
@@ -53,6 +73,7 @@ def refine(model, reference, options, warm_start, solve_once, servo):
         total_solve += inv.diagnostics["solve_s"]
         meshes.append({"N": inv.N, "error": fc["error"], "iterations": inv.diagnostics["iterations"],
                        "solve_s": inv.diagnostics["solve_s"], "build_s": inv.diagnostics["build_s"]})
+        state["accepted"] = inv
         if progress:
             print(f"  refinement {it}: N = {inv.N}, forward-check error {fc['error']:.3e} (tol {tol:.1e})",
                   file=sys.stderr)

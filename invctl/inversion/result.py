@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..io import file_loader
 from ..scenes import jsonable
 from .collocation import get_scheme
 
@@ -145,6 +146,24 @@ class Inverse:
     def success(self) -> bool:
         return bool(self.diagnostics.get("success", False))
 
+    @property
+    def status(self) -> str:
+        """The solver's status (``"Solve_Succeeded"``, ...), as the other results' ``status``."""
+        return str(self.diagnostics.get("status", "?"))
+
+    @property
+    def message(self) -> str:
+        return str(self.diagnostics.get("message", ""))
+
+    @property
+    def stats(self) -> dict:
+        """Iterations, times, residuals: the diagnostics (one vocabulary with the other results)."""
+        return self.diagnostics
+
+    def sample(self, t) -> dict:
+        """``q, v, lam, mu, u`` (and ``u_causal``) at times ``t``, shape ``(rows, len(t))``."""
+        return {k: getattr(self, k)(t) for k in ("q", "v", "lam", "mu", "u", "u_causal")}
+
     # ------------------------------------------------------------ output
     def plot(self, path: str | None = None, *, dt: float | None = None):
         """One figure: feedforward (causal dashed), coordinates, multipliers."""
@@ -210,6 +229,7 @@ class Inverse:
             t_mesh=self.t_mesh, X_mesh=self.X_mesh, dX_mesh=self.dX_mesh, X_col=self.X_col), info)
 
     @classmethod
+    @file_loader
     def load(cls, path) -> "Inverse":
         """Load what :meth:`to_npz` wrote (interpolants rebuilt from the collocation data).
 
@@ -232,6 +252,13 @@ class Inverse:
         if min(sizes.values()) < 0 or z["X_mesh"].shape != (nx, z["t_mesh"].size):
             raise ResultFileError(f"{path}: sizes {sizes} (nx = {nx}) do not match the stored mesh data "
                                   f"{z['X_mesh'].shape}; the file is inconsistent")
+        sch = get_scheme(str(meta["scheme"]))
+        ncol = 0 if sch.is_hs else sch.degree * (z["t_mesh"].size - 1)
+        if (z["t_mesh"].ndim != 1 or z["t_mesh"].size < 2 or np.any(np.diff(z["t_mesh"]) <= 0)
+                or z["dX_mesh"].shape != z["X_mesh"].shape or (ncol and z["X_col"].shape != (nx, ncol))):
+            raise ResultFileError(f"{path}: inconsistent collocation data (a mesh that is not increasing, or slopes "
+                                  f"{z['dX_mesh'].shape} / collocation states {z['X_col'].shape} that do not fit "
+                                  f"{z['X_mesh'].shape} on a {sch.name} mesh)")
         try:
             inv = cls(meta["scheme"], z["t_mesh"], z["X_mesh"], z["dX_mesh"], z["X_col"], sizes,
                       float(meta["t0"]), float(meta["tf"]), meta.get("names", {}), meta.get("diagnostics", {}))

@@ -15,8 +15,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from ..errors import InversionFailed
-from .backends import IPOPT_DEFAULTS, IPOPT_SQUARE_DEFAULTS, _newton, _Progress
+from ..errors import InversionFailed, RunInterrupted, WallTimeLimitError, watch_sigint
+from .backends import _TIME_LIMIT, IPOPT_DEFAULTS, IPOPT_SQUARE_DEFAULTS, _newton, _Progress, _progress_of  # noqa: F401
 from .cache import _EQ_CACHE, _OCP_CACHE, _QS_LAST, _SERVO_CACHE, _TRANS_CACHE  # noqa: F401  (public handles)
 from .cache import compiled_key as _compiled_key  # noqa: F401
 from .cache import equilibrium_solver as _equilibrium_solver  # noqa: F401
@@ -125,7 +125,7 @@ def solve_square(model, reference, opts: Options, warm_start: Inverse | None = N
     x, info, solve_s, build_solver_s = _solve(tr, x0, p, **kw)
     build_s += build_solver_s
     cont_info = None
-    if not info["success"] and slv.continuation and warm_start is None:
+    if not info["success"] and slv.continuation and warm_start is None and info["status"] not in _TIME_LIMIT:
         x, info, cont_info = _continuation(reference, tr, servo, t_mesh, x0, setup.E0, setup.Ef, theta, **kw)
         solve_s += cont_info.pop("solve_s")
     inv = make_inverse(model, reference, servo, sch, t_mesh, *tr.unpack(x), theta)
@@ -139,6 +139,13 @@ def solve_square(model, reference, opts: Options, warm_start: Inverse | None = N
         "plan": None if setup.plan is None else setup.plan.to_dict(), "mesh": setup.mesh_kind,
         "wall_s": time.perf_counter() - t_all,
     })
+    if not info["success"] and info["status"] in _TIME_LIMIT:
+        raise WallTimeLimitError(
+            f"stable inversion stopped at the wall-time limit of {slv.max_wall_time:g} s after {info['iterations']} "
+            f"iterations ({slv.backend}, {label}, max constraint violation "
+            f"{info.get('max_constraint_violation', float('nan')):.3g}); raise max_wall_time (invert(..., "
+            "max_wall_time=...) or the scene's Tracking(inversion={'max_wall_time': ...})) or use fewer intervals "
+            "(N); the last iterate is in exc.partial", partial=inv, diagnostics=inv.diagnostics)
     if not info["success"]:
         raise InversionFailed(
             f"stable inversion failed ({slv.backend}: {info['status']} after {info['iterations']} iterations, "
@@ -178,7 +185,7 @@ def _solve(tr, x0, p, *, backend, ipopt_options, max_iter, max_wall_time, newton
         opts.update(IPOPT_SQUARE_DEFAULTS)
     opts.update(ipopt_options or {})
     if progress:
-        opts["iteration_callback"] = _Progress(tr.nX, tr.ng, tr.np, label)
+        opts["iteration_callback"] = _progress_of(tr, label)
     zero_hessian = (square and assembled_jacobian
                     and opts.get("ipopt.hessian_approximation", "exact") == "exact")
     solver = tr.ipopt(opts, assembled_jacobian=assembled_jacobian, zero_hessian=zero_hessian)
@@ -187,9 +194,14 @@ def _solve(tr, x0, p, *, backend, ipopt_options, max_iter, max_wall_time, newton
     args = {"x0": x0, "p": p, "lbg": 0, "ubg": 0}
     if lam_g0 is not None:
         args["lam_g0"] = lam_g0
-    sol = solver(**args)
+    with watch_sigint() as sigint:  # Ctrl-C inside IPOPT ends as User_Requested_Stop: an interruption
+        sol = solver(**args)
     solve_s = time.perf_counter() - t1
     st = solver.stats()
+    if sigint.seen and not st.get("success", False):
+        raise RunInterrupted(f"interrupted during the IPOPT solve on {label} after {st.get('iter_count', '?')} "
+                             "iterations", diagnostics={"status": st.get("return_status", "?"),
+                                                        "iterations": int(st.get("iter_count", -1))})
     g = np.array(sol["g"]).ravel()
     viol = float(np.max(np.abs(g))) if g.size else 0.0
     ok = bool(st.get("success", False)) or (st.get("return_status") == "Solved_To_Acceptable_Level" and viol < 1e-8)

@@ -35,6 +35,13 @@ def _style(style, where: str) -> dict:
     return dict(style)
 
 
+def _merged(default: Mapping, style: Mapping) -> dict:
+    """``default`` updated by ``style``, aliases (``lw``/``linewidth``, ...) resolved to one name."""
+    from matplotlib import cbook, lines
+
+    return {**cbook.normalize_kwargs(dict(default), lines.Line2D), **cbook.normalize_kwargs(dict(style), lines.Line2D)}
+
+
 @dataclass(frozen=True, eq=False)
 class Drawing:
     """What to draw of a planar mechanism.
@@ -84,15 +91,15 @@ class Drawing:
                 if nm not in pts:
                     raise DrawingError(f"link {i} {tuple(link[:2])!r} names unknown point {nm!r}; "
                                        f"known points: {sorted(pts)}")
-            links.append((link[0], link[1], {**LINK_STYLE, **_style(link[2] if len(link) == 3 else None,
-                                                                    f"link {i}")}))
+            links.append((link[0], link[1], _merged(LINK_STYLE, _style(link[2] if len(link) == 3 else None,
+                                                                        f"link {i}"))))
         segs = []
         for i, seg in enumerate(self.segments):
             ok = isinstance(seg, (tuple, list)) and len(seg) in (2, 3)
             xy = np.asarray(seg[:2], float) if ok else None
             if not ok or xy.shape != (2, 2) or not np.all(np.isfinite(xy)):
                 raise DrawingError(f"segment {i}: expected ((x0, y0), (x1, y1)) or with a style dict, got {seg!r}")
-            segs.append((xy, {**SEGMENT_STYLE, **_style(seg[2] if len(seg) == 3 else None, f"segment {i}")}))
+            segs.append((xy, _merged(SEGMENT_STYLE, _style(seg[2] if len(seg) == 3 else None, f"segment {i}"))))
         if self.limits is not None:
             lim = np.asarray(self.limits, float)
             if lim.shape != (2, 2) or not np.all(np.isfinite(lim)) or np.any(lim[:, 1] <= lim[:, 0]):

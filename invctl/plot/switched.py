@@ -49,10 +49,11 @@ def plot_simulation(sim, axes=None, *, title=None, overlay=None, overlay_label="
     return axes
 
 
-def plot_phase_portrait(report, ax=None, *, n_rot: float = 2.0):
-    """Switching lines of ``Sigma^w`` (Fig. 2), real eigenvectors, and one worst-case trajectory."""
-    from ..stability.conewise import eigenvectors, worst_case_flow
+def plot_phase_portrait(report, portrait, ax=None):
+    """Switching lines of ``Sigma^w`` (Fig. 2), real eigenvectors, and one worst-case trajectory.
 
+    ``portrait`` holds what :meth:`invctl.stability.conewise.StabilityReport.phase_portrait` computed:
+    ``eigenvectors`` ({1: [(lambda, v)], 2: [...]}) and the worst-case trajectory ``z`` (N, 2)."""
     plt = _plt()
     if ax is None:
         _, ax = plt.subplots(figsize=(5.2, 5))
@@ -67,11 +68,10 @@ def plot_phase_portrait(report, ax=None, *, n_rot: float = 2.0):
     else:
         ax.axvline(0, color="k", lw=0.8)
     for i, col in ((1, "tab:blue"), (2, "tab:red")):
-        for lam, v in eigenvectors(s, i):
+        for lam, v in portrait["eigenvectors"][i]:
             v = np.array([v[0], v[1] / sc]) / np.hypot(v[0], v[1] / sc) * 1e3
             ax.plot([-v[0], v[0]], [-v[1], v[1]], ":", color=col, label=f"eigvec A{i} (lambda={lam:.3g})")
-    T = (report.rotation_period or 0.05) * n_rot
-    ts, zs = worst_case_flow(s, [1.0, 0.0], T, n=4000)
+    zs = np.asarray(portrait["z"], float)
     # angle-preserving radial compression r -> log(1 + r) keeps lines through 0 straight
     w = np.column_stack([zs[:, 0], zs[:, 1] / sc])
     r = np.hypot(w[:, 0], w[:, 1])

@@ -7,7 +7,7 @@ import numpy as np
 
 __all__ = ["plot_run", "plot_study", "plot_funnels"]
 
-_COLORS = {"C1": "tab:blue", "C2": "tab:orange", "C3": "tab:green", "C1-42": "tab:purple"}
+_COLORS = {"C1": "tab:blue", "C2": "tab:orange", "C3": "tab:green", "C1-inv": "tab:purple"}
 
 
 def _plt():

@@ -21,7 +21,8 @@ from dataclasses import dataclass, field, fields
 import casadi as ca
 import numpy as np
 
-from ..errors import FunnelViolation, ParameterError, SimulationFailed
+from ..errors import FunnelViolation, ParameterError, RunInterrupted, SimulationFailed, watch_sigint
+from ..io import file_loader
 
 __all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acceleration", "sampled_signal"]
 
@@ -155,11 +156,13 @@ class ClosedLoopResult:
         np.savetxt(path, data, delimiter=",", header=",".join(str(c[0]) for c in cols), comments="")
 
     @classmethod
+    @file_loader
     def load(cls, path) -> "ClosedLoopResult":
         """Read a run written by :meth:`save` (format and version checked)."""
-        from ..io import load_npz
+        from ..io import load_npz, require_finite
 
         arrays, info = load_npz(path, "ClosedLoopResult")
+        require_finite(path, arrays, ("t", "q", "v"))
         kw = {"signals": {}, "signals_ref": {}, "cumulative_errors": dict(info.get("cumulative_errors", {})),
               "stats": dict(info.get("stats", {})),
               "meta": {k: v for k, v in info.items() if k not in ("cumulative_errors", "stats")}}
@@ -341,22 +344,37 @@ class ClosedLoop:
         wall0 = time.perf_counter()
         Xs, Ts, quad = [x[:, None]], [np.zeros(1)], np.zeros(self.n_quad)
         status, message, fail = "ok", "", None
-        for c in range(self.chunks):
-            ts = c * self.per_chunk * self.dt
-            tg = ts + self.dt * np.arange(1, self.per_chunk + 1)
-            try:
-                out = self.integrator(x0=x, p=np.concatenate([theta, [ts]]))
-                Xc, qf = np.array(out["xf"]), np.array(out["qf"])
-            except RuntimeError as exc:
-                Xc, tg, qf, fail = self._steps(x, ts, theta, exc)
-            Xs.append(Xc)
-            Ts.append(tg)
-            if Xc.shape[1]:
-                x = Xc[:, -1]
-                quad = quad + np.asarray(qf).reshape(self.n_quad, -1)[:, -1]
-            mon_ratios = self._monitor(tg, Xc, theta)[7] if Xc.shape[1] and self.controller is not None else None
-            if fail is not None or (mon_ratios is not None and mon_ratios.size and mon_ratios.max() >= VIOLATION_RATIO):
-                break
+        try:
+            for c in range(self.chunks):
+                ts = c * self.per_chunk * self.dt
+                tg = ts + self.dt * np.arange(1, self.per_chunk + 1)
+                try:
+                    with watch_sigint() as sigint:  # CVODES turns Ctrl-C into a RuntimeError
+                        out = self.integrator(x0=x, p=np.concatenate([theta, [ts]]))
+                    Xc, qf = np.array(out["xf"]), np.array(out["qf"])
+                except RuntimeError as exc:
+                    if sigint.seen:
+                        raise KeyboardInterrupt from None
+                    Xc, tg, qf, fail = self._steps(x, ts, theta, exc)
+                Xs.append(Xc)
+                Ts.append(tg)
+                if sigint.seen:  # CVODES may recover from a right-hand side that raised KeyboardInterrupt
+                    raise KeyboardInterrupt
+                if Xc.shape[1]:
+                    x = Xc[:, -1]
+                    quad = quad + np.asarray(qf).reshape(self.n_quad, -1)[:, -1]
+                mon_ratios = self._monitor(tg, Xc, theta)[7] if Xc.shape[1] and self.controller is not None else None
+                if fail is not None or (mon_ratios is not None and mon_ratios.size
+                                        and mon_ratios.max() >= VIOLATION_RATIO):
+                    break
+        except KeyboardInterrupt:  # keep the simulated prefix (complete chunks)
+            k = min(len(Xs), len(Ts))
+            T, X = np.concatenate(Ts[:k]), np.hstack(Xs[:k])
+            prefix = self._result(T, X, theta, None, time.perf_counter() - wall0, controller_label or self.name)
+            prefix.status, prefix.message = "interrupted", f"interrupted at t = {T[-1]:.4g} s"
+            raise RunInterrupted(f"{prefix.controller or 'closed loop'}: interrupted at t = {T[-1]:.4g} s of "
+                                 f"{self.t_end:g} s; the simulated prefix is in exc.partial", partial=prefix,
+                                 diagnostics={"t": float(T[-1])}) from None
         wall = time.perf_counter() - wall0
         T = np.concatenate(Ts)
         X = np.hstack(Xs)

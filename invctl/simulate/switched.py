@@ -33,6 +33,7 @@ from scipy.optimize import brentq, minimize_scalar
 
 from ..control.switched import ClosedLoop
 from ..errors import ParameterError, SimulationFailed
+from ..io import file_loader
 from ..reference.gluing import powers_apply
 
 EV_ENTER, EV_LEAVE, EV_SLIDE, EV_UNSLIDE = 1, -1, 2, -2
@@ -131,6 +132,7 @@ class SwitchedSimulation:
         np.savetxt(path, data, delimiter=",", header=",".join(cols), comments="", fmt="%.17g")
 
     @classmethod
+    @file_loader
     def load(cls, path) -> "SwitchedSimulation":
         """Read a file written by :meth:`to_npz` (format and version checked)."""
         from ..errors import ResultFileError

@@ -13,8 +13,9 @@ they are absorbed in the step where the gap closes):
    contact, after which the gap drifts to O(h^2 |a|), see docs/clearances.md).
 3. Impulse LCP (Newton's law at velocity level, 000 (4)):
    ``0 <= W^T v_{k+1} + e min(W^T v_k, 0)  _|_  P >= 0`` on active contacts,
-   ``v_{k+1} = v_free + W_hat^{-1} W P``, solved branch-free
-   (:func:`invctl.contact.lcp.lcp_sx`, exact enumeration for <= 4 contacts).
+   ``v_{k+1} = v_free + W_hat^{-1} W P``, solved exactly and branch-free
+   (:func:`invctl.contact.lcp.lcp_sx`: enumeration for <= 4 contacts, block
+   principal pivoting beyond, or Lemke), with a convergence flag per step.
 4. ``q_{k+1} = q_k + h (theta v_{k+1} + (1-theta) v_k)``; optional
    position projection (a few linearized LCP projections in the metric M) so
    that every gap is >= -1e-10 whatever h.
@@ -23,194 +24,39 @@ Bilateral constraints ``g(q) = 0`` are enforced at velocity level
 (``G v_{k+1} = 0``) through the projected operator of 000 (8).
 
 The time loop is compiled: the step is a CasADi Function whose state carries
-every number (model parameters, gains, h, theta, tolerance), iterated by
-``mapaccum`` in chunks; the chunk runs in the CasADi virtual machine or as
-generated C compiled with the system C compiler (cached on disk), chosen
-automatically (``backend="auto"``).
+every number (model parameters, gains, h, theta, tolerances) and the exact
+running statistics (smallest gaps, largest energy/V increase, rest time,
+impact and active-set change counts), iterated by ``mapaccum`` in chunks; the chunk
+runs in the CasADi virtual machine or as generated C compiled with the system
+C compiler (cached on disk), chosen automatically (``backend="auto"``).
+Chunks stream into a :class:`~invctl.simulate.contact_record.ChunkRecorder`
+that keeps every step, every ``record_every``-th step or the event steps;
+the memory of a run is estimated before it starts.  A step whose LCP flag
+says "not solved" is recomputed exactly (numpy LCP) or stops the run.
 """
 from __future__ import annotations
 
 import hashlib
-import os
-import shutil
 import subprocess
 import sys
-import tempfile
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from ..contact.lcp import lcp_sx
+from ..contact.lcp import lcp_residual, lcp_sx, solve_lcp
 from ..contact.mechanics import ContactSystem
 from ..control.pdplus import FeedbackLaw, zero_input
-from ..errors import ParameterError, SimulationFailed
+from ..errors import ContactError, ParameterError, ResourceLimitError, SimulationFailed
+from .codegen import Layout, c_compiler, compile_function, cse, small_solve
+from .contact_record import ChunkRecorder, ContactTrajectory, RowLayout, check_budget
 
 __all__ = ["MoreauJean", "ContactTrajectory", "DEFAULT_ACTIVATION_TOL", "c_compiler"]
 
 #: default activation tolerance on the predicted gap (same units as the gaps)
 DEFAULT_ACTIVATION_TOL = 1e-12
-
-
-def c_compiler() -> str | None:
-    """Path of a C compiler (``$CC``, gcc, cc, clang) or None."""
-    for name in (os.environ.get("CC"), "gcc", "cc", "clang"):
-        if name and shutil.which(name):
-            return shutil.which(name)
-    return None
-
-
-def _cache_dir() -> Path:
-    """``$INVCTL_CACHE`` or ``~/.cache/invctl`` (a temporary folder if neither is writable)."""
-    d = Path(os.environ.get("INVCTL_CACHE", Path.home() / ".cache" / "invctl"))
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-        if not os.access(d, os.W_OK):
-            raise OSError(f"{d} is not writable")
-    except OSError:
-        d = Path(tempfile.gettempdir()) / f"invctl-cache-{os.getuid()}"
-        d.mkdir(parents=True, exist_ok=True)
-    return d
-
-
-@dataclass
-class ContactTrajectory:
-    """Result of a time-stepping (or event-driven) contact simulation.
-
-    Arrays have time along the first axis; ``q``, ``v`` include ``t[0]``.
-    ``P`` are the impulses of each step (``P/h`` estimates the contact
-    force), ``active`` the active-set flags, ``energy`` the mechanical
-    energy and ``V`` the Lyapunov function of the law (at ``t[k]``).
-    """
-
-    t: np.ndarray
-    q: np.ndarray
-    v: np.ndarray
-    P: np.ndarray
-    active: np.ndarray
-    gaps: np.ndarray
-    energy: np.ndarray
-    V: np.ndarray
-    h: float
-    names: dict = field(default_factory=dict)
-    stats: dict = field(default_factory=dict)
-    impact_vel_tol: float = 1e-8
-
-    # ---------------------------------------------------------- derived data
-    def impacts(self, contact: int | None = None):
-        """Impact steps (see :meth:`impact_mask`); returns arrays
-        ``(times, contact index, pre-impact normal velocity, post-impact
-        normal velocity, post-impact v)``.  The impact time is reported as
-        the mid-point of the step (first-order accurate)."""
-        pre, post = self.stats["Un"][:-1], self.stats["Un"][1:]
-        hit = self.impact_mask()
-        if contact is not None:
-            hit[:, [i for i in range(hit.shape[1]) if i != contact]] = False
-        k, i = np.nonzero(hit)
-        return self.t[k] + 0.5 * self.h, i, pre[k, i], post[k, i], self.v[k + 1]
-
-    def impact_mask(self) -> np.ndarray:
-        """``(steps, m_u)`` flags of impacts: the contact carries an impulse, was
-        approaching (``W_i^T v_k < -impact_vel_tol``) and carried none in the
-        previous step (so persistent contact along a curved boundary, whose
-        normal velocity is O(h) each step, is not counted as impacts)."""
-        Un = self.stats.get("Un")
-        if Un is None:
-            raise SimulationFailed("trajectory has no normal velocities (stats['Un'])")
-        loaded = self.P > 0
-        prev = np.vstack([np.zeros((1, loaded.shape[1]), bool), loaded[:-1]])
-        return loaded & ~prev & (Un[:-1] < -self.impact_vel_tol)
-
-    @property
-    def impact_times(self) -> np.ndarray:
-        """Sorted distinct impact times (event-driven results: the located times)."""
-        if "impact_t" in self.stats:
-            return np.unique(np.asarray(self.stats["impact_t"], float))
-        return np.unique(self.impacts()[0])
-
-    @property
-    def max_gap_violation(self) -> float:
-        """``max(0, -min gap)`` over the trajectory."""
-        return float(max(0.0, -self.gaps.min())) if self.gaps.size else 0.0
-
-    @property
-    def max_V_increase(self) -> float:
-        """Largest one-step increase of ``V`` (should be <= round-off for
-        dissipative laws, 000 (39)/(55))."""
-        return float(np.max(np.diff(self.V), initial=0.0))
-
-    def rest_time(self, contact: int = 0, vel_tol: float | None = None) -> float:
-        """First time after which contact ``contact`` stays closed with zero
-        normal velocity (nan if it never settles)."""
-        Un = self.stats["Un"][:, contact]
-        tol = vel_tol if vel_tol is not None else 10 * self.impact_vel_tol
-        still = (np.abs(Un) <= tol) & (self.gaps[:, contact] <= max(1e-9, 10 * self.h * tol))
-        bad = np.flatnonzero(~still)
-        if bad.size == 0:
-            return float(self.t[0])
-        if bad[-1] == still.size - 1:
-            return float("nan")
-        return float(self.t[bad[-1] + 1])
-
-    # ------------------------------------------------------------ save / plot
-    def save(self, path) -> Path:
-        """Write to ``.npz``."""
-        path = Path(path)
-        extra = {f"stats_{k}": np.asarray(v) for k, v in self.stats.items()
-                 if isinstance(v, (int, float, np.ndarray, np.floating, str))}
-        np.savez(path, t=self.t, q=self.q, v=self.v, P=self.P, active=self.active, gaps=self.gaps,
-                 energy=self.energy, V=self.V, h=self.h, impact_vel_tol=self.impact_vel_tol,
-                 names=np.array(repr(self.names)), **extra)
-        return path
-
-    @classmethod
-    def load(cls, path) -> "ContactTrajectory":
-        """Read a file written by :meth:`save`."""
-        import ast
-
-        d = np.load(path, allow_pickle=False)
-        stats = {}
-        for k in d.files:
-            if k.startswith("stats_"):
-                val = d[k]
-                stats[k[6:]] = val.item() if val.ndim == 0 else val
-        return cls(d["t"], d["q"], d["v"], d["P"], d["active"], d["gaps"], d["energy"], d["V"], float(d["h"]),
-                   ast.literal_eval(str(d["names"])), stats, float(d["impact_vel_tol"]))
-
-    def plot(self, path=None, **kw):
-        """Phase portrait, gaps, impulses, energy and V (see :mod:`invctl.plot.contact`)."""
-        from ..plot.contact import plot_contact_trajectory
-
-        return plot_contact_trajectory(self, path=path, **kw)
-
-
-def _small_solve(A, B):
-    """``A^{-1} B`` for symbolic ``A``: adjugate formula for n <= 3 (few
-    operations, exploits structural zeros), symbolic QR beyond."""
-    n = A.shape[0]
-    if n == 1:
-        return B / A[0, 0]
-    if n == 2:
-        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
-        adj = ca.blockcat([[A[1, 1], -A[0, 1]], [-A[1, 0], A[0, 0]]])
-        return ca.mtimes(adj, B) / det
-    if n == 3:
-        c = [[A[(i + 1) % 3, (j + 1) % 3] * A[(i + 2) % 3, (j + 2) % 3]
-              - A[(i + 1) % 3, (j + 2) % 3] * A[(i + 2) % 3, (j + 1) % 3] for j in range(3)] for i in range(3)]
-        det = A[0, 0] * c[0][0] + A[0, 1] * c[0][1] + A[0, 2] * c[0][2]
-        adj = ca.blockcat([[c[j][i] for j in range(3)] for i in range(3)])
-        return ca.mtimes(adj, B) / det
-    return ca.solve(A, B)
-
-
-def _cse(*exprs):
-    """Common-subexpression elimination (CasADi >= 3.6), if available."""
-    if hasattr(ca, "cse"):
-        out = ca.cse(list(exprs))
-        return tuple(out)
-    return exprs
+#: instruction count of one fused loop iteration above which fewer steps are fused and C is built at -O1
+_LARGE_STEP = 20000
 
 
 class MoreauJean:
@@ -233,39 +79,59 @@ class MoreauJean:
         Linearized projection passes (1 is exact for linear gaps).
     backend : {"auto", "vm", "c"}
         ``auto`` uses generated C when a compiler is present, else the VM.
-    chunk : int
-        Steps per compiled call.
+    chunk : int, optional
+        Steps per compiled call (the granularity of the streaming, and the
+        work redone after a step whose LCP had to be recomputed); default
+        8192, fewer (down to 256) for large steps.
     substeps : int
-        Steps inlined in one loop iteration (fewer VM dispatches).
+        Steps inlined in one loop iteration (fewer VM dispatches); reduced
+        automatically for large steps (many contacts or bodies).
     max_enum : int
-        Contacts up to which the impulse LCP is solved by exact enumeration.
+        Contacts up to which ``lcp="auto"`` solves the LCPs by enumeration.
+    lcp : {"auto", "enumeration", "pivoting", "lemke", "pgs"}
+        LCP method inside the step (see :func:`invctl.contact.lcp.lcp_sx`);
+        all but ``pgs`` are exact and every step carries a convergence flag.
+    lcp_iters : int, optional
+        Iteration (pivoting) or pivot (Lemke) budget per LCP.
     """
 
     def __init__(self, model, law: FeedbackLaw | None = None, *, potential=None, projection: bool = False,
-                 projection_iters: int = 8, backend: str = "auto", chunk: int = 8192, substeps: int = 4,
-                 max_enum: int = 4,
+                 projection_iters: int = 8, backend: str = "auto", chunk: int | None = None, substeps: int = 4,
+                 max_enum: int = 4, lcp: str = "auto", lcp_iters: int | None = None, pgs_sweeps: int = 50,
                  verbose: bool = False):
         if backend not in ("auto", "vm", "c"):
             raise ParameterError(f"backend must be 'auto', 'vm' or 'c', got {backend!r}")
+        if lcp not in ("auto", "enumeration", "pivoting", "lemke", "pgs"):
+            raise ParameterError(f"lcp must be 'auto', 'enumeration', 'pivoting', 'lemke' or 'pgs', got {lcp!r}")
         self.model = model
         self.cs = ContactSystem(model)
         self.law = law or zero_input(potential)
         self.potential = potential
         self.projection = bool(projection)
         self.projection_iters = int(projection_iters)
-        self.chunk = int(chunk)
         self.substeps = int(substeps)
-        if self.substeps < 1 or self.chunk % self.substeps or self.chunk < 64:
+        self.chunk = None if chunk is None else int(chunk)
+        if self.substeps < 1 or (chunk is not None and (self.chunk % self.substeps or self.chunk < 64)):
             raise ParameterError(f"chunk ({chunk}) must be >= 64 and a multiple of substeps ({substeps})")
         self.max_enum = int(max_enum)
+        self.lcp = lcp
+        self.lcp_iters = lcp_iters
+        self.pgs_sweeps = int(pgs_sweeps)
         self.verbose = verbose
         self._build()
+        if self.chunk is None:
+            # about 2e7 instructions per chunk: streaming overhead < 1 %, little work lost on a recomputed step
+            self.chunk = int(min(8192, max(256, 1 << int(np.log2(2e7 / self.step.n_instructions())))))
         if backend == "auto":
             backend = "c" if c_compiler() else "vm"
         self.backend = backend
         self._loops: dict = {}
 
     # ----------------------------------------------------------------- build
+    def _solve_lcp(self, A, b):
+        return lcp_sx(A, b, method=self.lcp, max_enum=self.max_enum, max_iter=self.lcp_iters,
+                      pgs_sweeps=self.pgs_sweeps, with_flag=True)
+
     def _build(self):
         mdl, cs = self.model, self.cs
         n, mu = mdl.n, cs.m_u
@@ -274,148 +140,253 @@ class MoreauJean:
         u, V, kappa = self.law.symbolic(mdl, t)
         th_c = ca.SX.sym("theta_ctrl", th.shape[0])  # the controller's model parameters (nominal)
         u, V = ca.substitute([u, V], [th], [th_c])
-        h = ca.SX.sym("h")
-        thm = ca.SX.sym("theta_m")
-        tol = ca.SX.sym("tol_act")
         self.n_theta, self.n_kappa = th.shape[0], kappa.shape[0]
-        X = ca.vertcat(q, v, t, th, th_c, kappa, h, thm, tol)
-        self.nx = X.shape[0]
+        lay = Layout([("q", n), ("v", n), ("t", 1), ("th", self.n_theta), ("thc", self.n_theta),
+                       ("kappa", self.n_kappa), ("h", 1), ("thm", 1), ("tol", 1),
+                       # run constants, carried values (at the current state), exact running statistics
+                       ("t0", 1), ("vtol", 1), ("rtol", 1), ("k", 1), ("gap", mu), ("U", mu), ("E", 1), ("V", 1),
+                       ("loaded", mu), ("act", mu), ("gap_min", mu), ("dE_max", 1), ("dV_max", 1),
+                       ("dV_max_impact", 1), ("dV_max_smooth", 1), ("rest_last_bad", mu), ("n_impacts", 1),
+                       ("n_changes", 1), ("lcp_res_max", 1), ("P_sum", mu)])
+        self._lay = lay
+        self.nx = lay.size
+        sym = {"q": q, "v": v, "t": t, "th": th, "thc": th_c, "kappa": kappa}
+        for name, size in lay.parts:
+            if name not in sym:
+                sym[name] = ca.SX.sym(name, size)
+        X = ca.vertcat(*[sym[name] for name, _ in lay.parts])
+        h, thm, tol, t0, kk = sym["h"], sym["thm"], sym["tol"], sym["t0"], sym["k"]
+        t_next = t0 + (kk + 1) * h
+        E = 0.5 * ca.mtimes([v.T, mdl.M, v]) + (0 if self.potential is None else self.potential)
+        U = ca.mtimes(cs.W.T, v)
+        # values at a state: evaluated once at the start, then carried from step to step
+        self._post = ca.Function("mj_post", [X], [cs.gap, U, E, V, u], ["x"], ["gap", "U", "E", "V", "u"])
+        self.f_uV = ca.Function("uV", [q, v, t, th_c, kappa], [u, V])
+
+        # stage 1: free velocity, Delassus matrix and impulse LCP data (000 (4), (8))
         F = mdl.f + ca.mtimes(mdl.B, u)
         Kq = -ca.jacobian(F, q)
         Cv = -ca.jacobian(F, v)
-        if ca.depends_on(F, t):
-            Fth = thm * ca.substitute(F, t, t + h) + (1 - thm) * F
-        else:
-            Fth = F
+        Fth = thm * ca.substitute(F, t, t_next) + (1 - thm) * F if ca.depends_on(F, t) else F
         What = mdl.M + h * thm * Cv + (h * thm) ** 2 * Kq
         r = h * (Fth - h * thm * ca.mtimes(Kq, v))
         Wn = cs.W
-        rhs = ca.horzcat(r, Wn)
-        sol = _small_solve(What, rhs)
+        sol = small_solve(What, ca.horzcat(r, Wn))
         if mdl.ell:
             G = mdl.G
-            WiG = _small_solve(What, G.T)
+            WiG = small_solve(What, G.T)
             S = ca.mtimes(G, WiG)
             # velocity-level G v_{k+1} = 0 through the projected operator of 000 (8)
-            corr = ca.mtimes(WiG, _small_solve(S, ca.mtimes(G, ca.horzcat(v, ca.SX.zeros(n, mu)) + sol)))
+            corr = ca.mtimes(WiG, small_solve(S, ca.mtimes(G, ca.horzcat(v, ca.SX.zeros(n, mu)) + sol)))
             sol = sol - corr
         dv_free, WiW = sol[:, 0], sol[:, 1:]
         v_free = v + dv_free
-        U = ca.mtimes(Wn.T, v)
-        gap = cs.gap
-        act = ca.if_else(gap + 0.5 * h * U <= tol, 1, 0) if mu else ca.SX(0, 1)
+        gap_c, U_c = sym["gap"], sym["U"]
+        act = ca.if_else(gap_c + 0.5 * h * U_c <= tol, 1, 0) if mu else ca.SX(0, 1)
         D = ca.mtimes(Wn.T, WiW)
         # Newton's law acts on approaching contacts only (000 (4): v_n(t-) <= 0)
-        b = ca.mtimes(Wn.T, v_free) + cs.e * ca.fmin(U, 0)
+        b = ca.mtimes(Wn.T, v_free) + cs.e * ca.fmin(U_c, 0)
         Dm = ca.SX(D)
         for i in range(mu):
             for j in range(mu):
                 Dm[i, j] = act[i] * act[j] * D[i, j] + (1 - act[i] if i == j else 0)
-        P = lcp_sx(Dm, act * b, max_enum=self.max_enum)
-        v_next = v_free + ca.mtimes(WiW, P)
-        q_next = q + h * (thm * v_next + (1 - thm) * v)
+        bm = act * b
+        self._f_lcp = ca.Function("mj_lcp", [X], [Dm, bm, act], ["x"], ["D", "b", "active"])
+        Ps = ca.SX.sym("P", mu)
+        vn = v_free + ca.mtimes(WiW, Ps)
+        self._f_after = ca.Function("mj_after", [X, Ps], [q + h * (thm * vn + (1 - thm) * v), vn],
+                                    ["x", "P"], ["q_next", "v_next"])
+        # position projection data at a configuration qq (metric M(qq))
+        qq = ca.SX.sym("qq", n)
+        Wq = ca.substitute(Wn, q, qq)
+        MiW = small_solve(ca.substitute(mdl.M, q, qq), Wq)
+        self._f_proj = ca.Function("mj_proj", [qq, X], [ca.mtimes(Wq.T, MiW), ca.substitute(cs.gap, q, qq), MiW],
+                                   ["q", "x"], ["A", "gap", "MiW"])
+
+        # stage 3: the new state with its carried values and running statistics, and the step's output row
+        qn_s, vn_s, act_s = ca.SX.sym("qn", n), ca.SX.sym("vn", n), ca.SX.sym("act_s", mu)
+        ok_s, res_s = ca.SX.sym("ok"), ca.SX.sym("res")
+        core_n = ca.vertcat(qn_s, vn_s, t_next, X[lay["th"].start:lay["tol"].stop])
+        Xpost = ca.vertcat(core_n, X[lay["tol"].stop:])
+        gap_n, U_n, E_n, V_n, _ = self._post(Xpost)
+        loaded = Ps > 0
+        s = sym
+        imp = loaded * (1 - s["loaded"]) * (U_c < -s["vtol"])
+        any_imp = ca.mmax(imp) if mu else ca.SX(0)
+        chg = (ca.sumsqr(act_s - s["act"]) + ca.sumsqr(loaded - s["loaded"])) > 0
+        dE, dV = E_n - s["E"], V_n - s["V"]
+        still = (ca.fabs(U_n) <= s["rtol"]) * (gap_n <= ca.fmax(1e-9, 10 * h * s["rtol"]))
+        new = {"k": kk + 1, "gap": gap_n, "U": U_n, "E": E_n, "V": V_n, "loaded": loaded, "act": act_s,
+               "gap_min": ca.fmin(s["gap_min"], gap_n), "dE_max": ca.fmax(s["dE_max"], dE),
+               "dV_max": ca.fmax(s["dV_max"], dV),
+               "dV_max_impact": ca.if_else(any_imp, ca.fmax(s["dV_max_impact"], dV), s["dV_max_impact"]),
+               "dV_max_smooth": ca.if_else(any_imp, s["dV_max_smooth"], ca.fmax(s["dV_max_smooth"], dV)),
+               "rest_last_bad": ca.if_else(still, s["rest_last_bad"], kk + 1),
+               "n_impacts": s["n_impacts"] + ca.sum1(imp), "n_changes": s["n_changes"] + chg,
+               "lcp_res_max": ca.fmax(s["lcp_res_max"], res_s),
+               "P_sum": s["P_sum"] + Ps}
+        Xn = ca.vertcat(core_n, *[s[name] if name not in new else new[name]
+                                  for name, _ in lay.parts[lay.parts.index(("t0", 1)):]])
+        Yrow = ca.vertcat(q, v, t, gap_c, U_c, s["E"], s["V"], u, Ps, act_s, U_n, imp, ca.fmax(any_imp, chg), ok_s)
+        self._f_finish = ca.Function("mj_finish", [X, Ps, act_s, qn_s, vn_s, ok_s, res_s], [Xn, Yrow],
+                                     ["x", "P", "active", "q_next", "v_next", "ok", "res"], ["x_next", "y"])
+        self.rows = RowLayout(n, mu, mdl.m)
+        assert Yrow.shape[0] == self.rows.ny
+
+        # the compiled step: stages composed with the symbolic LCP solver
+        Dm_x, bm_x, act_x = self._f_lcp(X)
+        P, ok = self._solve_lcp(Dm_x, bm_x)
+        res = ca.mmax(ca.fabs(ca.fmin(P, ca.mtimes(Dm_x, P) + bm_x))) if mu else ca.SX(0)
+        qn, vn = self._f_after(X, P)
         if self.projection:
             for _ in range(self.projection_iters):
-                gq = ca.substitute(gap, q, q_next)
-                Wq = ca.substitute(Wn, q, q_next)
-                Mq = ca.substitute(mdl.M, q, q_next)
-                MiW = _small_solve(Mq, Wq)
-                mu_p = lcp_sx(ca.mtimes(Wq.T, MiW), gq, max_enum=self.max_enum)
-                q_next = q_next + ca.mtimes(MiW, mu_p)
-        t_next = t + h
-        E = 0.5 * ca.mtimes([v.T, mdl.M, v]) + (0 if self.potential is None else self.potential)
-        Xn = ca.vertcat(q_next, v_next, t_next, th, th_c, kappa, h, thm, tol)
-        # outputs refer to the step start (k): energy, V, gaps, normal velocity; and the step's P, active set
-        Y = ca.vertcat(P, act)
+                Ap, gp, MiWp = self._f_proj(qn, X)
+                mu_p, ok_p = self._solve_lcp(Ap, gp)
+                qn = qn + ca.mtimes(MiWp, mu_p)
+                ok = ok * ok_p
+        Xn, Y = self._f_finish(X, P, act_x, qn, vn, ok, res)
+        Xn, Y = cse(Xn, Y)
         self.ny = Y.shape[0]
-        Xn, Y = _cse(Xn, Y)
         self.step = ca.Function("mj_step", [X], [Xn, Y], ["x"], ["x_next", "y"])
-        # energy, V, input, gaps, normal velocities: evaluated after the loop on the whole trajectory (map)
-        self._post = ca.Function("mj_post", [X], [ca.vertcat(gap, U, E, V, u)], ["x"], ["z"])
-        self.f_uV = ca.Function("uV", [q, v, t, th_c, kappa], [u, V])
 
-    def _fused(self):
-        """``substeps`` steps inlined in one Function (fewer VM calls); its second
-        output stacks ``(q, v, t, P, active)`` after each substep."""
+    def _substeps(self) -> int:
+        s = self.substeps
+        while s > 1 and self.step.n_instructions() * s > _LARGE_STEP:
+            s //= 2
+        while self.chunk % s:
+            s -= 1
+        return max(s, 1)
+
+    def _fused(self, S: int):
+        """``S`` steps inlined in one Function (fewer VM calls); its second
+        output stacks the rows ``y`` of the steps."""
         X = ca.SX.sym("x", self.nx)
         xs, ys = X, []
-        n = self.model.n
-        for _ in range(self.substeps):
+        for _ in range(S):
             xs, y = self.step(xs)
-            ys.append(ca.vertcat(xs[:2 * n + 1], y))
+            ys.append(y)
         return ca.Function("mj_fused", [X], [xs, ca.vertcat(*ys)], ["x"], ["x_next", "y"])
 
-    def _loop(self, backend: str, size: int):
-        key = (backend, size)
+    def _loop(self, backend: str, size: int, S: int):
+        key = (backend, size, S)
         if key in self._loops:
             return self._loops[key]
-        fused = self._fused()
+        fused = self._fused(S)
         # a name unique to this loop's code: several compiled loops may live in one process
         tag = hashlib.sha256(fused.serialize().encode() + str(size).encode()).hexdigest()[:16]
-        loop = fused.mapaccum(f"mj_{tag}", size // self.substeps)
+        loop = fused.mapaccum(f"mj_{tag}", size // S)
         if backend == "c":
             try:
-                loop = self._compile(loop)
+                loop = compile_function(loop, large=fused.n_instructions() > _LARGE_STEP, verbose=self.verbose)
             except (OSError, RuntimeError, subprocess.SubprocessError) as exc:
                 print(f"invctl: generated-C backend unavailable ({exc}); using the CasADi VM", file=sys.stderr)
         self._loops[key] = loop
         return loop
 
-    def _compile(self, fn: ca.Function) -> ca.Function:
-        cc = c_compiler()
-        if cc is None:
-            return fn
-        with tempfile.TemporaryDirectory() as tmp:
-            src = Path(tmp) / f"{fn.name()}.c"
-            cg = ca.CodeGenerator(src.name, {"with_header": False})
-            cg.add(fn)
-            cg.generate(str(tmp) + os.sep)
-            code = src.read_text()
-        key = hashlib.sha256(code.encode()).hexdigest()[:20]
-        lib = _cache_dir() / f"mj_{key}.so"
-        if not lib.exists():
-            csrc = _cache_dir() / f"mj_{key}.{os.getpid()}.c"
-            csrc.write_text(code)
-            tmp_lib = lib.with_suffix(f".{os.getpid()}.tmp.so")
-            cmd = [cc, "-O3", "-march=native", "-fPIC", "-shared", str(csrc), "-o", str(tmp_lib), "-lm"]
-            if self.verbose:
-                print("invctl: compiling time-stepping loop:", " ".join(cmd), file=sys.stderr)
-            res = subprocess.run(cmd, capture_output=True, text=True)
-            if res.returncode != 0:
-                cmd.remove("-march=native")
-                res = subprocess.run(cmd, capture_output=True, text=True)
-                if res.returncode != 0:
-                    print(f"invctl: C compilation failed, using the CasADi VM:\n{res.stderr[:500]}", file=sys.stderr)
-                    return fn
-            os.replace(tmp_lib, lib)
-            csrc.unlink(missing_ok=True)
-        return ca.external(fn.name(), str(lib))
-
     # ------------------------------------------------------------------- run
     def initial_state(self, q0, v0, t0=0.0, *, h, theta=0.5, params=None, gains=None,
-                      activation_tol=DEFAULT_ACTIVATION_TOL, ctrl_params=None) -> np.ndarray:
-        mdl = self.model
-        th = mdl.theta_values if params is None else np.asarray(params, float)
-        thc = th if ctrl_params is None else np.asarray(ctrl_params, float)
+                      activation_tol=DEFAULT_ACTIVATION_TOL, ctrl_params=None, impact_vel_tol: float = 1e-8,
+                      rest_vel_tol: float | None = None) -> np.ndarray:
+        """The loop state at ``(q0, v0, t0)``: numbers of the run, the values at
+        the state (gaps, normal velocities, energy, V) and the statistics seeds."""
+        mdl, lay = self.model, self._lay
+        th = mdl.theta_values if params is None else np.asarray(params, float).ravel()
+        thc = th if ctrl_params is None else np.asarray(ctrl_params, float).ravel()
         if th.size != self.n_theta or thc.size != self.n_theta:
             raise ParameterError(f"params must have length {self.n_theta} ({mdl.params.names})")
-        kap = np.asarray(self.law.kappa_values if gains is None else gains, float)
+        kap = np.asarray(self.law.kappa_values if gains is None else gains, float).ravel()
         if kap.size != self.n_kappa:
             raise ParameterError(f"gains has length {kap.size}, law {self.law.name!r} has {self.law.kappa_names}")
         if not (h > 0 and np.isfinite(h)):
             raise ParameterError(f"time step h must be positive and finite, got {h}")
         if not 0.0 <= theta <= 1.0:
             raise ParameterError(f"theta of the theta-method must lie in [0, 1], got {theta}")
+        if not (impact_vel_tol >= 0 and np.isfinite(impact_vel_tol)):
+            raise ParameterError(f"impact_vel_tol must be >= 0 and finite, got {impact_vel_tol}")
+        rtol = 10 * impact_vel_tol if rest_vel_tol is None else float(rest_vel_tol)
+        if not (rtol >= 0 and np.isfinite(rtol)):
+            raise ParameterError(f"rest_vel_tol must be >= 0 and finite, got {rest_vel_tol}")
         q0 = np.asarray(q0, float).ravel()
         v0 = np.asarray(v0, float).ravel()
         if q0.size != mdl.n or v0.size != mdl.n:
             raise ParameterError(f"q0, v0 must have length n = {mdl.n}, got {q0.size}, {v0.size}")
-        return np.r_[q0, v0, t0, th, thc, kap, h, theta, activation_tol]
+        x = np.zeros(self.nx)
+        for name, val in (("q", q0), ("v", v0), ("t", t0), ("th", th), ("thc", thc), ("kappa", kap), ("h", h),
+                          ("thm", theta), ("tol", activation_tol), ("t0", t0), ("vtol", impact_vel_tol),
+                          ("rtol", rtol)):
+            x[lay[name]] = val
+        gap, U, E, V, _ = (np.array(a, float).ravel() for a in self._post(x))
+        if not (np.all(np.isfinite(gap)) and np.all(np.isfinite(U)) and np.isfinite(E[0]) and np.isfinite(V[0])):
+            raise ParameterError(f"the initial state gives non-finite gaps/energy/V (gaps {gap.tolist()}, E {E[0]}, "
+                                 f"V {V[0]}); check q0, v0 and the parameters")
+        still = (np.abs(U) <= rtol) & (gap <= max(1e-9, 10 * h * rtol))
+        for name, val in (("gap", gap), ("U", U), ("E", E), ("V", V), ("gap_min", gap),
+                          ("rest_last_bad", np.where(still, -1.0, 0.0))):
+            x[lay[name]] = val
+        return x
+
+    def reference_step(self, x, *, method: str = "auto"):
+        """One step from loop state ``x`` with the LCPs solved by the numpy
+        solvers (:func:`~invctl.contact.lcp.solve_lcp`: enumeration or Lemke,
+        exact, any size).  Used to recompute a step whose compiled LCP did not
+        converge, and as the numpy reference of the compiled loop.
+
+        Returns ``(x_next, y)`` (loop state and output row); raises
+        :class:`ContactError` when an LCP has no solution.
+        """
+        x = np.asarray(x, float)
+        Dm, bm, act = (np.array(a, float) for a in self._f_lcp(x))
+        mu = self.cs.m_u
+        P = solve_lcp(Dm.reshape(mu, mu), bm.ravel(), method=method, check_unique=False).z if mu else np.zeros(0)
+        qn, vn = (np.array(a, float).ravel() for a in self._f_after(x, P))
+        if self.projection:
+            for _ in range(self.projection_iters):
+                Ap, gp, MiW = (np.array(a, float) for a in self._f_proj(qn, x))
+                mu_p = solve_lcp(Ap.reshape(mu, mu), gp.ravel(), method=method, check_unique=False).z
+                qn = qn + MiW.reshape(-1, mu) @ mu_p
+        res = lcp_residual(Dm.reshape(mu, mu), bm.ravel(), P) if mu else 0.0
+        xn, y = self._f_finish(x, P, act, qn, vn, 1.0, res)
+        return np.array(xn, float).ravel(), np.array(y, float).ravel()
+
+    def reference_run(self, q0, v0, steps: int, h: float, *, method: str = "lemke", **kw):
+        """``steps`` steps of :meth:`reference_step` in a Python loop (numpy LCP
+        solvers); returns ``(q, v)`` with ``steps + 1`` rows.  A slow,
+        independent check of the compiled loop, not for production runs."""
+        x = self.initial_state(q0, v0, kw.pop("t0", 0.0), h=h, **kw)
+        lay = self._lay
+        Q, Vv = np.empty((steps + 1, self.model.n)), np.empty((steps + 1, self.model.n))
+        Q[0], Vv[0] = x[lay["q"]], x[lay["v"]]
+        for k in range(steps):
+            x, _ = self.reference_step(x, method=method)
+            Q[k + 1], Vv[k + 1] = x[lay["q"]], x[lay["v"]]
+        return Q, Vv
+
+    def _state_at(self, x_in, Xacc, use: int, size: int, S: int) -> np.ndarray:
+        """Loop state after ``use`` steps of a chunk started at ``x_in``:
+        the accumulated state after the last whole fused group, then at most
+        ``S - 1`` single steps (the statistics must stop exactly at ``use``)."""
+        if use == size:
+            return Xacc[:, -1].copy()
+        g = use // S
+        x = x_in.copy() if g == 0 else Xacc[:, g - 1].copy()
+        for _ in range(use - g * S):
+            x = np.array(self.step(x)[0], float).ravel()
+        return x
+
+    def _final_row(self, x) -> np.ndarray:
+        lay, L = self._lay, self.rows
+        row = np.zeros(L.ncols)
+        gap, U, E, V, u = (np.array(a, float).ravel() for a in self._post(x))
+        for name, val in (("q", x[lay["q"]]), ("v", x[lay["v"]]), ("t", x[lay["t"]]), ("gap", x[lay["gap"]]),
+                          ("U", x[lay["U"]]), ("E", x[lay["E"]]), ("V", x[lay["V"]]), ("u", u)):
+            row[L.sl(name)] = val
+        return row
 
     def run(self, q0, v0, t_end: float, h: float, *, t0: float = 0.0, theta: float = 0.5, params=None,
             gains=None, activation_tol: float = DEFAULT_ACTIVATION_TOL, backend: str | None = None,
-            ctrl_params=None,
-            impact_vel_tol: float | None = None, progress: bool | None = None) -> ContactTrajectory:
+            ctrl_params=None, impact_vel_tol: float | None = None, progress: bool | None = None,
+            record: str = "steps", record_every: int = 1, memory_budget=None, rest_vel_tol: float | None = None,
+            on_lcp_failure: str = "recompute") -> ContactTrajectory:
         """Simulate from ``(q0, v0)`` at ``t0`` to ``t_end`` with step ``h``.
 
         Parameters
@@ -432,69 +403,180 @@ class MoreauJean:
             conservative forces and e = 1; 1: implicit Euler, dissipative).
         activation_tol : float
             Predicted-gap threshold of the active-set decision.
+        impact_vel_tol : float, optional
+            Approach speed above which a newly loaded contact counts as an
+            impact (default 1e-8).
+        rest_vel_tol : float, optional
+            Normal speed below which a closed contact counts as at rest for
+            :meth:`ContactTrajectory.rest_time` (default ``10 impact_vel_tol``).
         progress : bool, optional
             Report progress on stderr (default: only for runs of more than 5e6 steps).
+        record : {"steps", "events"}
+            ``steps``: every ``record_every``-th step (step 0 included) and the
+            final state.  ``events``: the steps with an impact or a change of
+            the active or loaded set, the first step and the final state (and
+            every ``record_every``-th step when ``record_every > 1``).
+            Statistics that need every step are exact either way.
+        record_every : int
+            Decimation of the record (1: every step).
+        memory_budget : float, optional
+            Bytes the run may use (default: half the memory available when it
+            starts).  The need is estimated before the run; a run that does
+            not fit raises :class:`ResourceLimitError` naming the settings that
+            fit; an event record that outgrows the budget stops with the
+            record so far in ``exc.partial``.
+        on_lcp_failure : {"recompute", "raise"}
+            What to do with a step whose compiled LCP did not converge (its
+            flag is 0): recompute that step with the exact numpy solvers and
+            continue (counted in ``stats["lcp_recomputed"]``), or raise
+            :class:`ContactError` with the trajectory so far in ``partial``.
         """
+        if record not in ("steps", "events"):
+            raise ParameterError(f"record must be 'steps' or 'events', got {record!r}")
+        try:
+            every = int(record_every)
+        except (TypeError, ValueError):
+            raise ParameterError(f"record_every must be a positive integer, got {record_every!r}") from None
+        if every < 1 or every != record_every:
+            raise ParameterError(f"record_every must be a positive integer, got {record_every!r}")
+        if on_lcp_failure not in ("recompute", "raise"):
+            raise ParameterError(f"on_lcp_failure must be 'recompute' or 'raise', got {on_lcp_failure!r}")
+        vtol = 1e-8 if impact_vel_tol is None else float(impact_vel_tol)
         x = self.initial_state(q0, v0, t0, h=h, theta=theta, params=params, gains=gains,
-                               activation_tol=activation_tol, ctrl_params=ctrl_params)
-        x_init = x.copy()
+                               activation_tol=activation_tol, ctrl_params=ctrl_params, impact_vel_tol=vtol,
+                               rest_vel_tol=rest_vel_tol)
+        if not np.isfinite(t_end):
+            raise ParameterError(f"t_end must be finite, got {t_end}")
         N = int(np.ceil((t_end - t0) / h - 1e-9))
         if N <= 0:
             raise ParameterError(f"t_end = {t_end} must exceed t0 = {t0}")
         backend = backend or self.backend
+        if backend not in ("vm", "c"):
+            raise ParameterError(f"backend must be 'vm' or 'c', got {backend!r}")
         if progress is None:
             progress = N > 5_000_000
+        S = self._substeps()
         # one compiled chunk size for C (compiled once, cached on disk); smaller VM loops for short runs
         size = self.chunk if (N >= self.chunk or backend == "c") else max(64, 1 << (N - 1).bit_length())
-        size = max(size, self.substeps) // self.substeps * self.substeps
-        loop = self._loop(backend, size)
-        nchunks = -(-N // size)
-        n, mu = self.model.n, self.cs.m_u
-        nyf = 2 * n + 1 + 2 * mu
-        Xacc = np.zeros((self.nx, size // self.substeps), order="F")
-        Yall = np.zeros((nyf, nchunks * size), order="F")
+        size = max(size, S) // S * S
+        L = self.rows
+        events = record == "events"
+        buffer_bytes = 8 * (self.ny * size + self.nx * (size // S) + L.ncols * size)
+        est = check_budget(N=N, h=h, t0=t0, every=every, events=events, row_bytes=ChunkRecorder.row_bytes_of(L),
+                           buffer_bytes=buffer_bytes, budget=memory_budget)
+        limit = est["budget_bytes"]
+        loop = self._loop(backend, size, S)
+        rec = ChunkRecorder(L, N, every, events, t0, h)
+        Xacc = np.zeros((self.nx, size // S), order="F")
+        Ych = np.zeros((self.ny, size), order="F")
         xin = np.array(x, float)
+        x_init = xin.copy()
         buf, run_chunk = loop.buffer()
         buf.set_arg(0, memoryview(xin))
         buf.set_res(0, memoryview(Xacc.reshape(-1, order="F")))
+        buf.set_res(1, memoryview(Ych.reshape(-1, order="F")))
+        lay = self._lay
+        ok_row = L.sl("ok").start
+        done, recomputed, c = 0, 0, 0
+        meta = dict(h=h, backend=backend, est=est, every=every, record=record, vtol=vtol, x_init=x_init)
         tic = time.perf_counter()
-        for c in range(nchunks):
-            buf.set_res(1, memoryview(Yall[:, c * size:(c + 1) * size].reshape(-1, order="F")))
-            run_chunk()
-            xin[:] = Xacc[:, -1]
-            if progress and (c % 50 == 0):
-                print(f"\rinvctl: moreau-jean {min(N, (c + 1) * size)}/{N} steps", end="", file=sys.stderr)
+        try:
+            while done < N:
+                run_chunk()
+                use = min(N - done, size)
+                fail = None
+                okrow = Ych[ok_row, :use]
+                if not okrow.all():
+                    fail = int(np.argmin(okrow > 0.5))
+                    use = fail
+                x_after = self._state_at(xin, Xacc, use, size, S)
+                if not np.all(np.isfinite(x_after[:lay["v"].stop])):
+                    bad = np.flatnonzero(~np.all(np.isfinite(Ych[:lay["v"].stop, :use]), axis=0))
+                    k_bad = int(bad[0]) if bad.size else use
+                    rec.consume(Ych, k_bad, done, self._after_values(Ych[:, k_bad]))
+                    raise SimulationFailed(
+                        f"Moreau-Jean: non-finite state at step {done + k_bad} (t = {t0 + (done + k_bad) * h:.6g}); "
+                        "reduce h or check the model/gains", partial=self._package(rec, None, done + k_bad, 0.0, meta),
+                        diagnostics={"step": done + k_bad})
+                rec.consume(Ych, use, done, self._after_values(x_after))
+                done += use
+                if fail is not None:
+                    if on_lcp_failure == "raise":
+                        Dm, bm, _ = self._f_lcp(x_after)
+                        raise ContactError(
+                            f"Moreau-Jean: the compiled LCP ({self.lcp}) did not converge at step {done} "
+                            f"(t = {t0 + done * h:.6g}); raise lcp_iters, use lcp='lemke', or "
+                            "on_lcp_failure='recompute' (exact numpy LCP for such steps)",
+                            partial=self._package(rec, x_after, done, time.perf_counter() - tic, meta),
+                            diagnostics={"step": done, "D": np.array(Dm).tolist(), "b": np.array(bm).ravel().tolist()})
+                    try:
+                        x_after, yrow = self.reference_step(x_after)
+                    except ContactError as exc:
+                        raise ContactError(f"Moreau-Jean step {done} (t = {t0 + done * h:.6g}): {exc}",
+                                           partial=self._package(rec, None, done, time.perf_counter() - tic, meta),
+                                           diagnostics={"step": done, **exc.diagnostics}) from exc
+                    rec.consume(yrow.reshape(-1, 1), 1, done, self._after_values(x_after))
+                    done += 1
+                    recomputed += 1
+                xin[:] = x_after
+                if rec.nbytes() + buffer_bytes > limit:
+                    raise ResourceLimitError(
+                        f"Moreau-Jean: the record ({rec.nbytes() / 2**20:.4g} MiB after {done} of {N} steps: "
+                        f"{rec.n_imp_rows} impacts) outgrew the memory budget {limit / 2**20:.4g} MiB; use "
+                        f"record_every > {every} without record='events', a shorter t_end or a larger memory_budget",
+                        partial=self._package(rec, xin.copy(), done, time.perf_counter() - tic, meta),
+                        diagnostics={"steps_done": done, "record_bytes": rec.nbytes(), "budget_bytes": limit})
+                c += 1
+                if progress and c % 50 == 0:
+                    print(f"\rinvctl: moreau-jean {done}/{N} steps", end="", file=sys.stderr)
+        except KeyboardInterrupt:
+            from ..errors import RunInterrupted
+
+            raise RunInterrupted(f"Moreau-Jean interrupted after {done} of {N} steps (t = {t0 + done * h:.6g})",
+                                 partial=self._package(rec, None, done, time.perf_counter() - tic, meta)) from None
         wall = time.perf_counter() - tic
         if progress:
             print(file=sys.stderr)
-        Y = Yall[:, :N]
-        X = np.repeat(x_init.reshape(-1, 1), N, axis=1)
-        X[:2 * n + 1] = Y[:2 * n + 1]
-        Y = Y[2 * n + 1:]
-        return self._package(x0=x_init,
-                             X=X, Y=Y, h=h, wall=wall, backend=backend, N=N,
-                             impact_vel_tol=impact_vel_tol)
+        meta["recomputed"] = recomputed
+        return self._package(rec, xin, N, wall, meta)
 
-    def _package(self, x0, X, Y, h, wall, backend, N, impact_vel_tol):
-        n, mu = self.model.n, self.cs.m_u
-        if not np.all(np.isfinite(X)):
-            k = int(np.argmax(~np.all(np.isfinite(X), axis=0)))
-            raise SimulationFailed(f"Moreau-Jean: non-finite state at step {k} (t = {x0[2 * n] + k * h:.6g}); "
-                                   "reduce h or check the model/gains", diagnostics={"step": k})
-        Xall = np.hstack([x0.reshape(-1, 1), X])
-        Z = np.asarray(self._post.map(Xall.shape[1], "serial")(Xall))
-        o = 0
-        P = Y[o:o + mu].T; o += mu
-        act = Y[o:o + mu].T > 0.5
-        o = 0
-        gaps = Z[o:o + mu].T; o += mu
-        Un = Z[o:o + mu].T; o += mu
-        E = Z[o]; V = Z[o + 1]; o += 2
-        u = Z[o:o + self.model.m].T
-        t = Xall[2 * n]
-        vtol = impact_vel_tol if impact_vel_tol is not None else 1e-8
+    def _after_values(self, x):
+        lay = self._lay
+        if x.shape[0] == self.nx:
+            return {"v": x[lay["v"]], "V": x[lay["V"]][0], "E": x[lay["E"]][0]}
+        L = self.rows  # an output row: values at the start of its step
+        return {"v": x[L.sl("v")], "V": x[L.sl("V").start], "E": x[L.sl("E").start]}
+
+    def _package(self, rec: ChunkRecorder, x_final, N: int, wall: float, meta: dict) -> ContactTrajectory:
+        """The trajectory of the recorded rows (and ``x_final``, the state after
+        step ``N``, with the run's statistics; None for a partial record)."""
+        n, mu, m = self.model.n, self.cs.m_u, self.model.m
+        L, lay = self.rows, self._lay
+        if x_final is not None:
+            rec.finish(self._final_row(x_final), N)
+        R, Sx = rec.rows()
+        col = lambda name: R[:, L.sl(name)]  # noqa: E731
+        nP = R.shape[0] - 1 if x_final is not None else R.shape[0]
+        x0 = meta["x_init"]
         stats = {"wall_s": wall, "steps": N, "steps_per_s": N / wall if wall > 0 else float("inf"),
-                 "backend": backend, "Un": Un, "u": u, "theta_m": float(x0[-2]), "activation_tol": float(x0[-1]),
-                 "projection": int(self.projection)}
+                 "backend": meta["backend"], "Un": col("U"), "u": col("u"), "theta_m": float(x0[lay["thm"]][0]),
+                 "activation_tol": float(x0[lay["tol"]][0]), "projection": int(self.projection),
+                 "record": meta["record"], "record_every": meta["every"], "step_index": Sx,
+                 "lcp_method": self.lcp, "lcp_recomputed": int(meta.get("recomputed", 0)),
+                 "memory_estimate_bytes": meta["est"]["estimate_bytes"],
+                 "memory_budget_bytes": meta["est"]["budget_bytes"], "rest_vel_tol": float(x0[lay["rtol"]][0])}
+        if x_final is not None:
+            for name in ("gap_min", "P_sum", "rest_last_bad"):
+                stats[name] = np.array(x_final[lay[name]])
+            for name in ("dE_max", "dV_max", "dV_max_impact", "dV_max_smooth", "lcp_res_max"):
+                stats[name] = float(x_final[lay[name]][0])
+            for name in ("n_impacts", "n_changes"):
+                stats[name] = int(round(x_final[lay[name]][0]))
+            stats["rest_last_bad"] = stats["rest_last_bad"].astype(np.int64)
+        else:
+            stats["partial"] = True
+        if not rec.complete:
+            stats.update(rec.impact_table())
         names = {"q": list(self.model.q_names), "gaps": list(self.cs.names), "u": list(self.model.u_names)}
-        return ContactTrajectory(t, Xall[:n].T, Xall[n:2 * n].T, P, act, gaps, E, V, h, names, stats, vtol)
+        return ContactTrajectory(col("t")[:, 0], col("q"), col("v"), col("P")[:nP], col("act")[:nP] > 0.5,
+                                 col("gap"), col("E")[:, 0], col("V")[:, 0], meta["h"], names, stats, meta["vtol"])

@@ -624,11 +624,19 @@ class StabilityReport:
         lines.extend(f"  note: {n}" for n in self.notes)
         return "\n".join(lines)
 
+    def phase_portrait(self, *, n_rot: float = 2.0, n: int = 4000) -> dict:
+        """What the phase portrait shows: the real eigenpairs of ``A_1``, ``A_2`` and the worst-case
+        trajectory from ``(1, 0)`` over ``n_rot`` rotation periods."""
+        T = (self.rotation_period or 0.05) * n_rot
+        _, z = worst_case_flow(self.system, [1.0, 0.0], T, n=n)
+        return {"eigenvectors": {i: eigenvectors(self.system, i) for i in (1, 2)}, "z": z}
+
     def plot(self, ax=None, *, n_rot: float = 2.0):
-        """Phase portrait of a worst-case trajectory with the switching lines and eigenvectors."""
+        """Phase portrait of a worst-case trajectory with the switching lines and eigenvectors (draws only:
+        the data come from :meth:`phase_portrait`)."""
         from ..plot.switched import plot_phase_portrait
 
-        return plot_phase_portrait(self, ax=ax, n_rot=n_rot)
+        return plot_phase_portrait(self, self.phase_portrait(n_rot=n_rot), ax=ax)
 
 
 def _fmt_ev(ev) -> str:

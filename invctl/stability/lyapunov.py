@@ -46,7 +46,14 @@ class LyapunovReport:
 
 
 def lyapunov_report(tr) -> LyapunovReport:
-    """Jumps of ``tr.V`` at the impact steps of a :class:`ContactTrajectory`."""
+    """Jumps of ``tr.V`` at the impact steps of a :class:`ContactTrajectory` (for decimated or event
+    records from the run's exact accumulators, which see every step)."""
+    if not getattr(tr, "complete", True):
+        st = tr.stats
+        jumps = np.asarray(st.get("impact_dV", np.zeros(0)), float)
+        return LyapunovReport(max(0.0, float(st["dV_max"])), max(0.0, float(st["dV_max_impact"])),
+                              max(0.0, float(st["dV_max_smooth"])), jumps, int(st.get("n_impacts", jumps.size)),
+                              float(tr.V[0]), float(tr.V[-1]))
     dV = np.diff(tr.V)
     imp = np.any(tr.impact_mask(), axis=1)
     jumps = dV[imp]

@@ -8,16 +8,26 @@ The same calls serve the command line, notebooks and scripts::
     from invctl.studies import commands
     res = commands.invert("cartpole", {"mp": 0.3}, N=300)
     print(res.text); res.data["max_output_error"]
+
+Around every run: the memory a long run records is estimated before it starts
+(:class:`~invctl.errors.ResourceLimitError` naming the option that fits); a contact run whose
+penetration is large against the clearance warns or fails with the numbers; Ctrl-C
+(:class:`~invctl.errors.RunInterrupted`) saves what is complete next to the requested output
+(``x.partial.npz``, ``tradeoff_<scene>.partial.csv``, the runs of a pipeline with a note) and
+re-raises with ``exc.saved`` naming the files.
 """
 from __future__ import annotations
 
 import importlib
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable
 
-from ..errors import ParameterError, SceneError
+from pathlib import Path
+
+from ..errors import (InvctlError, NumericalError, ParameterError, ResourceLimitError, RunInterrupted, SceneError,
+                      SimulationFailed, watch_sigint)
 from ..io import check_output_dir, check_output_path
 from ..scenes import SCENE_COMMANDS, CommandResult, Scene, load_scene
 
@@ -62,6 +72,8 @@ def _scheme(v):
 
 #: every option of every command (name as in Python; the CLI spells ``_`` as ``-``)
 OPTIONS: dict[str, Option] = {
+    "preset": Option(str, "start from the scene's named parameter set (then --set overrides)",
+                     ("analyze", "invert", "design", "simulate", "pipeline", "study")),
     "samples": Option(int, "sample points for the checks", ("analyze",), 200, _at_least(1)),
     "N": Option(int, "number of collocation intervals (default: automatic)", ("invert",), None, _at_least(4)),
     "scheme": Option(str, "collocation scheme: hermite-simpson, legendre<d>, radau<d>", ("invert",), None, _scheme),
@@ -69,7 +81,7 @@ OPTIONS: dict[str, Option] = {
     "backend": Option(str, "solver of the collocation equations (default ipopt)", ("invert",), None,
                       choices=("ipopt", "newton")),
     "dt": Option(float, "sampling step of the saved trajectory (with --out)", ("invert",), None, _positive),
-    "controller": Option(str, "controller to run (tracking: C1, C2, C3, C1-42; contact: the scene's)",
+    "controller": Option(str, "controller to run (tracking: C1, C2, C3, C1-inv; contact: the scene's)",
                          ("simulate",)),
     "plant_set": Option(str, "override a parameter of the simulated plant only (repeatable)",
                         ("simulate", "pipeline"), None, repeat=True, metavar="NAME=VALUE"),
@@ -82,7 +94,35 @@ OPTIONS: dict[str, Option] = {
     "force": Option(bool, "replace existing output files", ("invert", "simulate", "design"), False, flag=True),
     "quiet": Option(bool, "no progress output", ("invert", "simulate", "pipeline", "study"), False, flag=True),
     "no_animation": Option(bool, "do not write animations of the runs", ("pipeline",), False, flag=True),
+    "record_every": Option(int, "contact runs: keep every k-th step (the run's statistics stay exact)",
+                           ("simulate", "pipeline"), None, _at_least(1)),
+    "record": Option(str, "contact runs: record every step ('steps') or only impacts and contact changes "
+                          "('events')", ("simulate", "pipeline"), None, choices=("steps", "events")),
+    "max_wall_time": Option(float, "stop the inversion's solver after this many seconds", ("invert",), None,
+                            _positive),
 }
+
+#: ``invctl generate`` (trajectory libraries, :mod:`.library`): its own options; it shares N, scheme, tol,
+#: backend, out, force and quiet with the commands above
+OPTIONS.update({
+    "grid": Option(str, "a grid axis: a scene parameter or a numeric argument of the scene's reference, "
+                   "NAME=START:STOP:COUNT or NAME=V1,V2,... (repeatable; sequence arguments by component, "
+                   "e.g. 'rf[0]=0.8:1.0:10')", ("generate",), None, repeat=True, metavar="NAME=START:STOP:COUNT"),
+    "workers": Option(int, "worker processes (default: the CPU count; 1: in this process)", ("generate",), None,
+                      _at_least(1)),
+    "dask": Option(str, "solve on this Dask scheduler (address, e.g. tcp://host:8786)", ("generate",)),
+    "verify": Option(str, "forward-check every point, the grid's corners or none", ("generate",), "corners",
+                     choices=("all", "corners", "none")),
+    "no_continuation": Option(bool, "solve every point from its quasi-static guess (no warm starts)", ("generate",),
+                              False, flag=True),
+})
+for _name in ("N", "scheme", "tol", "backend", "out", "force", "quiet"):
+    OPTIONS[_name] = replace(OPTIONS[_name], commands=OPTIONS[_name].commands + ("generate",))
+OPTIONS["out"] = replace(OPTIONS["out"], help=OPTIONS["out"].help + "; generate: a .npz file or a folder (an "
+                         "unfinished library of the same settings there is resumed)")
+OPTIONS["force"] = replace(OPTIONS["force"], help=OPTIONS["force"].help + " (generate: start the library over)")
+OPTIONS["backend"] = replace(OPTIONS["backend"], help=OPTIONS["backend"].help.replace(
+    "(default ipopt)", "(default ipopt; generate: newton)"))
 
 _FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
@@ -128,12 +168,19 @@ def _kind(scene: Scene):
     return importlib.import_module(_KIND_MODULES[scene.kind])
 
 
-def _plant_params(items) -> dict:
+def _plant_params(items, scene: Scene | None = None) -> dict:
+    """``--plant-set`` values, checked against the scene before any work (names, applicability)."""
     from ..model.params import parse_assignments
 
-    if isinstance(items, dict):
-        return dict(items)
-    return parse_assignments(items, option="--plant-set")
+    plant = dict(items) if isinstance(items, dict) else parse_assignments(items, option="--plant-set")
+    if plant and scene is not None:
+        if scene.kind == "switched":
+            raise SceneError(f"scene {scene.name!r}: the controller (3) uses no plant model, so plant and model "
+                             "parameters coincide; --plant-set is not applicable (use --set)")
+        unknown = sorted(set(plant) - set(scene.params))
+        if unknown:
+            raise SceneError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(scene.params)}")
+    return plant
 
 
 def _figure_path(path, force):
@@ -143,6 +190,288 @@ def _figure_path(path, force):
     return p
 
 
+# ---------------------------------------------------------------- resources
+#: Recorded doubles per output sample or step (measured: growth of the peak RSS between a default
+#: run and one with ten times the samples, then rounded up by 10-30 %):
+#: Moreau-Jean ``40 + 80 n + 40 n_gaps + 20 m`` (bouncing_ball 133 measured / 160 estimated,
+#: prismatic_clearance 232 / 300, slider_crank_clearance 304 / 340, gear_backlash 412 / 500);
+#: closed loop ``120 + 15 (n + m + n_y)`` per output step (cartpole 167 / 180, manipulator 220 / 255)
+#: plus the funnel's reference grid at half the step; switched runs 100 (stiff_wall 44, wrist 78).
+_DOUBLES = {
+    "contact": lambda n, gaps, m, ny: 40 + 80 * n + 40 * gaps + 20 * m,
+    "tracking": lambda n, gaps, m, ny: 120 + 15 * (n + m + ny) + 2 * 4 * n,
+    "switched": lambda n, gaps, m, ny: 100,
+}
+#: below this many samples a run is never large (no model is built to estimate it)
+_SMALL = 2e5
+#: share of the available memory a run may plan to use
+_MEMORY_SHARE = 0.75
+
+
+def usable_memory() -> float:
+    """Bytes a run may plan to use: 75 % of the available memory (``MemAvailable``), or
+    ``INVCTL_MAX_MEMORY`` (bytes, e.g. ``4e9``) when that is smaller."""
+    avail = math.inf
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = float(line.split()[1]) * 1024
+                    break
+    except OSError:
+        try:
+            avail = float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (ValueError, OSError, AttributeError):
+            pass
+    limit = _MEMORY_SHARE * avail
+    env = os.environ.get("INVCTL_MAX_MEMORY")
+    if env:
+        try:
+            limit = min(limit, float(env))
+        except ValueError:
+            raise ParameterError(f"INVCTL_MAX_MEMORY={env!r}: expected a number of bytes (e.g. 4e9)") from None
+    return limit
+
+
+def _gib(b: float) -> str:
+    return f"{b / 2**30:.3g} GiB"
+
+
+def _run_size(command, scene: Scene, params, settings, o) -> tuple | None:
+    """``(samples, runs, step, t_end, horizon option, step option)`` of the long run a command
+    records, or None."""
+    kind = scene.kind
+    t_opt = o.get("t_end")
+    if kind == "contact":  # Moreau-Jean estimates its record itself, with the recording options that fit
+        return None
+    if kind == "tracking" and command in ("simulate", "pipeline") and t_opt is not None:
+        from .tracking import setup_tracking
+        import inspect
+
+        dt = float(inspect.signature(setup_tracking).parameters["dt"].default)
+        runs = 1 if command == "simulate" else len(scene.tracking.controllers)
+        return float(t_opt) / dt, runs, dt, float(t_opt), "--t-end ", None
+    if kind == "switched" and command in ("simulate", "pipeline", "study"):
+        p = {**scene.params, **params}
+        if "h_max" not in p or "t_end" not in p:
+            return None
+        t_end = float(t_opt if t_opt is not None else p["t_end"])
+        if command == "study":  # the trade-off's reference run (invctl.studies.tradeoff_specs.switched)
+            return t_end / 1e-5, 1, 1e-5, t_end, "--set t_end=", None
+        return t_end / float(p["h_max"]), 2, float(p["h_max"]), t_end, "--t-end ", "--set h_max="
+    return None
+
+
+def check_resources(command: str, scene: Scene, params, settings, o) -> None:
+    """Estimate the memory a command's run records (before it starts).
+
+    Raises
+    ------
+    ResourceLimitError
+        The estimate exceeds :func:`usable_memory`; the message names the horizon (and step) that fit.
+    """
+    if command == "invert":
+        return _check_inversion(scene, params, o)
+    size = _run_size(command, scene, params, settings, o)
+    if size is None:
+        return
+    samples, runs, step, t_end, t_opt, h_opt = size
+    if not samples * runs > _SMALL:
+        return
+    n = gaps = m = ny = 0
+    if scene.kind != "switched":
+        model = scene.model(params)
+        n, gaps, m, ny = model.n, len(model.gaps), model.m, model.ny
+    per = 8.0 * _DOUBLES[scene.kind](n, gaps, m, ny)
+    need = samples * runs * per
+    limit = usable_memory()
+    if need <= limit:
+        return
+    fit_t = limit / (runs * per) * step
+    fits = f"use {t_opt}{fit_t:.3g} or less"
+    if h_opt:
+        fits += f", or {h_opt}{step * need / limit:.3g} or more"
+    raise ResourceLimitError(
+        f"{scene.name}: {command} would record {samples:.3g} samples (t_end = {t_end:g} s at a step of {step:g} s"
+        + (f", {runs} runs" if runs > 1 else "") + f"): about {_gib(need)} of memory, but {_gib(limit)} is usable "
+        f"({int(100 * _MEMORY_SHARE)} % of the available memory or INVCTL_MAX_MEMORY); {fits}",
+        diagnostics={"samples": samples, "runs": runs, "bytes_needed": need, "bytes_usable": limit,
+                     "t_end_that_fits": fit_t})
+
+
+#: bytes per collocation interval of an inversion (transcription, IPOPT and MUMPS together):
+#: ``600 (s nx)^1.7`` with ``s`` = 2 (Hermite-Simpson) or d + 1 (d-stage Legendre/Radau); measured peak RSS
+#: growth per interval: manipulator (nx = 14) 108 KB (HS) and 490 KB (radau3), cartpole (nx = 5) 19 KB
+#: (HS); the formula gives 172, 561 and 30 KB
+_INVERSION_BYTES = (600.0, 1.7)
+
+
+def _check_inversion(scene: Scene, params, o) -> None:
+    N = o.get("N")
+    if N is None or N <= 2000:
+        return
+    from ..inversion.collocation import get_scheme
+
+    sch = get_scheme(o.get("scheme") or "hermite-simpson")
+    stages = 2 if sch.is_hs else sch.degree + 1
+    model = scene.model(params)
+    nx = 2 * model.n + model.ell + model.p + model.m
+    per = _INVERSION_BYTES[0] * (stages * nx) ** _INVERSION_BYTES[1]
+    need, limit = N * per, usable_memory()
+    if need > limit:
+        raise ResourceLimitError(
+            f"{scene.name}: invert --N {N} ({sch.name}, {nx} unknowns per node) would need about {_gib(need)} of "
+            f"memory, but {_gib(limit)} is usable; use --N {int(limit / per)} or less (or --tol to refine only "
+            "where needed)", diagnostics={"bytes_needed": need, "bytes_usable": limit, "N_that_fits": int(limit / per)})
+
+
+# ------------------------------------------------------------- after a run
+#: a contact run warns when it penetrates more than this share of the clearance, and fails beyond 1
+GAP_WARN = 0.1
+
+
+def _check_contact_data(name: str, d: dict) -> tuple[str | None, str | None]:
+    """(warning, failure) texts for one contact run's data: its largest penetration against the
+    clearance, measured by the largest gap at the start (the free room of a joint started in its
+    clearance, the drop height of a ball; the largest gap seen later would count the penetration of
+    one side of a joint as room on the other)."""
+    viol, gaps0 = d.get("max_gap_violation"), d.get("initial_gaps")
+    if viol is None or not gaps0:
+        return None, None
+    room = max(gaps0)
+    ratio = viol / room if room > 0 else (math.inf if viol > 0 else 0.0)
+    d["clearance_scale"], d["gap_violation_ratio"] = room, ratio
+    what = (f"{name}: the largest penetration {viol:.3g} is {ratio:.3g} times the clearance scale (the largest "
+            f"gap at the start, {room:.3g})")
+    fix = "use a smaller step (--set h=...), the projection (--set projection=1) or a larger clearance"
+    if not ratio <= 1.0:
+        return None, f"{what}: the contacts of this run are not resolved; {fix}"
+    if ratio > GAP_WARN:
+        return f"warning: {what}; {fix}", None
+    return None, None
+
+
+def _check_contact(scene: Scene, result: CommandResult) -> CommandResult:
+    """Warn about, or fail on, the penetration of the runs in ``result`` (simulate or pipeline)."""
+    runs = result.data["runs"] if "runs" in result.data else {result.data.get("controller", scene.name): result.data}
+    warnings, failures = [], []
+    for name, d in runs.items():
+        w, f = _check_contact_data(f"{scene.name} ({name})", d)
+        warnings += [w] if w else []
+        failures += [f] if f else []
+    if failures:
+        written = result.data.get("out") or result.data.get("out_dir")
+        raise SimulationFailed("; ".join(failures) + (f" (the run was written to {written})" if written else ""),
+                               partial=result, diagnostics={"runs": {k: {kk: v.get(kk) for kk in (
+                                   "max_gap_violation", "clearance_scale", "gap_violation_ratio")}
+                                   for k, v in runs.items()}})
+    if warnings:
+        result.data.setdefault("warnings", []).extend(warnings)
+        result.text = result.text + "\n" + "\n".join(warnings)
+    return result
+
+
+# --------------------------------------------------------- interruptions
+def _free(path: Path) -> Path:
+    """``path``, or ``stem-2.ext``, ``stem-3.ext`` ... when it exists (a partial never replaces a file)."""
+    k, p = 2, path
+    while p.exists():
+        p = path.with_name(f"{path.stem}-{k}{path.suffix}")
+        k += 1
+    return p
+
+
+def _partial_name(out, suffix=None) -> Path:
+    p = Path(out)
+    suffix = suffix or p.suffix
+    return _free(p.with_name(f"{p.name[:len(p.name) - len(p.suffix)] if p.suffix else p.name}.partial{suffix}"))
+
+
+def _save_partial(exc: RunInterrupted, *, out=None, out_dir=None, meta=None, dt=None) -> None:
+    """Write ``exc.partial`` next to the requested output (noting that it is partial); record the
+    files in ``exc.saved``. Failures to write are reported in the message, never raised."""
+    part, note = exc.partial, str(exc)
+    try:
+        if out_dir is not None:
+            d = Path(out_dir)
+            d.mkdir(parents=True, exist_ok=True)
+            if part is not None and hasattr(part, "to_csv") and hasattr(part, "rows"):  # trade-off rows
+                stem = f"tradeoff_{part.scene or 'study'}"
+                for ext in ("csv", "json"):
+                    path = _free(d / f"{stem}.partial.{ext}")
+                    getattr(part, f"to_{ext}")(path)
+                    exc.saved.append(str(path))
+            elif part is not None and hasattr(part, "runs") and hasattr(part, "save"):  # tracking runs so far
+                if part.runs:
+                    part.info["partial"] = note
+                    part.save(d, meta=meta)
+                    exc.saved += [str(d / f"run_{k}.npz") for k in part.runs] + [str(d / "study.json")]
+            files = sorted(q.name for q in d.iterdir() if q.name != "INTERRUPTED.txt")
+            nf = d / "INTERRUPTED.txt"
+            nf.write_text(f"PARTIAL RESULTS: {note}\nfiles present: {', '.join(files) or 'none'}\n")
+            exc.saved.append(str(nf))
+        elif out is not None and part is not None:
+            csv = str(out).lower().endswith(".csv")
+            path = _partial_name(out)
+            info = {**(meta or {}), "partial": note}
+            if csv and hasattr(part, "to_csv"):
+                part.to_csv(path)
+            elif hasattr(part, "to_npz"):
+                path = path if path.suffix == ".npz" else _partial_name(out, ".npz")
+                if dt is not None:
+                    path = part.to_npz(path, dt, meta=info)
+                else:
+                    path = part.to_npz(path, meta=info)
+            elif hasattr(part, "save"):
+                path = part.save(path)
+            else:
+                return
+            exc.saved.append(str(path))
+    except Exception as err:  # noqa: BLE001 - the interruption is what must reach the user
+        exc.args = (f"{note}; writing the partial result failed ({type(err).__name__}: {err})",)
+
+
+def _interruptible(run, **where):
+    """``run()``, saving what is complete on Ctrl-C (see :func:`_save_partial`). A failure after a
+    SIGINT is the interruption (compiled solvers turn Ctrl-C into their own errors)."""
+    with watch_sigint() as sigint:
+        try:
+            return run()
+        except RunInterrupted as exc:
+            _save_partial(exc, **where)
+            raise
+        except KeyboardInterrupt as exc:
+            ri = RunInterrupted(str(exc) or "interrupted")
+        except Exception as exc:
+            if not sigint.seen:
+                raise
+            ri = RunInterrupted(f"interrupted (the solver stopped with {type(exc).__name__}: {str(exc)[:200]})",
+                                partial=getattr(exc, "partial", None) if isinstance(exc, InvctlError) else None)
+    _save_partial(ri, **where)
+    raise ri from None
+
+
+def _load_inverse(path, scene: Scene, params) -> Any:
+    """A saved inverse for ``scene``: its recorded scene and its sizes must be this scene's."""
+    from ..errors import ResultFileError
+    from ..inversion import Inverse
+    from ..scenes import scene_reference
+
+    inv = Inverse.load(path)
+    recorded, here = inv.meta.get("scene"), scene_reference(scene)
+    if recorded is not None and recorded != here:
+        raise ResultFileError(f"--inverse {path}: the inverse was computed for scene {recorded!r}, not {here!r}")
+    model = scene.model(params)
+    sizes = {"n": model.n, "l": model.ell, "p": model.p, "m": model.m}
+    if {k: int(inv.sizes.get(k, -1)) for k in sizes} != sizes:
+        raise ResultFileError(f"--inverse {path}: its sizes {dict(inv.sizes)} are not those of {scene.name!r} {sizes}")
+    saved = {k: float(v) for k, v in dict(inv.meta.get("params") or {}).items()}
+    if saved != {k: float(v) for k, v in params.items()}:
+        raise ResultFileError(f"--inverse {path}: the inverse was computed with the parameters {saved}, this run "
+                              f"uses {dict(params)}; pass the same --set values or invert again")
+    return inv
+
+
 # ------------------------------------------------------------------ commands
 def analyze(scene, values=None, **options) -> CommandResult:
     """``invctl analyze``: what the scene's kind analyses (relative degree and internal dynamics for
@@ -150,7 +479,7 @@ def analyze(scene, values=None, **options) -> CommandResult:
     scene = _scene(scene)
     scene.require("analyze")
     o = check_options("analyze", options)
-    params, settings = scene.split(values)
+    params, settings = scene.split(values, preset=o["preset"])
     return _kind(scene).analyze(scene, params, settings, samples=o["samples"])
 
 
@@ -162,9 +491,14 @@ def invert(scene, values=None, **options) -> CommandResult:
     if o["dt"] is not None and not o["out"]:
         raise ParameterError("--dt sets the sampling of the saved trajectory; give --out FILE.npz too")
     out = str(check_output_path(o["out"], suffix=".npz", force=o["force"])) if o["out"] else None
-    params, settings = scene.split(values)
-    return _kind(scene).invert(scene, params, settings, N=o["N"], scheme=o["scheme"], tol=o["tol"],
-                               backend=o["backend"], out=out, dt=o["dt"], quiet=o["quiet"])
+    params, settings = scene.split(values, preset=o["preset"])
+    check_resources("invert", scene, params, settings, o)
+    from ..scenes import scene_reference
+
+    return _interruptible(lambda: _kind(scene).invert(scene, params, settings, N=o["N"], scheme=o["scheme"],
+                                                      tol=o["tol"], backend=o["backend"], out=out, dt=o["dt"],
+                                                      quiet=o["quiet"], max_wall_time=o["max_wall_time"]),
+                          out=out, dt=o["dt"], meta={"scene": scene_reference(scene), "params": params})
 
 
 def design(scene, values=None, **options) -> CommandResult:
@@ -173,7 +507,7 @@ def design(scene, values=None, **options) -> CommandResult:
     scene.require("design")
     o = check_options("design", options)
     plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
-    params, settings = scene.split(values)
+    params, settings = scene.split(values, preset=o["preset"])
     return _kind(scene).design(scene, params, settings, plot=plot)
 
 
@@ -185,18 +519,34 @@ def simulate(scene, values=None, **options) -> CommandResult:
     out = None
     if o["out"]:
         suffix = ".csv" if str(o["out"]).lower().endswith(".csv") else ".npz"
+        if suffix == ".csv" and scene.kind == "contact":
+            from ..errors import OutputPathError
+
+            raise OutputPathError(f"--out {o['out']}: contact runs are written as .npz only; use --out FILE.npz")
         out = str(check_output_path(o["out"], suffix=suffix, force=o["force"]))
     plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
-    params, settings = scene.split(values)
-    kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"]), t_end=o["t_end"], out=out,
-              plot=plot, quiet=o["quiet"])
+    params, settings = scene.split(values, preset=o["preset"])
+    kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"], scene), t_end=o["t_end"], out=out,
+              plot=plot, quiet=o["quiet"], **_recording(scene, o))
     if o["inverse"]:
         if scene.kind != "tracking":
             raise SceneError("--inverse applies to tracking scenes only")
-        from ..inversion import Inverse
+        kw["inverse"] = _load_inverse(o["inverse"], scene, params)
+    check_resources("simulate", scene, params, settings, o)
+    from ..scenes import scene_reference
 
-        kw["inverse"] = Inverse.load(o["inverse"])
-    return _kind(scene).simulate(scene, params, settings, **kw)
+    result = _interruptible(lambda: _kind(scene).simulate(scene, params, settings, **kw), out=out,
+                            meta={"scene": scene_reference(scene), "params": params, "controller": o["controller"]})
+    return _check_contact(scene, result) if scene.kind == "contact" else result
+
+
+def _recording(scene: Scene, o: dict) -> dict:
+    """The recording options of a contact run (``--record-every``, ``--record``); an error for other kinds."""
+    given = {k: o[k] for k in ("record_every", "record") if o.get(k) is not None}
+    if given and scene.kind != "contact":
+        raise ParameterError(f"{', '.join('--' + k.replace('_', '-') for k in given)}: applies to contact scenes "
+                             f"only; {scene.name!r} is a {scene.kind} scene")
+    return given
 
 
 def pipeline(scene, values=None, **options) -> CommandResult:
@@ -204,11 +554,21 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     scene = _scene(scene)
     scene.require("pipeline")
     o = check_options("pipeline", options)
+    params, settings = scene.split(values, preset=o["preset"])
+    plant = _plant_params(o["plant_set"], scene)
+    check_resources("pipeline", scene, params, settings, o)
     out_dir = check_output_dir(o["out_dir"])
-    params, settings = scene.split(values)
-    return _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
-                                 plant_params=_plant_params(o["plant_set"]), quiet=o["quiet"],
-                                 animate=not o["no_animation"])
+    from ..scenes import scene_reference
+
+    rec = _recording(scene, o)
+    result = _interruptible(lambda: _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
+                                                          plant_params=plant,
+                                                          quiet=o["quiet"], animate=not o["no_animation"], **rec),
+                            out_dir=out_dir, meta={"scene": scene_reference(scene), "params": params})
+    stale = Path(out_dir) / "INTERRUPTED.txt"  # the note of an earlier interrupted run in this folder
+    if stale.is_file():
+        stale.unlink()
+    return _check_contact(scene, result) if scene.kind == "contact" else result
 
 
 def study(scene, kind: str, values=None, **options) -> CommandResult:
@@ -221,11 +581,12 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
     if kind != "tradeoff":
         raise SceneError(f"unknown study {kind!r}; available: tradeoff")
     o = check_options("study", options)
+    params, settings = scene.split(values, preset=o["preset"])
+    check_resources("study", scene, params, settings, o)
     out = check_output_dir(o["out_dir"])
-    params, settings = scene.split(values)
     smoke = os.environ.get("INVCTL_SMOKE") == "1"
     spec = spec_for(scene, params, settings, smoke=smoke, job=o["job"])
-    result = run_tradeoff(spec, progress=not o["quiet"])
+    result = _interruptible(lambda: run_tradeoff(spec, progress=not o["quiet"]), out_dir=out)
     stem = f"tradeoff_{spec.scene}"
     out.mkdir(parents=True, exist_ok=True)
     result.to_csv(out / f"{stem}.csv")
@@ -241,6 +602,44 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
     return CommandResult(result.table() + f"\nwritten: {out / f'{stem}.csv'}, .json, .png", data)
 
 
+def generate(scene, values=None, **options) -> CommandResult:
+    """``invctl generate``: a trajectory library, the stable inverse at every point of a grid of scene
+    parameters and reference arguments, warm-started from solved neighbours (:mod:`.library`)."""
+    from pathlib import Path
+
+    from .library import generate as generate_library
+
+    scene = _scene(scene)
+    scene.require("invert")
+    o = check_options("generate", options)
+    if not o["grid"]:
+        raise ParameterError("invctl generate needs at least one --grid NAME=START:STOP:COUNT (a scene parameter "
+                             "or a numeric argument of the scene's reference, e.g. --grid 'rf[0]=0.8:1.0:10')")
+    out = o["out"]
+    if out is None:
+        out = str(check_output_dir("invctl-out") / f"library_{scene.name}.npz")
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+    params, _settings = scene.split(values)
+    executor, client = ("serial" if o["workers"] == 1 else None), None
+    if o["dask"]:
+        try:
+            from dask.distributed import Client
+        except ImportError:
+            raise ParameterError("--dask needs dask.distributed (pip install 'dask[distributed]')") from None
+        client = executor = Client(o["dask"])
+    try:
+        lib = generate_library(scene, o["grid"], params=params, out=out, executor=executor, max_workers=o["workers"],
+                               backend=o["backend"] or "newton", N=o["N"], scheme=o["scheme"], tol=o["tol"],
+                               continuation=not o["no_continuation"], verify=o["verify"], force=o["force"],
+                               progress=not o["quiet"])
+    finally:
+        if client is not None:
+            client.close()
+    return CommandResult(lib.table(), lib.to_dict())
+
+
+__all__ += ["generate"]
+
 _COMMANDS = {"analyze": analyze, "invert": invert, "design": design, "simulate": simulate, "pipeline": pipeline}
 
 
@@ -248,8 +647,16 @@ def run_command(command: str, scene, values=None, **options) -> CommandResult:
     """Run ``command`` (one of :data:`invctl.scenes.SCENE_COMMANDS`) on ``scene``."""
     if command not in SCENE_COMMANDS:
         raise SceneError(f"unknown command {command!r}; commands: {', '.join(SCENE_COMMANDS)}")
-    if command == "study":
-        kind = options.pop("kind", "tradeoff")
-        return study(scene, kind, values, **options)
-    return _COMMANDS[command](scene, values, **options)
+    import numpy as np
+
+    try:
+        if command == "study":
+            kind = options.pop("kind", "tradeoff")
+            return study(scene, kind, values, **options)
+        return _COMMANDS[command](scene, values, **options)
+    except (np.linalg.LinAlgError, FloatingPointError, OverflowError, ZeroDivisionError) as exc:
+        name = scene.name if isinstance(scene, Scene) else scene
+        raise NumericalError(f"{command} {name}: the computation broke down numerically ({type(exc).__name__}: {exc}) "
+                             f"with the values {dict(values or {})}; they are outside the range the model can be "
+                             "evaluated in (or the model is singular there)") from exc
 

@@ -9,7 +9,8 @@ settings ``h`` (step), ``theta`` (theta-method), ``t_end``, ``projection`` (0/1)
 * laws with a Lyapunov function (000 (37), (50)): its largest increase at impacts and elsewhere;
 * pre-loading laws (000 (13), ``info["active"]``): the multiplier ``P/h`` against ``beta`` and
   whether the pre-loaded contacts stayed closed;
-* regulation laws (``info["idx"]``, PD (36)): the final error of the regulated coordinates and speed;
+* regulation laws (``info["idx"]``, PD (36)): the final error of the regulated coordinates and speed,
+  and where the run ends in the set of equilibria (40)-(41) of the closed loop (Prop. 2);
 * tracking laws (``info["q_d"]`` with ``info["idx"]`` or ``info["tracked"]``): the tracking error,
   and for PD+ (000 (48)) the desired-velocity conditions (52) at impacts and (54) in persistent
   contact (Prop. 3);
@@ -96,8 +97,10 @@ def contact_setup(scene, params=None, settings=None, *, controller=None, plant_p
     return ContactRun(scene, model, plant, name, law, q0, v0, settings, params)
 
 
-def run_contact(run: ContactRun, *, t_end=None, progress=None) -> ContactRun:
-    """Simulate ``run`` with the compiled Moreau-Jean scheme; fills ``run.trajectory``."""
+def run_contact(run: ContactRun, *, t_end=None, progress=None, record_every: int = 1,
+                record: str = "steps") -> ContactRun:
+    """Simulate ``run`` with the compiled Moreau-Jean scheme; fills ``run.trajectory`` (``record_every``,
+    ``record="events"``: a reduced record, the statistics exact)."""
     from ..simulate.timestepping import MoreauJean
 
     s = run.settings
@@ -110,7 +113,7 @@ def run_contact(run: ContactRun, *, t_end=None, progress=None) -> ContactRun:
     tic = time.perf_counter()
     run.trajectory = mj.run(run.q0, run.v0, t_end, h, theta=_setting(s, "theta"), params=run.plant.theta_values,
                             ctrl_params=run.model.theta_values, activation_tol=_setting(s, "activation_tol"),
-                            progress=progress)
+                            progress=progress, record_every=int(record_every), record=record)
     run.stats["wall_s"] = time.perf_counter() - tic
     return run
 
@@ -140,7 +143,7 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
         lines.append(f"V: {rep.V0:.4g} -> {rep.V_end:.4g}, max increase {rep.max_increase:.2e} "
                      f"(impacts {rep.max_increase_impacts:.2e}, elsewhere {rep.max_increase_smooth:.2e})")
     if law.name == "open_loop":
-        dE = float(np.max(np.diff(tr.energy), initial=0.0))
+        dE = max(0.0, tr.max_energy_increase)
         data["max_energy_increase"] = dE
         lines.append(f"mechanical energy {tr.energy[0]:.6g} -> {tr.energy[-1]:.6g}, largest one-step increase "
                      f"{dE:.2e}")
@@ -176,7 +179,7 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
                      "tracking_error_last_half": float(np.max(np.abs(err[:, half])))})
         lines.append(f"tracking error of {[run.model.q_names[i] for i in idx]}: max {data['tracking_error_max']:.3e}, "
                      f"last half {data['tracking_error_last_half']:.3e}")
-        if law.name == "pd_plus":
+        if law.name == "pd_plus" and tr.complete:
             data.update(_prop3_conditions(run, idx, q_d))
             lines.append(f"(52) violated at {data['impacts_violating_52']} of {data['impacts_checked']} impacts "
                          f"(largest V jump where it holds {data['max_V_jump_where_52_holds']:.2e}, where violated "
@@ -190,7 +193,48 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
         data.update({"regulation_error_final": err, "speed_final": speed})
         lines.append(f"regulation of {[run.model.q_names[i] for i in idx]} to {qd.tolist()}: final error "
                      f"{np.round(err, 10).tolist()}, final max |v| {speed:.2e} (000 Prop. 2)")
+        eq_lines, eq_data = _equilibrium_report(run)
+        lines += eq_lines
+        data.update(eq_data)
     return lines, data
+
+
+def _equilibrium_report(run: ContactRun) -> tuple[list, dict]:
+    """Where a regulation run ends in the set of equilibria E of the closed loop (000 (40)-(41), Prop. 2):
+    the equilibrium next to the final state (:func:`invctl.contact.equilibria.static_equilibrium`), the
+    distance to it, the local dimension of E there and the residual of (40) at the final state with the
+    multipliers of its last step (``P/h``).  Time-varying laws have no equilibria: nothing is reported."""
+    from ..contact.equilibria import static_equilibrium, static_force
+    from ..errors import ContactError
+
+    tr, law, model = run.trajectory, run.law, run.model
+    t = ca.SX.sym("t")
+    u, _, kappa = law.symbolic(model, t)
+    if ca.depends_on(u, t):
+        return [], {}
+    # the law sees the nominal parameters (as in the run), the plant its own
+    u = ca.substitute(ca.substitute(u, kappa, ca.DM(law.kappa_values)), model.theta, ca.DM(model.theta_values))
+    F = static_force(model, u)
+    th = run.plant.theta_values
+    q_end = tr.q[-1]
+    Fn = ca.Function("F", [model.q, model.theta], [F, ca.jacobian(ca.vertcat(*[g.expr for g in model.gaps]),
+                                                                    model.q).T])
+    F_end, W_end = (np.array(a) for a in Fn(q_end, th))
+    lam_end = tr.P[-1] / tr.h if tr.P.shape[0] else np.zeros(len(model.gaps))
+    res_end = float(np.max(np.abs(F_end.ravel() + W_end @ lam_end)))
+    data = {"equilibrium_residual_final": res_end, "static_force_scale": float(np.max(np.abs(F_end)))}
+    try:
+        e = static_equilibrium(model, F, q_end, theta=th)
+    except ContactError as exc:
+        data["equilibrium_error"] = str(exc)
+        return [f"set of equilibria E (000 (40)): none found next to the final state ({exc})"], data
+    data.update({"equilibrium_distance": e.distance, "equilibrium_dimension": e.dimension,
+                 "equilibrium_q": e.q.tolist(), "equilibrium_multipliers": e.lam.tolist(),
+                 "equilibrium_active": e.active.tolist()})
+    return [f"set of equilibria E (000 (40)-(41)): the final state is {e.distance:.2e} from the equilibrium q* "
+            f"next to it (E has local dimension {e.dimension} there; multipliers {np.round(e.lam, 6).tolist()}); "
+            f"residual of (40) at the final state with lam = P/h: {res_end:.2e} (static force scale "
+            f"{data['static_force_scale']:.3g})"], data
 
 
 def _prop3_conditions(run: ContactRun, idx, q_d) -> dict:
@@ -207,16 +251,18 @@ def _prop3_conditions(run: ContactRun, idx, q_d) -> dict:
     cs = ContactSystem(model)
     th = model.theta_values
 
-    def qd_dot(t):
-        full = np.zeros(model.n)
-        full[idx] = np.array(fn(t)[1]).ravel()
-        return full
+    def margins(steps, contacts, q_rows, times):
+        """``grad f_i(q_k)^T qd_dot(t_k)`` for the (step, contact) pairs, through mapped Functions."""
+        if not steps.size:
+            return np.zeros(0)
+        W = np.array(cs.f_W.map(steps.size)(q_rows.T, th)).reshape(model.n, cs.m_u, steps.size, order="F")
+        dqd = np.zeros((model.n, steps.size))
+        dqd[idx] = np.array(fn.map(steps.size)(times[None, :])[1]).reshape(len(idx), steps.size)
+        return np.einsum("nk,nk->k", W[:, contacts, np.arange(steps.size)], dqd)
 
     if k.size:
-        margins = np.array([cs.gradients(tr.q[kk + 1], th)[:, ii] @ qd_dot(tr.t[kk] + 0.5 * tr.h)
-                            for kk, ii in zip(k, i)])
+        ok = margins(k, i, tr.q[k + 1], tr.t[k] + 0.5 * tr.h) >= 0
         dV = tr.V[k + 1] - tr.V[k]
-        ok = margins >= 0
         out.update({"impacts_violating_52": int(np.count_nonzero(~ok)),
                     "max_V_jump_where_52_holds": float(np.max(dV[ok])) if ok.any() else 0.0,
                     "max_V_jump_where_52_violated": float(np.max(dV[~ok])) if (~ok).any() else 0.0})
@@ -225,7 +271,7 @@ def _prop3_conditions(run: ContactRun, idx, q_d) -> dict:
     kp, ip = np.nonzero(pers)
     kp = kp + 1
     if kp.size:
-        m54 = np.array([cs.gradients(tr.q[kk], th)[:, ii] @ qd_dot(tr.t[kk]) for kk, ii in zip(kp, ip)])
+        m54 = margins(kp, ip, tr.q[kp], tr.t[kp])
         out.update({"persistent_steps": int(kp.size), "persistent_steps_violating_54": int(np.count_nonzero(m54 < 0))})
     return out
 
@@ -238,7 +284,8 @@ def _summary(run: ContactRun) -> tuple[list, dict]:
              + f", max gap violation {tr.max_gap_violation:.2e}, steps/s {tr.stats['steps_per_s']:.3g} "
              f"({tr.stats['backend']})"]
     data = {"controller": run.controller, "h": tr.h, "n_impacts": int(ti.size), "impact_times": ti[:200].tolist(),
-            "max_gap_violation": tr.max_gap_violation, "steps_per_s": tr.stats["steps_per_s"],
+            "max_gap_violation": tr.max_gap_violation, "initial_gaps": tr.gaps[0].tolist(),
+            "steps_per_s": tr.stats["steps_per_s"],
             "backend": tr.stats["backend"], "steps": tr.stats["steps"], "q_final": tr.q[-1].tolist(),
             "v_final": tr.v[-1].tolist(), "settings": dict(run.settings)}
     law_lines, law_data = law_report(run)
@@ -246,10 +293,10 @@ def _summary(run: ContactRun) -> tuple[list, dict]:
 
 
 def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
-             plot=None, quiet=False) -> CommandResult:
+             plot=None, quiet=False, record_every: int = 1, record: str = "steps") -> CommandResult:
     """Run one controller of a contact scene and report (module docstring)."""
     run = run_contact(contact_setup(scene, params, settings, controller=controller, plant_params=plant_params),
-                      t_end=t_end, progress=None if not quiet else False)
+                      t_end=t_end, progress=None if not quiet else False, record_every=record_every, record=record)
     lines, data = _summary(run)
     rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
                                controller=run.controller)
@@ -257,7 +304,7 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
         lines.append(rtext)
         data["reports"] = rdata
     if out:
-        data["out"] = str(run.trajectory.save(out))
+        data["out"] = str(run.trajectory.to_npz(out, meta=run.meta()))
         lines.append(f"trajectory written to {data['out']}")
     if plot:
         from ..plot import close
@@ -269,7 +316,7 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
 
 
 def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
-             quiet=False, animate=True) -> CommandResult:
+             quiet=False, animate=True, record_every: int = 1, record: str = "steps") -> CommandResult:
     """Every declared controller of a contact scene: runs, reports, figures (one per controller)."""
     from ..plot import close
 
@@ -279,14 +326,14 @@ def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end
     lines, data = [], {"runs": {}}
     for name in names:
         run = run_contact(contact_setup(scene, params, settings, controller=name, plant_params=plant_params),
-                          t_end=t_end, progress=False)
+                          t_end=t_end, progress=False, record_every=record_every, record=record)
         ls, d = _summary(run)
         rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
                                    controller=name)
         if rtext:
             ls.append(rtext)
             d["reports"] = rdata
-        run.trajectory.save(out / f"run_{name}.npz")
+        run.trajectory.to_npz(out / f"run_{name}.npz", meta=run.meta())
         close(run.trajectory.plot(out / f"run_{name}.png", title=f"{scene.name} ({name})"))
         if animate and scene.drawing is not None:
             from ..plot.animate import animate_result

@@ -46,6 +46,22 @@ def _scene(ref):
     return _cached(("scene", ref), lambda: load_scene(ref))
 
 
+def _load(scene: str, kind: str, what: str):
+    from ..scenes import load_scene
+
+    sc = load_scene(scene)
+    if sc.kind != kind:
+        raise SceneError(f"{what} needs a {kind} scene; {sc.name!r} is a {sc.kind} scene")
+    return sc
+
+
+def _run_sweep(fn, grids: dict, *, executor, max_workers, progress, label: str, meta: dict) -> SweepResult:
+    res = sweep(fn, grid(**{k: list(v) for k, v in grids.items()}), executor=executor, max_workers=max_workers,
+                progress=progress, label=label)
+    res.meta.update(meta)
+    return res
+
+
 def _two(grids: dict, what: str):
     if len(grids) != 2:
         raise ParameterError(f"{what} sweeps exactly two parameters, got {sorted(grids)}")
@@ -78,17 +94,15 @@ def mismatch_point(*, scene: str, controller: str = "C1", t_end=None, params=(),
     return out
 
 
-def plant_mismatch(scene: str = "manipulator", *, controller: str = "C1", t_end=None, params=None, executor=None,
+def plant_mismatch(scene: str, *, controller: str = "C1", t_end=None, params=None, executor=None,
                    max_workers: int | None = None, progress: bool = True, **factors) -> SweepResult:
     """A tracking scene's closed loop over plant mismatches: plant = reference model (``params``) with
     its parameters multiplied by the grid's factors, e.g. ``plant_mismatch("manipulator", m3=[1, 1.2],
     m2=[0.8, 1.2])`` (derived parameters follow)."""
-    from ..scenes import load_scene, scene_reference
+    from ..scenes import scene_reference
 
-    sc = load_scene(scene)
+    sc = _load(scene, "tracking", "plant_mismatch")
     sc.require("simulate")
-    if sc.kind != "tracking":
-        raise SceneError(f"plant_mismatch needs a tracking scene; {sc.name!r} is a {sc.kind} scene")
     model = sc.model(params)
     bad = sorted(set(factors) - set(model.values))
     if bad or not factors:
@@ -96,11 +110,10 @@ def plant_mismatch(scene: str = "manipulator", *, controller: str = "C1", t_end=
                              f"{bad}; known: {sorted(model.values)}")
     fn = functools.partial(mismatch_point, scene=scene_reference(sc), controller=controller, t_end=t_end,
                            params=tuple(sorted(dict(params or {}).items())))
-    res = sweep(fn, grid(**{k: list(v) for k, v in factors.items()}), executor=executor, max_workers=max_workers,
-                progress=progress, label=f"{sc.name} plant mismatch {controller}")
-    res.meta.update({"study": "plant_mismatch", "scene": sc.name, "controller": controller,
-                     "labels": {k: f"{k} factor (plant / model)" for k in factors}})
-    return res
+    return _run_sweep(fn, factors, executor=executor, max_workers=max_workers, progress=progress,
+                      label=f"{sc.name} plant mismatch {controller}",
+                      meta={"study": "plant_mismatch", "scene": sc.name, "controller": controller,
+                            "labels": {k: f"{k} factor (plant / model)" for k in factors}})
 
 
 # ------------------------------------------------------------ switched (002)
@@ -122,25 +135,22 @@ def lambda_map_point(*, scene: str, params=(), **values) -> dict:
     return out
 
 
-def switched_lambda_map(scene: str = "compliant_wrist", *, params=None, executor=None, max_workers: int | None = None,
+def switched_lambda_map(scene: str, *, params=None, executor=None, max_workers: int | None = None,
                         progress: bool = True, **grids) -> SweepResult:
     """Lambda of a switched scene over a grid of two of its parameters (others: the scene's, updated by
     ``params``), e.g. ``switched_lambda_map("compliant_wrist", kt=[...], bt=[...])``; ``Lambda`` is NaN
     where a visible eigenvector exists (no rotation)."""
-    from ..scenes import load_scene, scene_reference
+    from ..scenes import scene_reference
 
-    sc = load_scene(scene)
-    if sc.kind != "switched":
-        raise SceneError(f"switched_lambda_map needs a switched scene; {sc.name!r} is a {sc.kind} scene")
+    sc = _load(scene, "switched", "switched_lambda_map")
     _two(grids, "switched_lambda_map")
     unknown = sorted(set(grids) - set(sc.params))
     if unknown:
         raise ParameterError(f"{sc.name}: unknown parameter(s) {unknown}; known: {sorted(sc.params)}")
     fn = functools.partial(lambda_map_point, scene=scene_reference(sc), params=tuple(sorted(dict(params or {}).items())))
-    res = sweep(fn, grid(**{k: list(v) for k, v in grids.items()}), executor=executor, max_workers=max_workers,
-                progress=progress, label=f"{sc.name} Lambda map")
-    res.meta.update({"study": "switched_lambda_map", "scene": sc.name, "labels": {k: k for k in grids}})
-    return res
+    return _run_sweep(fn, grids, executor=executor, max_workers=max_workers, progress=progress,
+                      label=f"{sc.name} Lambda map",
+                      meta={"study": "switched_lambda_map", "scene": sc.name, "labels": {k: k for k in grids}})
 
 
 # ----------------------------------------------------------------- contact
@@ -151,12 +161,14 @@ def contact_point(*, scene: str, controller=None, t_end=None, base=(), **values)
     sc = _scene(scene)
     params, settings = sc.split({**dict(base), **values})
     run = run_contact(contact_setup(sc, params, settings, controller=controller), t_end=t_end, progress=False)
+    from ..stability.lyapunov import lyapunov_report
+
     tr = run.trajectory
-    k = np.nonzero(tr.impact_mask().any(axis=1))[0]
-    dV = tr.V[k + 1] - tr.V[k] if k.size else np.zeros(0)
+    jumps = lyapunov_report(tr).impact_jumps
     _, law = law_report(run)
     out = {"n_impacts": float(tr.impact_times.size), "max_gap_violation": tr.max_gap_violation,
-           "max_V_jump_at_impacts": float(dV.max()) if dV.size else 0.0, "steps_per_s": float(tr.stats["steps_per_s"])}
+           "max_V_jump_at_impacts": float(jumps.max()) if jumps.size else 0.0,
+           "steps_per_s": float(tr.stats["steps_per_s"])}
     if "regulation_error_final" in law:
         out["regulation_error_final"] = float(np.max(np.abs(law["regulation_error_final"])))
     if "tracking_error_last_half" in law:
@@ -164,26 +176,23 @@ def contact_point(*, scene: str, controller=None, t_end=None, base=(), **values)
     return out
 
 
-def contact_grid(scene: str = "prismatic_clearance", *, controller=None, t_end=None, base=None, executor=None,
+def contact_grid(scene: str, *, controller=None, t_end=None, base=None, executor=None,
                  max_workers: int | None = None, progress: bool = True, **grids) -> SweepResult:
     """A contact scene's run over a grid of its parameters and settings, e.g.
     ``contact_grid("prismatic_clearance", e=[0, 0.5, 1], L=[0.1 + 1e-6, 0.11])``."""
-    from ..scenes import load_scene, scene_reference
+    from ..scenes import scene_reference
 
-    sc = load_scene(scene)
-    if sc.kind != "contact":
-        raise SceneError(f"contact_grid needs a contact scene; {sc.name!r} is a {sc.kind} scene")
+    sc = _load(scene, "contact", "contact_grid")
     unknown = sorted(set(grids) - set(sc.params) - set(sc.settings))
     if unknown or not grids:
         raise ParameterError(f"{sc.name}: give grids of parameters or settings; unknown {unknown}; known: "
                              f"{sorted({**sc.params, **sc.settings})}")
     fn = functools.partial(contact_point, scene=scene_reference(sc), controller=controller, t_end=t_end,
                            base=tuple(sorted(dict(base or {}).items())))
-    res = sweep(fn, grid(**{k: list(v) for k, v in grids.items()}), executor=executor, max_workers=max_workers,
-                progress=progress, label=f"{sc.name} grid")
-    res.meta.update({"study": "contact_grid", "scene": sc.name, "controller": controller, "t_end": t_end,
-                     "labels": {k: k for k in grids}})
-    return res
+    return _run_sweep(fn, grids, executor=executor, max_workers=max_workers, progress=progress,
+                      label=f"{sc.name} grid",
+                      meta={"study": "contact_grid", "scene": sc.name, "controller": controller, "t_end": t_end,
+                            "labels": {k: k for k in grids}})
 
 
 # ------------------------------------------------------------------- figure

@@ -193,6 +193,13 @@ def sweep(
         processes, default the CPU count); ``"serial"`` runs in this process.
     progress : bool
         Print ``label: done/total`` lines to stderr.
+
+    Raises
+    ------
+    RunInterrupted
+        On Ctrl-C (SIGINT): pending points are cancelled and ``partial`` is the result with the
+        points complete so far (the others carry the error ``"not run: interrupted"``;
+        ``meta["partial"]`` says so).
     """
     if isinstance(points, tuple) and len(points) == 2 and isinstance(points[1], tuple):
         pts, shape = points
@@ -209,25 +216,51 @@ def sweep(
         if progress and (done % step == 0 or done == len(pts)):
             print(f"{label}: {done}/{len(pts)} points ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
 
-    if executor == "serial":
-        for i, p in enumerate(pts):
-            values[i], errors[i] = _call(fn, p)
-            report(i + 1)
-    else:
-        owned = executor is None
-        ex, _ = _as_executor(executor)
-        if owned:
-            ex = ProcessPoolExecutor(max_workers=max_workers or os.cpu_count())
-        try:
-            futures = {ex.submit(_call, fn, p): i for i, p in enumerate(pts)}
-            for done, fut in enumerate(as_completed(futures), 1):
-                i = futures[fut]
-                try:
-                    values[i], errors[i] = fut.result()
-                except Exception as exc:  # worker died, pickling failed, ...
-                    values[i], errors[i] = None, f"{type(exc).__name__}: {exc}"
-                report(done)
-        finally:
+    finished = [False] * len(pts)
+    try:
+        if executor == "serial":
+            from ..errors import watch_sigint
+
+            for i, p in enumerate(pts):
+                with watch_sigint() as sigint:
+                    values[i], errors[i] = _call(fn, p)
+                if sigint.seen:  # Ctrl-C, possibly turned into a failure of this point by a compiled solver
+                    raise KeyboardInterrupt
+                finished[i] = True
+                report(i + 1)
+        else:
+            owned = executor is None
+            ex, _ = _as_executor(executor)
             if owned:
-                ex.shutdown()
+                ex = ProcessPoolExecutor(max_workers=max_workers or os.cpu_count())
+            futures = {}
+            try:
+                futures = {ex.submit(_call, fn, p): i for i, p in enumerate(pts)}
+                for done, fut in enumerate(as_completed(futures), 1):
+                    i = futures[fut]
+                    try:
+                        values[i], errors[i] = fut.result()
+                    except Exception as exc:  # worker died, pickling failed, ...
+                        values[i], errors[i] = None, f"{type(exc).__name__}: {exc}"
+                    finished[i] = True
+                    report(done)
+            except KeyboardInterrupt:
+                for fut in futures:
+                    fut.cancel()
+                if owned:
+                    ex.shutdown(wait=False, cancel_futures=True)
+                    owned = False
+                raise
+            finally:
+                if owned:
+                    ex.shutdown()
+    except KeyboardInterrupt:
+        from ..errors import RunInterrupted
+
+        k = sum(finished)
+        note = f"{label} interrupted: {k} of {len(pts)} points complete"
+        errors = [e if f else "not run: interrupted" for e, f in zip(errors, finished)]
+        values = [v if f else None for v, f in zip(values, finished)]
+        partial = SweepResult(pts, values, errors, shape, time.perf_counter() - t0, {"partial": note})
+        raise RunInterrupted(note, partial=partial) from None
     return SweepResult(pts, values, errors, shape, time.perf_counter() - t0)

@@ -68,7 +68,11 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
         data["reduced"] = red.to_dict()
         text += "\n" + red.summary()
     if out:
-        written = sim.to_npz(out)
+        if str(out).lower().endswith(".csv"):
+            sim.to_csv(out)
+            written = out
+        else:
+            written = sim.to_npz(out)
         data["out"] = str(written)
         text += f"\n  trajectory written to {written}"
     if plot:

@@ -2,13 +2,17 @@
 
 Controllers (the runs of 003 Sect. 6, for any scene):
 
-``C1``     feedforward ``u_ff`` (servo-constraint inverse of the reference model, causal part) plus the
-           funnel controller (48) whose new reference is ``K_1 Psi(q_ff, v_ff)`` along the inverse's
-           state trajectory (invctl's construction: every error level vanishes when the plant follows
-           the inverse);
-``C1-42``  the same feedforward with the paper's new reference (42)/(43);
-``C2``     the funnel controller alone (new reference (42));
-``C3``     the feedforward alone.
+``C1``      the paper's C1: feedforward ``u_ff`` (servo-constraint inverse of the reference model, causal
+            part) plus the funnel controller (48) with the new reference (42) started at (43) - 003 (60)-(61)
+            for the manipulator (its bounded solution; see :mod:`invctl.control.funnel_nmp`);
+``C2``      the funnel controller alone (new reference (42));
+``C3``      the feedforward alone;
+``C1-inv``  invctl's extension: the same feedforward plus the funnel controller whose new reference is
+            ``K_1 Psi(q_ff, v_ff)`` along the inverse's state trajectory (the derivative rules (46) applied to
+            that trajectory), so that every error level vanishes when the plant follows the inverse.
+
+(Before issue 12 the extension was called ``C1`` and the paper's C1 ``C1-42``; those names raise an error
+that says so.)
 
 The plant differs from the reference model by the scene's declared mismatch (``Tracking.plant``, e.g.
 ``m3 x 1.2``) and ``--plant-set`` overrides; it starts at rest at its equilibrium on ``y_ref(0)``.
@@ -24,16 +28,55 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FunnelViolation, ParameterError, SceneError
+from ..errors import CoordinateError, FunnelViolation, ParameterError, RunInterrupted, SceneError
+from ..io import file_loader, read_json
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
-__all__ = ["CONTROLLERS", "TrackingSetup", "TrackingStudy", "setup_tracking", "run_controller",
-           "run_tracking_study", "tracking_model", "tracking_linearization", "equilibrium_configuration",
-           "invert_tracking", "plant_of", "a1_along", "feedback_design"]
+__all__ = ["CONTROLLERS", "NEEDS_INVERSE", "check_controller", "TrackingSetup", "TrackingStudy", "setup_tracking",
+           "run_controller", "run_tracking_study", "tracking_model", "tracking_linearization",
+           "equilibrium_configuration", "invert_tracking", "plant_of", "a1_along", "feedback_design"]
 
-CONTROLLERS = {"C1": "feedforward + funnel", "C2": "funnel only", "C3": "feedforward only",
-               "C1-42": "ff + funnel, ref. (42)"}
-_NEEDS_INVERSE = ("C1", "C3", "C1-42")
+
+class _Names(dict):
+    """Controller name -> description; lookups ignore case (``--controller c1-inv`` and ``C1-INV`` work)."""
+
+    def _key(self, name):
+        if isinstance(name, str) and not dict.__contains__(self, name):
+            for k in self:
+                if k.lower() == name.lower():
+                    return k
+        return name
+
+    def __getitem__(self, name):
+        return dict.__getitem__(self, self._key(name))
+
+    def __contains__(self, name):
+        return dict.__contains__(self, self._key(name))
+
+    def get(self, name, default=None):
+        return dict.get(self, self._key(name), default)
+
+
+CONTROLLERS = _Names({"C1": "ff + funnel, ref. (42)", "C2": "funnel only", "C3": "feedforward only",
+                      "C1-inv": "ff + funnel, ref. inverse"})
+#: controllers that need the servo-constraint inverse (feedforward or its state trajectory)
+NEEDS_INVERSE = ("C1", "C3", "C1-inv")
+#: names used before issue 12, with what they are called now
+RENAMED = {"C1-42": "C1 (the paper's C1, new reference (42))"}
+
+
+def check_controller(name: str) -> str:
+    """The name of :data:`CONTROLLERS` that ``name`` spells (any case), else a :class:`SceneError` naming the
+    choices (and the new name of a renamed controller)."""
+    if name in CONTROLLERS:
+        return CONTROLLERS._key(name)
+    renamed = {k.lower(): k for k in RENAMED}
+    if isinstance(name, str) and name.lower() in renamed:
+        name = renamed[name.lower()]
+        raise SceneError(f"controller {name!r} is now called {RENAMED[name]}; the former 'C1' (new reference "
+                         "from the inverse's states) is 'C1-inv'")
+    raise SceneError(f"unknown controller {name!r}: choose one of {sorted(CONTROLLERS)} "
+                     f"({', '.join(f'{k}: {v}' for k, v in CONTROLLERS.items())})")
 
 
 def tracking_model(scene, params=None):
@@ -79,17 +122,41 @@ def design_configuration(scene, model, reference=None) -> np.ndarray:
     return equilibrium_configuration(scene, model, reference(reference.t0))
 
 
+def output_structure(model, q):
+    """The vector relative degree of the outputs at the configuration ``q`` (003 Sect. 2)."""
+    from ..analysis import relative_degree
+
+    return relative_degree(model, samples=0, points=[np.asarray(q, float).ravel()])
+
+
+def has_internal_dynamics(model, q) -> bool:
+    """False when ``r_bar = 2n``: a flat output, the inverse is algebraic."""
+    return output_structure(model, q).r_bar < 2 * model.n
+
+
 def tracking_linearization(scene, model, reference, *, samples: int = 200, internal=None):
     """The linearized internal dynamics (37)-(39) the scene's controllers use: internal coordinates
     of the scene (or the default ones of 003 Sect. 3), linearized at the equilibria of ``y_ref(t0)``
-    and ``y_ref(tf)`` (mean of the Jacobians, as 003 Sect. 6) or at the start only."""
-    from ..analysis import internal_dynamics, linearize_internal
+    and ``y_ref(tf)`` (mean of the Jacobians, as 003 Sect. 6) or at the start only.  ``None`` when the
+    output is flat (no internal dynamics: the funnel controller then works on ``y`` alone)."""
+    from ..analysis import internal_dynamics, is_position_output, linearize_internal
 
     t = scene.tracking
     q_start = design_configuration(scene, model, reference)
     if internal is None:
+        rd = output_structure(model, q_start)
+        if rd.r_bar == 2 * model.n:
+            return None
         phi = t.internal_coordinates(model) if t.internal_coordinates is not None else None
-        internal = internal_dynamics(model, "sect3", phi, point=q_start, samples=samples)
+        if rd.r_hat == 2 and is_position_output(model):
+            internal = internal_dynamics(model, "sect3", phi, point=q_start, samples=samples)
+        elif phi is None:
+            raise CoordinateError(
+                f"scene {scene.name!r}: the outputs have relative degree {rd.r_hat} > 2 and internal dynamics of "
+                f"dimension {2 * model.n - rd.r_bar}; the default coordinates of 003 Sect. 3 need r_hat = 2: "
+                "declare Tracking(internal_coordinates=lambda model: ...) (the eta of 003 (11), with L_K eta = 0)")
+        else:
+            internal = internal_dynamics(model, "sect2", phi, point=q_start, samples=samples)
     times = (reference.t0, reference.tf) if t.linearize_at == "ends" else (reference.t0,)
     points = []
     for tk in times:
@@ -116,17 +183,44 @@ def plant_of(scene, model, plant_params=None, plant_factors=None):
     return plant
 
 
+#: options of :func:`invctl.inversion.invert_normal_form` (the servo route takes those of ``invert``)
+NORMAL_FORM_OPTIONS = ("tol", "N", "T0", "Tf", "phi", "q_guess", "max_horizon", "neutral", "residual_tol",
+                       "max_nodes", "samples")
+
+
+def inversion_method(model, q) -> str:
+    """``"servo"`` (servo constraints 003 (35), jerk-level index reduction) when the outputs are
+    position outputs of relative degree 2, else ``"normal-form"`` (003 Sect. 2, any relative degree)."""
+    from ..analysis import is_position_output
+
+    return "servo" if output_structure(model, q).r_hat == 2 and is_position_output(model) else "normal-form"
+
+
 def invert_tracking(scene, model, reference, *, progress=False, **options):
-    """The servo-constraint inverse of the scene's reference model: the automatic setup of
-    :func:`invctl.inversion.invert` with the scene's declared overrides (``Tracking.inversion``),
-    then ``options``."""
-    from ..inversion import invert
+    """The stable inverse of the scene's reference model: the automatic setup with the scene's declared
+    overrides (``Tracking.inversion``), then ``options``.  ``method`` (``"auto"`` by default) picks the
+    servo-constraint route (:func:`invctl.inversion.invert`) or the normal form
+    (:func:`invctl.inversion.invert_normal_form`, outputs of relative degree above 2, flat outputs)."""
+    from ..inversion import invert, invert_normal_form
 
     cfg = dict(scene.tracking.inversion)
     if "q_guess" not in options and scene.tracking.initial_configuration is not None:
         options["q_guess"] = scene.tracking.initial_configuration(model)
     cfg.update({k: v for k, v in options.items() if v is not None})
-    return invert(model, reference, progress=progress, **cfg)
+    method = cfg.pop("method", "auto")
+    if method == "auto":
+        method = inversion_method(model, design_configuration(scene, model, reference))
+    if method == "servo":
+        return invert(model, reference, progress=progress, **cfg)
+    if method != "normal-form":
+        raise ParameterError(f"inversion method must be 'auto', 'servo' or 'normal-form', got {method!r}")
+    bad = sorted(set(cfg) - set(NORMAL_FORM_OPTIONS))
+    if bad:
+        raise ParameterError(f"scene {scene.name!r}: {bad} apply to the servo-constraint route only; this output "
+                             f"is inverted through the normal form (options: {', '.join(NORMAL_FORM_OPTIONS)})")
+    if "phi" not in cfg and scene.tracking.internal_coordinates is not None:
+        cfg["phi"] = scene.tracking.internal_coordinates(model)
+    return invert_normal_form(model, reference, **cfg)
 
 
 def _signals(scene, model) -> dict:
@@ -166,12 +260,17 @@ class TrackingSetup:
     _c1: object = None
 
     def c1_controller(self):
-        """The funnel controller of C1: new reference ``y^_ref,1 = K_1 Psi(q_ff(t), v_ff(t))`` along the state
-        trajectory of the servo-constraint inverse (the derivative rules (46) applied to that trajectory),
-        so that every error level vanishes when the plant follows the inverse; "C1-42" uses (42) instead."""
+        """The funnel controller of the paper's C1 (003 (60)-(61)): the new reference (42) with (43), the
+        same controller as C2's (C1 adds the feedforward)."""
+        return self.controller
+
+    def inverse_reference_controller(self):
+        """The funnel controller of ``C1-inv`` (invctl's extension): new reference
+        ``y^_ref,1 = K_1 Psi(q_ff(t), v_ff(t))`` along the state trajectory of the servo-constraint inverse
+        (the derivative rules (46) applied to that trajectory), so that every error level vanishes when the
+        plant follows the inverse."""
         if self._c1 is None:
-            if self.inverse is None:
-                raise ParameterError("C1 needs the inverse (feedforward and its state trajectory)")
+            self._require_inverse("C1-inv")
             t = np.linspace(0.0, self.t_end, int(round(self.t_end / 5e-4)) + 1)
             q, v = self.inverse.q(t), self.inverse.v(t)
             psi = self.lin.psi_function().map(t.size)
@@ -186,6 +285,19 @@ class TrackingSetup:
                                t_end=self.t_end, eta2_ref_samples=(t, w))
         return self._c1
 
+    def controller_for(self, name: str):
+        """The feedback of controller ``name`` (None for the feedforward alone)."""
+        name = check_controller(name)
+        return {"C1": self.c1_controller, "C2": lambda: self.controller, "C3": lambda: None,
+                "C1-inv": self.inverse_reference_controller}[name]()
+
+    def _require_inverse(self, name: str) -> None:
+        """Invert the reference model now if ``name`` needs the inverse and none was given."""
+        if self.inverse is None:
+            t0 = time.perf_counter()
+            self.inverse = invert_tracking(self.scene, self.model, self.reference)
+            self.timings["inversion"] = time.perf_counter() - t0
+
     def u_ff_samples(self):
         if self.inverse is None:
             raise ParameterError("no feedforward: pass inverse= or let setup_tracking invert the reference model")
@@ -196,14 +308,13 @@ class TrackingSetup:
         return t, u
 
     def loop(self, name: str) -> ClosedLoop:
-        if name not in CONTROLLERS:
-            raise SceneError(f"unknown controller {name!r}: choose one of {sorted(CONTROLLERS)} "
-                             f"({', '.join(f'{k}: {v}' for k, v in CONTROLLERS.items())})")
+        name = check_controller(name)
         if name not in self._loops:
+            if name in NEEDS_INVERSE:
+                self._require_inverse(name)
             t0 = time.perf_counter()
-            ctrl = {"C1": self.c1_controller, "C2": lambda: self.controller, "C1-42": lambda: self.controller,
-                    "C3": lambda: None}[name]()
-            uff = self.u_ff_samples() if name in _NEEDS_INVERSE else None
+            ctrl = self.controller_for(name)
+            uff = self.u_ff_samples() if name in NEEDS_INVERSE else None
             self._loops[name] = ClosedLoop(self.plant, self.reference, controller=ctrl, u_ff=uff,
                                            signals=self.signals, t_end=self.t_end, dt=self.dt, name=name)
             self.timings[f"build_{name}"] = time.perf_counter() - t0
@@ -273,6 +384,7 @@ def a1_along(setup: TrackingSetup, res: ClosedLoopResult, stride: int = 10) -> d
 
 def run_controller(setup: TrackingSetup, name: str, *, raise_on_violation=True, v0=None) -> ClosedLoopResult:
     """One closed-loop run of controller ``name`` on ``setup`` (its ``meta`` records the scene)."""
+    name = check_controller(name)
     try:
         res = setup.loop(name).run(setup.q0, v0, controller_label=name, raise_on_violation=raise_on_violation)
     except FunnelViolation as exc:
@@ -301,14 +413,22 @@ class TrackingStudy:
 
     @property
     def reductions(self) -> dict:
+        """The paper's comparison: how much C1 reduces C2's cumulative errors (003 Sect. 6)."""
         if not {"C1", "C2"} <= set(self.runs):
             return {}
         return {k: self.reduction(k) for k in self.error_kinds}
 
+    @property
+    def extension_reductions(self) -> dict:
+        """The same for invctl's extension ``C1-inv`` against C2."""
+        if not {"C1-inv", "C2"} <= set(self.runs):
+            return {}
+        return {k: self.reduction(k, "C1-inv") for k in self.error_kinds}
+
     def table(self) -> str:
         kinds = self.error_kinds
         m = max((r.u.shape[0] for r in self.runs.values()), default=0)
-        head = (f"{'':5s} {'controller':22s} " + " ".join(f"{('cum. ' + k)[:15]:>15s}" for k in kinds)
+        head = (f"{'':6s} {'controller':25s} " + " ".join(f"{('cum. ' + k)[:15]:>15s}" for k in kinds)
                 + f" {'final |e_y|':>12s} {'max phi|e|':>11s} {'margin':>8s} "
                 + " ".join(f"{f'|u{i + 1}|max':>9s}" for i in range(m)) + f" {'drift':>9s} {'wall s':>7s}")
         lines = [head, "-" * len(head)]
@@ -317,7 +437,7 @@ class TrackingStudy:
             margin = f"{r.funnel_margin:8.4f}" if r.ratios.size else f"{'-':>8s}"
             pk = r.input_peaks
             status = "" if r.success else f"  ({r.status}: {r.message})"
-            lines.append(f"{name:5s} {CONTROLLERS.get(name, ''):22s} "
+            lines.append(f"{name:6s} {CONTROLLERS.get(name, ''):25s} "
                          + " ".join(f"{r.cumulative_errors[k]:15.6g}" for k in kinds)
                          + f" {r.output_error[-1]:12.4g} {ratio} {margin} "
                          + " ".join(f"{x:9.3g}" for x in pk) + f" {r.max_constraint_drift:9.2g} {r.wall_s:7.3f}"
@@ -330,11 +450,15 @@ class TrackingStudy:
             if printed:
                 line += "; paper: " + ", ".join(f"{100 * float(v):.0f} % ({k})" for k, v in printed.items())
             lines.append(line)
+        ext = self.extension_reductions
+        if ext:
+            lines.append("C1-inv (invctl's extension) reduces C2's cumulative error by "
+                         + ", ".join(f"{100 * v:.1f} % ({k})" for k, v in ext.items()))
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
         return {"runs": {k: r.summary() for k, r in self.runs.items()}, "reductions": self.reductions,
-                "info": self.info}
+                "extension_reductions": self.extension_reductions, "info": self.info}
 
     def save(self, directory, meta: dict | None = None) -> None:
         d = Path(directory)
@@ -346,9 +470,10 @@ class TrackingStudy:
         (d / "study.json").write_text(json.dumps(jsonable(self.to_dict()), indent=1))
 
     @classmethod
+    @file_loader
     def load(cls, directory) -> "TrackingStudy":
         d = Path(directory)
-        meta = json.loads((d / "study.json").read_text())
+        meta = read_json(d / "study.json", "study summary")
         runs = {name: ClosedLoopResult.load(d / f"run_{name}.npz") for name in meta["runs"]}
         return cls(runs, meta.get("info", {}))
 
@@ -366,20 +491,22 @@ def run_tracking_study(scene, params=None, plant_params=None, *, controllers=Non
     A run that leaves its funnel is kept (``status == "funnel_violation"``, truncated) and reported.
     """
     controllers = tuple(controllers or scene.tracking.controllers)
-    unknown = [c for c in controllers if c not in CONTROLLERS]
-    if unknown:
-        raise SceneError(f"unknown controller(s) {unknown}; choose from {sorted(CONTROLLERS)}")
+    controllers = tuple(check_controller(c) for c in controllers)
     setup = setup if setup is not None else setup_tracking(scene, params, plant_params, progress=progress,
-                                                           invert=bool(set(_NEEDS_INVERSE) & set(controllers)),
+                                                           invert=bool(set(NEEDS_INVERSE) & set(controllers)),
                                                            **setup_options)
     runs = {}
-    for name in controllers:
-        if progress:
-            print(f"simulating {name} ({CONTROLLERS.get(name, '?')}) ...", file=sys.stderr)
-        try:
-            runs[name] = run_controller(setup, name)
-        except FunnelViolation as exc:
-            runs[name] = exc.partial
+    try:
+        for name in controllers:
+            if progress:
+                print(f"simulating {name} ({CONTROLLERS.get(name, '?')}) ...", file=sys.stderr)
+            try:
+                runs[name] = run_controller(setup, name)
+            except FunnelViolation as exc:
+                runs[name] = exc.partial
+    except KeyboardInterrupt:  # keep the complete runs
+        note = f"interrupted; complete runs: {', '.join(runs) or 'none'} of {', '.join(controllers)}"
+        raise RunInterrupted(note, partial=TrackingStudy(runs, {"scene": scene.name, "partial": note}, setup)) from None
     a1 = {name: a1_along(setup, r) for name, r in runs.items() if r.t.size > 1}
     info = {"a1_along_trajectory": a1, "params": dict(params or {}),
             "plant": {k: v for k, v in setup.plant.values.items() if v != setup.model.values.get(k)},

@@ -44,6 +44,10 @@ def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> Comma
     t = scene.tracking
     ref = t.reference(model) if t.reference is not None else None
     point = design_configuration(scene, model, ref)
+    from .tracking import output_structure
+
+    if output_structure(model, point).r_bar == 2 * model.n:
+        return _analyze_flat(scene, model, ref, point, samples, t0)
     setup = {"point": point}
     if ref is not None and model.region is None:
         from ..analysis.equilibrium import operating_points
@@ -126,49 +130,95 @@ def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> Comma
     return CommandResult("\n".join(lines), data)
 
 
+def _analyze_flat(scene, model, ref, point, samples, t0) -> CommandResult:
+    """The analysis of an output without internal dynamics (r_bar = 2n: a flat output)."""
+    from ..analysis import relative_degree
+
+    points = None
+    if model.region is None:
+        from ..analysis.equilibrium import operating_points
+
+        points = list(operating_points(model, ref, 11, guess_q=point)) if ref is not None else [point]
+    rd = relative_degree(model, samples=samples, points=points)
+    lines = [f"invctl analyze {scene.name}: n = {model.n}, m = {model.m}"]
+    if scene.description:
+        lines.append(f"  {scene.description}")
+    lines += [
+        "parameters: " + ", ".join(f"{k}={v:.6g}" for k, v in model.values.items()),
+        f"vector relative degree of the auxiliary ODE (10): {list(rd.r_aux)}  ->  r_hat = {rd.r_hat}, "
+        f"r_bar = {rd.r_bar} = 2n",
+        f"high-gain matrix Gamma on {rd.samples} points of {rd.region or 'the sample box'}:",
+        f"  worst condition number {rd.worst_condition:.4g}, smallest singular value {rd.min_singular_value:.4g}",
+        "internal dynamics: none (r_bar = 2n): the output is flat; the state and the input are algebraic "
+        f"functions of y_ref and its first {rd.r_hat} derivatives (no pre- or post-actuation)",
+    ]
+    rtext, rdata = _reports(scene, model, {}, {}, "analyze")
+    if rtext:
+        lines.append(rtext)
+    wall = time.perf_counter() - t0
+    lines.append(f"analysis time {wall:.3f} s")
+    data = {"scene": scene.name, "params": dict(model.values), "relative_degree": list(rd.r_aux), "r_hat": rd.r_hat,
+            "r_bar": rd.r_bar, "gamma": rd.to_dict(), "internal_dim": 0, "minimum_phase": True, "flat": True,
+            "design_point": point, "reports": rdata, "timings": {"total_s": wall}}
+    return CommandResult("\n".join(lines), data)
+
+
 # ------------------------------------------------------------------- invert
 def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None, backend=None, out=None,
-           dt=None, quiet=False) -> CommandResult:
+           dt=None, quiet=False, max_wall_time=None) -> CommandResult:
     """Invert with the automatic setup (and the scene's overrides), forward-check, report."""
     from ..inversion import forward_check
 
-    opts = {k: v for k, v in {"N": N, "scheme": scheme, "tol": tol, "backend": backend}.items() if v is not None}
+    opts = {k: v for k, v in {"N": N, "scheme": scheme, "tol": tol, "backend": backend,
+                              "max_wall_time": max_wall_time}.items() if v is not None}
     t_wall = time.perf_counter()
     model, reference = tracking_model(scene, params)
     inv = invert_tracking(scene, model, reference, progress=not quiet, **opts)
     fc = forward_check(model, inv, reference)
     wall = time.perf_counter() - t_wall
     d = inv.diagnostics
-    tt = np.linspace(inv.T0, inv.t0, 200, endpoint=False)
-    pre = float(np.max(np.abs(inv.u(tt)))) if tt.size else 0.0
+    # pre-actuation: how far u_ff moves away from the start equilibrium's input before t0
+    tt = np.linspace(inv.T0, inv.t0, 200)
+    pre = float(np.max(np.abs(inv.u(tt) - inv.u(inv.T0)))) if inv.t0 > inv.T0 else 0.0
+    res = d.get("residuals", {})
     data = {
-        "scene": scene.name, "status": d["status"], "success": d["success"], "iterations": d["iterations"],
-        "build_s": d["build_s"], "solve_s": d["solve_s"], "wall_s": wall, "N": inv.N, "scheme": d["scheme"],
-        "backend": d["backend"], "formulation": d["formulation"], "T0": inv.T0, "Tf": inv.Tf,
-        "t0": inv.t0, "tf": inv.tf, "selection": d["selection"], "max_output_error": fc["error"],
-        "forward_check": {k: fc[k] for k in ("error", "t_worst", "window", "windows", "rate")},
-        "residuals": d["residuals"], "max_u_pre_actuation": pre, "params": dict(params or {}),
-        "plan": d.get("plan"),
+        "scene": scene.name, "method": d.get("method", "servo"), "status": d["status"], "success": d["success"],
+        "iterations": d.get("iterations"), "build_s": d.get("build_s"), "solve_s": d.get("solve_s"), "wall_s": wall,
+        "N": inv.N, "scheme": d.get("scheme"), "backend": d.get("backend"), "formulation": d.get("formulation"),
+        "T0": inv.T0, "Tf": inv.Tf, "t0": inv.t0, "tf": inv.tf, "selection": d.get("selection"),
+        "max_output_error": fc["error"], "forward_check": {k: fc[k] for k in ("error", "t_worst", "window", "windows", "rate")},
+        "residuals": res, "max_u_pre_actuation": pre, "params": dict(params or {}), "plan": d.get("plan"),
     }
     if "meshes" in d:
         data["meshes"] = d["meshes"]
-    lines = [
-        f"invctl invert {scene.name}: {d['status']} after {d['iterations']} iterations ({d['backend']}, "
-        f"{d['scheme']}, N = {inv.N}, {d['formulation']} index reduction)",
-        f"  horizon [T0, Tf] = [{inv.T0:g}, {inv.Tf:g}] around [t0, tf] = [{inv.t0:g}, {inv.tf:g}]",
-        f"  boundary conditions (003 (36)): {d['selection']}",
-    ]
-    plan = d.get("plan")
-    if isinstance(plan, dict) and plan.get("describe"):
-        lines.append("  automatic setup: " + plan["describe"].replace("\n", "\n  "))
+    if d.get("method") == "normal-form":
+        lines = [f"invctl invert {scene.name}: {d['status']} (normal form of 003 Sect. 2: relative degree "
+                 f"{d.get('relative_degree')}, internal dynamics of dimension {d.get('internal_dim')}; "
+                 f"{d.get('representation')}, N = {inv.N})",
+                 f"  horizon [T0, Tf] = [{inv.T0:g}, {inv.Tf:g}] around [t0, tf] = [{inv.t0:g}, {inv.tf:g}]: "
+                 f"{d.get('horizon', {}).get('describe', '')}"]
+    else:
+        lines = [
+            f"invctl invert {scene.name}: {d['status']} after {d['iterations']} iterations ({d['backend']}, "
+            f"{d['scheme']}, N = {inv.N}, {d['formulation']} index reduction)",
+            f"  horizon [T0, Tf] = [{inv.T0:g}, {inv.Tf:g}] around [t0, tf] = [{inv.t0:g}, {inv.tf:g}]",
+            f"  boundary conditions (003 (36)): {d['selection']}",
+        ]
+        plan = d.get("plan")
+        if isinstance(plan, dict) and plan.get("describe"):
+            lines.append("  automatic setup: " + plan["describe"].replace("\n", "\n  "))
+    worst = {}
+    for k, v in res.items():
+        if isinstance(v, (int, float)):
+            key = k.rsplit("_", 1)[0] if k.endswith(("_mesh", "_between")) else k
+            worst[key] = max(worst.get(key, 0.0), float(v))
     lines += [
-        f"  build {d['build_s']:.3f} s, solve {d['solve_s']:.3f} s, total {wall:.2f} s",
-        f"  residuals: position {d['residuals']['position']:.2e}, velocity "
-        f"{max(d['residuals']['velocity_mesh'], d['residuals']['velocity_between']):.2e}, acceleration "
-        f"{max(d['residuals']['acceleration_mesh'], d['residuals']['acceleration_between']):.2e}",
+        f"  build {d.get('build_s', 0.0):.3f} s, solve {d.get('solve_s', 0.0):.3f} s, total {wall:.2f} s",
+        "  residuals: " + ", ".join(f"{k} {v:.2e}" for k, v in worst.items()),
         f"  forward check: max |y - y_ref| = {fc['error']:.3e} at t = {fc['t_worst']:.3g} s "
         f"({fc['windows']} window(s))",
-        f"  pre-actuation: max |u_ff| before t0 = {pre:.3g} (the causal feedforward sets it to 0)",
+        f"  pre-actuation: max |u_ff - u_ff(T0)| before t0 = {pre:.3g}"
+        + (" (the causal feedforward leaves it out)" if pre > 0 else " (none)"),
     ]
     if "meshes" in d:
         lines.append("  meshes tried: " + ", ".join(f"N={m['N']} (err {m['error']:.1e})" for m in d["meshes"]))
@@ -189,7 +239,8 @@ def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
     setup = setup_tracking(scene, params, invert=False)
     d, c = setup.design, setup.controller
     lines = [f"invctl design {scene.name}: funnel controller (48) of 003 Sect. 5",
-             f"  linearized internal dynamics: {setup.lin.k} unstable mode(s) of {setup.lin.Q.shape[0]}",
+             (f"  linearized internal dynamics: {setup.lin.k} unstable mode(s) of {setup.lin.Q.shape[0]}"
+              if setup.lin is not None else "  no internal dynamics (flat output): y_new = K y"),
              f"  q = {c.q_rows}, k_i = {list(c.k_i)}, rho = {c.rho}, pairing = {list(c.pairing)}",
              "  K = " + "; ".join(np.array2string(np.asarray(k), precision=5) for k in c.K),
              f"  relative degrees of the new output: {list(c.levels.r)}",

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import sys
 from dataclasses import dataclass, field
@@ -62,6 +63,7 @@ class TradeoffResult:
     error_name: str = "error"
     scene: str = ""
     failures: list[dict[str, Any]] = field(default_factory=list)
+    partial: str = ""  #: why the rows stop short (an interrupted study), empty when complete
 
     @property
     def errors(self) -> np.ndarray:
@@ -94,6 +96,8 @@ class TradeoffResult:
         for f in self.failures:
             lines.append(f"{_fmt(f['value']):>24}  failed: {f['message']}")
         lines.append(f"reference: {self.reference}")
+        if self.partial:
+            lines.append(f"PARTIAL: {self.partial}")
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -103,6 +107,7 @@ class TradeoffResult:
             "failures": [{**f, "value": _jsonable_value(f["value"])} for f in self.failures],
             "reference": self.reference,
             "pareto": self.pareto().tolist(),
+            **({"partial": self.partial} if self.partial else {}),
         }
 
     def to_csv(self, path: str | os.PathLike) -> None:
@@ -121,11 +126,42 @@ class TradeoffResult:
 
     @classmethod
     def from_json(cls, path: str | os.PathLike) -> "TradeoffResult":
-        with open(path) as fh:
-            d = json.load(fh)
-        rows = [{k: v for k, v in r.items() if k != "knob"} for r in d["rows"]]
-        return cls(d["knob"], rows, d["reference"], d.get("error_name", "error"), d.get("scene", ""),
-                   d.get("failures", []))
+        """Read what :meth:`to_json` wrote.
+
+        Raises
+        ------
+        ResultFileError
+            Missing, unreadable or truncated file, not a trade-off table, rows without a finite
+            ``error``/``time_s``.
+        """
+        from ..errors import ResultFileError
+
+        try:
+            with open(path) as fh:
+                d = json.load(fh)
+        except FileNotFoundError:
+            raise ResultFileError(f"{path}: no such file") from None
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise ResultFileError(f"{path}: not a readable JSON file ({type(exc).__name__}: {exc}); the file is "
+                                  "truncated or not written by invctl study tradeoff") from None
+        if not (isinstance(d, dict) and isinstance(d.get("knob"), str) and isinstance(d.get("rows"), list)
+                and isinstance(d.get("reference"), str)):
+            raise ResultFileError(f"{path}: not a trade-off table (needs 'knob', 'rows', 'reference'; written by "
+                                  "invctl study tradeoff)")
+        rows = []
+        for i, r in enumerate(d["rows"]):
+            if not isinstance(r, dict) or "value" not in r:
+                raise ResultFileError(f"{path}: row {i} is not a trade-off row")
+            for key in ("error", "time_s"):
+                v = r.get(key)
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or (key == "time_s" and not math.isfinite(v)):
+                    raise ResultFileError(f"{path}: row {i}: {key!r} = {v!r} is not a number")
+            rows.append({k: v for k, v in r.items() if k != "knob"})
+        failures = d.get("failures", [])
+        if not isinstance(failures, list):
+            raise ResultFileError(f"{path}: 'failures' must be a list")
+        return cls(d["knob"], rows, d["reference"], str(d.get("error_name", "error")), str(d.get("scene", "")),
+                   failures, str(d.get("partial", "")))
 
     def plot(self, ax=None):
         """Error against time on log axes, each point labelled, the Pareto front drawn."""
@@ -180,28 +216,53 @@ def run_tradeoff(spec: TradeoffSpec, *, progress: bool = True, min_time_s: float
     kept, so one scheduling hiccup does not decide the trade; ``repeats`` says
     how many runs there were.  A setting that raises is reported in
     ``failures`` with its message, not dropped.
+
+    Raises
+    ------
+    RunInterrupted
+        On Ctrl-C (SIGINT): ``partial`` is the result with the rows complete so far.
     """
+    from ..errors import RunInterrupted, watch_sigint
+
     rows, failures = [], []
-    for k, value in enumerate(spec.values, 1):
-        try:
-            out = dict(spec.run(value))
-            for key in ("error", "time_s"):
-                if key not in out:
-                    raise KeyError(f"trade-off run for {spec.knob}={value!r} returned no {key!r}")
-            spent, times = float(out["time_s"]), [float(out["time_s"])]
-            while spec.repeat and spent < min_time_s and len(times) < max_repeats:
-                t = float(spec.run(value)["time_s"])
-                times.append(t)
-                spent += t
-            out["time_s"], out["repeats"] = min(times), len(times)
-        except KeyError:
-            raise
-        except Exception as exc:
-            failures.append({"value": value, "message": f"{type(exc).__name__}: {exc}"})
-            out = None
-        if out is not None:
-            rows.append({"value": value, **out})
-        if progress:
-            msg = "failed" if out is None else f"error {out['error']:.3e} in {out['time_s']:.3f} s"
-            print(f"tradeoff {spec.scene} {spec.knob}={_fmt(value)}: {msg} ({k}/{len(spec.values)})", file=sys.stderr)
+    k, value = 0, None
+    try:
+        for k, value in enumerate(spec.values, 1):
+            with watch_sigint() as sigint:
+                _one_setting(spec, value, rows, failures, min_time_s, max_repeats)
+            if sigint.seen:  # a compiled solver turned Ctrl-C into a failure of this setting: not a result
+                if failures and failures[-1]["value"] is value:
+                    failures.pop()
+                raise KeyboardInterrupt
+            if progress:
+                last = rows[-1] if rows and rows[-1]["value"] is value else None
+                msg = "failed" if last is None else f"error {last['error']:.3e} in {last['time_s']:.3f} s"
+                print(f"tradeoff {spec.scene} {spec.knob}={_fmt(value)}: {msg} ({k}/{len(spec.values)})",
+                      file=sys.stderr)
+    except KeyboardInterrupt:
+        note = (f"interrupted at {spec.knob}={_fmt(value)} ({k}/{len(spec.values)}); {len(rows)} of "
+                f"{len(spec.values)} settings complete")
+        raise RunInterrupted(note, partial=TradeoffResult(spec.knob, rows, spec.reference, spec.error_name,
+                                                          spec.scene, failures, note)) from None
     return TradeoffResult(spec.knob, rows, spec.reference, spec.error_name, spec.scene, failures)
+
+
+def _one_setting(spec: TradeoffSpec, value, rows: list, failures: list, min_time_s: float, max_repeats: int) -> None:
+    """Run one setting (repeated while fast), appending to ``rows`` or ``failures``."""
+    try:
+        out = dict(spec.run(value))
+        for key in ("error", "time_s"):
+            if key not in out:
+                raise KeyError(f"trade-off run for {spec.knob}={value!r} returned no {key!r}")
+        spent, times = float(out["time_s"]), [float(out["time_s"])]
+        while spec.repeat and spent < min_time_s and len(times) < max_repeats:
+            t = float(spec.run(value)["time_s"])
+            times.append(t)
+            spent += t
+        out["time_s"], out["repeats"] = min(times), len(times)
+    except KeyError:
+        raise
+    except Exception as exc:
+        failures.append({"value": value, "message": f"{type(exc).__name__}: {exc}"})
+        return
+    rows.append({"value": value, **out})

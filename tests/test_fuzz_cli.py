@@ -1,0 +1,434 @@
+"""Fuzzing the command line: random invocations of every shipped scene and command.
+
+Each case is an ``invctl`` command line run in this process through :func:`invctl.cli.main`
+(with ``--json``): a random scene and command, random ``--set`` values (plausible, extreme, invalid,
+NaN/inf, huge/tiny, malformed assignments), random option values (valid and not), random output
+paths, corrupted result files (``--inverse``, ``invctl animate``) and randomly corrupted scene files.
+
+The property: exit code 0 with one JSON object as the last line of output (strict JSON: no NaN,
+no ``"nan"`` value), or exit code 2 with a JSON error object naming a specific error class of
+:mod:`invctl.errors` (or the usage error of the argument parser) -- never a traceback, never an
+internal error (exit 3), never a hang (per-case time limit, :data:`CASE_LIMIT_S`).
+
+Profiles (environment ``INVCTL_FUZZ``):
+
+* default (CI): :data:`CI_EXAMPLES` cases; ``pipeline`` and ``study`` only with option and value
+  checks that end before any run (their runs take 10-60 s each; they share the checks of
+  ``simulate``/``invert`` and run end to end in tests/test_pipelines.py and tests/test_tradeoffs.py);
+  plausible values within a factor 2 of the defaults plus the extremes ``x 1e+-6``, ``x 1e+-12``,
+  ``1e+-300`` (rejected, or tiny runs) -- factors like ``x 1e-3`` on a time step are legitimate
+  runs of a minute and belong to the long profile.
+* ``INVCTL_FUZZ_RANDOM=1``: the CI profile with fresh random cases (CI runs a fixed, derandomized set).
+* ``INVCTL_FUZZ=long`` (by hand): ``INVCTL_FUZZ_EXAMPLES`` cases (default 2000) with every command
+  run, the factors ``1e+-1 ... 1e+-4`` as well and a longer per-case limit.
+
+The number of cases and their outcomes (by exit code and error class) are printed at the end.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import os
+import signal
+import string
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+import invctl.errors as errors  # noqa: E402
+from invctl.cli import main  # noqa: E402
+from invctl.scenes import available_scenes, load_scene  # noqa: E402
+from invctl.studies.commands import options_of  # noqa: E402
+
+LONG = os.environ.get("INVCTL_FUZZ") == "long"
+CI_EXAMPLES = 400
+EXAMPLES = int(os.environ.get("INVCTL_FUZZ_EXAMPLES", 2000 if LONG else CI_EXAMPLES))
+#: per-case wall-time limit: the slowest legitimate CI case (a tracking simulate with a new design,
+#: ~5 s alone, several times that on a 2-core machine shared with other jobs) times 12
+CASE_LIMIT_S = 300.0 if LONG else 60.0
+SCENES = available_scenes()
+HEAVY = ("pipeline", "study")
+#: every error class a user may see: the invctl hierarchy and the parser's usage error
+SPECIFIC = {name for name in errors.__all__ if isinstance(getattr(errors, name), type)
+            and issubclass(getattr(errors, name), errors.InvctlError)} | {"UsageError"}
+
+OUTCOMES: Counter = Counter()
+CASES = {"n": 0, "wall": 0.0, "slowest": []}
+
+
+class CaseTimeout(BaseException):
+    """A case ran past :data:`CASE_LIMIT_S` (BaseException: no ``except Exception`` swallows it)."""
+
+
+def _alarm(signum, frame):
+    raise CaseTimeout()
+
+
+def _scene_info():
+    out = {}
+    for name in SCENES:
+        s = load_scene(name)
+        out[name] = (s.commands, {**s.params, **s.settings})
+    return out
+
+
+INFO = _scene_info()
+
+# ------------------------------------------------------------------ values
+INVALID_TEXT = ["", "abc", "1..2", "1e", "0x10", "1,5", "__import__('os').system('true')", "True", "None",
+                "[1, 2]", "1/3", "1e400", "-1e400", "nan", "NaN", "inf", "-inf", "+inf", " ", "٣", "0b11",
+                "1_000", "--1"]
+EXTREME_FACTORS = [1e-300, 1e-12, 1e-6, 1e6, 1e12, 1e300]
+LONG_FACTORS = [1e-4, 1e-3, 1e-2, 0.1, 10.0, 100.0, 1e3, 1e4]
+
+
+def _fmt_number(x: float, style: int) -> str:
+    return [repr(x), f"{x:.3e}", f"{x:g}", f"{x:.17g}"][style % 4]
+
+
+@st.composite
+def set_value(draw, default: float) -> str:
+    kind = draw(st.sampled_from(["plausible"] * 5 + ["extreme", "sign", "zero", "invalid", "big_int"]))
+    style = draw(st.integers(0, 3))
+    base = default if default != 0 else 1.0
+    if kind == "plausible":
+        factor = 2.0 ** draw(st.floats(-1.0, 1.0, allow_nan=False))
+        if LONG and draw(st.booleans()):
+            factor = draw(st.sampled_from(LONG_FACTORS))
+        if default in (0.0, 1.0, -1.0, 2.0) and float(default).is_integer():
+            return _fmt_number(default, style) if draw(st.booleans()) else str(int(default))
+        return _fmt_number(default * factor if default != 0 else factor - 1.0, style)
+    if kind == "extreme":
+        return _fmt_number(base * draw(st.sampled_from(EXTREME_FACTORS)), style)
+    if kind == "sign":
+        return _fmt_number(-base, style)
+    if kind == "zero":
+        return draw(st.sampled_from(["0", "0.0", "-0", "-0.0", "5e-324"]))
+    if kind == "big_int":
+        return str(draw(st.sampled_from([2, 3, 10**6, 10**400, -(10**400)])))
+    return draw(st.sampled_from(INVALID_TEXT))
+
+
+@st.composite
+def assignment(draw, scene: str) -> str:
+    names = sorted(INFO[scene][1])
+    kind = draw(st.sampled_from(["known"] * 8 + ["unknown", "malformed"]))
+    if kind == "malformed":
+        return draw(st.sampled_from(["x", "=3", "==", "a==3", "a=3=4", "=", " = ", "m 1=2"]))
+    if kind == "unknown" or not names:
+        name = draw(st.sampled_from(["nope", "M1", "__class__", "t", "h_", "é"]))
+        return f"{name}={draw(st.sampled_from(['1', '0.5', 'nan']))}"
+    name = draw(st.sampled_from(names))
+    return f"{name}={draw(set_value(float(INFO[scene][1][name])))}"
+
+
+# ------------------------------------------------------------------ options
+def _option_values(draw, name: str, scene: str, tmp: Path, case: int) -> list[str]:
+    """argv pieces for one option (empty: option left out)."""
+    flag = "--" + name.replace("_", "-")
+    valid = draw(st.integers(0, 9)) < 7
+    if name in ("force", "quiet", "no_animation"):
+        return [flag]
+    if name == "N":
+        v = draw(st.integers(4, 60)) if valid else draw(st.sampled_from(["3", "0", "-5", "abc", "2.5", "1e9",
+                                                                          "10**9", "nan"]))
+        return [flag, str(v)]
+    if name == "scheme":
+        ok = ["hermite-simpson", "radau3", "legendre2", "radau1"]
+        v = draw(st.sampled_from(ok)) if valid else draw(st.sampled_from(["radau0", "foo", "legendre99", "", "HS"]))
+        return [flag, v]
+    if name == "tol":
+        v = draw(st.sampled_from(["1e-4", "1e-6"])) if valid else draw(st.sampled_from(
+            ["0", "-1", "nan", "inf", "abc", "1e400"] + (["1e-300", "1e-12"] if LONG else [])))
+        return [flag, v]
+    if name == "backend":
+        return [flag, draw(st.sampled_from(["ipopt", "newton"])) if valid else draw(st.sampled_from(["foo", "IPOPT"]))]
+    if name == "dt":
+        return [flag, draw(st.sampled_from(["0.01", "0.005"])) if valid else draw(st.sampled_from(
+            ["0", "-1", "nan", "abc", "1e-300"]))]
+    if name == "controller":
+        return [flag, draw(st.sampled_from(["C1", "C2", "C3", "C1-42", "c2", "pd", "pdplus", "preload", "switching",
+                                            "juggling", "none", "foo", ""]))]
+    if name == "plant_set":
+        return ["--plant-set", draw(assignment(scene))]
+    if name == "t_end":
+        v = draw(st.sampled_from(["0.05", "0.2", "0.5"])) if valid else draw(st.sampled_from(
+            ["0", "-1", "nan", "inf", "abc", "1e6", "1e300", "1e-300", "5e-324"]))
+        return [flag, v]
+    if name in ("out", "plot", "inverse", "out_dir"):
+        return [flag, _path(draw, name, tmp, case, valid)]
+    if name == "samples":
+        bad = ["0", "-3", "abc", "1e9", "2.5"]
+        return [flag, str(draw(st.integers(1, 24))) if valid else draw(st.sampled_from(bad))]
+    if name == "job":
+        return [flag, draw(st.sampled_from(["simulate", "impacts", "invert", "analyze", "foo"]))]
+    if name == "preset":
+        return [flag, draw(st.sampled_from(["paper", "foo", ""]))]
+    if name == "record_every":
+        return [flag, draw(st.sampled_from(["1", "10", "1000"])) if valid else draw(st.sampled_from(
+            ["0", "-1", "abc", "2.5", "1e12"]))]
+    if name == "record":
+        return [flag, draw(st.sampled_from(["steps", "events"])) if valid else draw(st.sampled_from(["all", ""]))]
+    if name == "max_wall_time":
+        return [flag, draw(st.sampled_from(["30", "60"])) if valid else draw(st.sampled_from(["0", "-1", "nan", "abc"]))]
+    raise AssertionError(f"the fuzzer does not know option {name!r}: add it")
+
+
+def _path(draw, name: str, tmp: Path, case: int, valid: bool) -> str:
+    if name == "inverse":
+        return str(draw(st.sampled_from(_result_files(tmp))))
+    if name == "out_dir":
+        if valid:
+            return str(tmp / f"dir{case}")
+        return draw(st.sampled_from([str(tmp / "afile.txt"), "/proc/invctl-no", str(tmp / ("x" * 300)), ""]))
+    suffix = {"out": [".npz", ".csv", "", ".npz"], "plot": [".png", ".pdf", ".svg"]}[name]
+    if valid:
+        return str(tmp / f"{name}{case}{draw(st.sampled_from(suffix))}")
+    return draw(st.sampled_from([str(tmp / "no" / "such" / "dir" / "x.npz"), str(tmp), str(tmp / "afile.txt"),
+                                 str(tmp / ("y" * 300 + ".npz")), str(tmp / "existing.npz"),
+                                 str(tmp / "fig.txt")]))
+
+
+_FILES: dict = {}
+
+
+def _result_files(tmp: Path) -> list[Path]:
+    """Corrupted, foreign and valid result files (made once per session)."""
+    key = str(tmp)
+    if key in _FILES:
+        return _FILES[key]
+    files = []
+    good = tmp / "good_inverse.npz"
+    assert main(["invert", "two_link_arm", "--quiet", "--out", str(good)]) == 0
+    raw = good.read_bytes()
+    for name, data in {"truncated.npz": raw[: len(raw) // 2], "empty.npz": b"", "text.npz": b"hello\n",
+                       "header_only.npz": raw[:30]}.items():
+        (tmp / name).write_bytes(data)
+        files.append(tmp / name)
+    np.savez(tmp / "foreign.npz", a=np.arange(3))
+    files.append(tmp / "foreign.npz")
+    with np.load(good) as z:
+        d = dict(z)
+    meta = json.loads(str(d["__invctl__"]))
+    variants = {"n7": ("sizes", "n", 7), "version": ("version", None, 99), "nan": ("nan", None, None),
+                "kind": ("kind", None, "SwitchedSimulation")}
+    for label, (what, sub, val) in variants.items():
+        dd, mm = dict(d), json.loads(json.dumps(meta))
+        if what == "sizes":
+            mm["info"]["sizes"][sub] = val
+        elif what in ("version", "kind"):
+            mm[what] = val
+        else:
+            dd["X_mesh"] = dd["X_mesh"].copy()
+            dd["X_mesh"][0, 1] = np.nan
+        dd["__invctl__"] = np.asarray(json.dumps(mm))
+        np.savez(tmp / f"bad_{label}.npz", **dd)
+        files.append(tmp / f"bad_{label}.npz")
+    files += [good, tmp / "missing.npz", tmp]
+    (tmp / "afile.txt").write_text("a file, not a folder\n")
+    (tmp / "existing.npz").write_bytes(raw)
+    _FILES[key] = files
+    return files
+
+
+# ------------------------------------------------------------ scene files
+BASES = ["knife_edge", "bouncing_ball", "gear_backlash"]
+
+
+@st.composite
+def corrupted_scene(draw, tmp: Path, case: int) -> tuple[str, str]:
+    base = draw(st.sampled_from(BASES))
+    text = (Path(__file__).resolve().parents[1] / "problems" / f"{base}.py").read_text()
+    lines = text.splitlines(keepends=True)
+    how = draw(st.sampled_from(["truncate", "delete_line", "insert_garbage", "replace", "bytes", "empty"]))
+    if how == "truncate":
+        text = text[: draw(st.integers(0, len(text)))]
+    elif how == "delete_line":
+        i = draw(st.integers(0, len(lines) - 1))
+        text = "".join(lines[:i] + lines[i + 1:])
+    elif how == "insert_garbage":
+        i = draw(st.integers(0, len(lines)))
+        junk = draw(st.sampled_from(["raise RuntimeError('boom')\n", "import no_such_module_xyz\n", "SCENE = 3\n",
+                                     "SCENE = None\n", "def build(**k):\n    return 42\n", "x = 1 +\n",
+                                     "PARAMS = {'m': float('nan')}\n", "\tbad indent\n",
+                                     draw(st.text(string.printable, max_size=40)) + "\n"]))
+        text = "".join(lines[:i] + [junk] + lines[i:])
+    elif how == "replace":
+        a, b = draw(st.sampled_from([("SCENE = Scene(", "SCEN = Scene("), ("return Model(", "return None and Model("),
+                                     ("positive=(", "positive=('nope', "), ("build,", "42,"),
+                                     ("params=", "params=[1] or "), ("1.0", "float('inf')"), ("def build", "def _b"),
+                                     ("Contact(", "Contact(controllers=3, "), ("Tracking(", "Tracking(split='x', ")]))
+        text = text.replace(a, b, 1)
+    elif how == "bytes":
+        i = draw(st.integers(0, len(text)))
+        path = tmp / f"scene{case}.py"
+        path.write_bytes(text[:i].encode() + draw(st.sampled_from([b"\x00", b"\xff\xfe", b"\x80"])) +
+                         text[i:].encode())
+        return str(path), base
+    else:
+        text = ""
+    path = tmp / f"scene{case}.py"
+    path.write_text(text)
+    return str(path), base
+
+
+# ------------------------------------------------------------------ cases
+@st.composite
+def command_line(draw, tmp: Path):
+    case = CASES["n"]
+    kind = draw(st.sampled_from(["scene"] * 8 + ["scene_file", "animate"]))
+    if kind == "animate":
+        argv = ["animate", str(draw(st.sampled_from([p for p in _result_files(tmp) if "good" not in p.name])))]
+        if draw(st.booleans()):
+            argv += ["--fps", draw(st.sampled_from(["25", "0", "-1", "nan", "abc", "1e300"]))]
+        return argv + ["--json"], None
+    if kind == "scene_file":
+        path, base = draw(corrupted_scene(tmp, case))
+        cmd = draw(st.sampled_from(list(INFO[base][0]) + ["invert"]))
+        cmd = "analyze" if cmd in HEAVY else cmd
+        return [cmd, path, "--json", "--quiet"] if cmd in ("simulate", "invert") else [cmd, path, "--json"], None
+    scene = draw(st.sampled_from(SCENES))
+    offered = list(INFO[scene][0])
+    cmd = draw(st.sampled_from(offered + ["invert", "design", "analyze"]))
+    argv = [cmd] + (["tradeoff"] if cmd == "study" else []) + [scene, "--json"]
+    heavy = cmd in HEAVY and cmd in offered
+    for _ in range(draw(st.integers(0, 3))):
+        argv += ["--set", draw(assignment(scene))]
+    for name in options_of(cmd):
+        if draw(st.integers(0, 9)) < 3:
+            argv += _option_values(draw, name, scene, tmp, case)
+    if "simulate" == cmd and "--t-end" not in argv and draw(st.booleans()):
+        argv += ["--t-end", draw(st.sampled_from(["0.05", "0.3"]))]
+    if heavy and not LONG:
+        # CI: end every heavy case before its run, with an option error drawn at random
+        argv += draw(st.sampled_from([["--set", "nope=1"], ["--out-dir", str(tmp / "afile.txt")],
+                                      ["--set", "t_end=nan"], ["--plant-set", "nope=2"], ["--job", "no_such_job"],
+                                      ["--quiet", "--t-end", "-1"]]))
+    if cmd in ("invert", "simulate", "pipeline", "study") and "--quiet" not in argv:
+        argv.append("--quiet")
+    return argv, scene
+
+
+def _strict_json(text: str):
+    def bad_constant(c):
+        raise ValueError(f"non-standard JSON constant {c}")
+
+    return json.loads(text, parse_constant=bad_constant)
+
+
+def _nan_strings(obj, path=""):
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _nan_strings(v, f"{path}.{k}")
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            yield from _nan_strings(v, f"{path}[{i}]")
+    elif isinstance(obj, str) and obj.strip().lower() in ("nan", "-nan", "+nan"):
+        yield path
+
+
+def run_case(argv: list[str], cwd: Path) -> tuple[int, str, str]:
+    """``main(argv)`` in ``cwd`` (relative and default output paths land there), with the time limit."""
+    out, err = io.StringIO(), io.StringIO()
+    old = signal.signal(signal.SIGALRM, _alarm)
+    here = os.getcwd()
+    os.chdir(cwd)
+    signal.setitimer(signal.ITIMER_REAL, CASE_LIMIT_S)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            rc = main(argv)
+    except CaseTimeout:
+        pytest.fail(f"hang: {argv} ran longer than {CASE_LIMIT_S} s")
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+        os.chdir(here)
+    return rc, out.getvalue(), err.getvalue()
+
+
+def check_property(argv, rc, out, err) -> str:
+    """The property of the module docstring; returns the outcome label."""
+    assert "Traceback" not in out + err, f"{argv}: traceback\n{err[-3000:]}"
+    assert rc in (0, 2), f"{argv}: exit {rc}\nstderr: {err[-3000:]}\nstdout: {out[-1000:]}"
+    lines = out.strip().splitlines()
+    assert lines, f"{argv}: no output (exit {rc}); stderr: {err[-2000:]}"
+    try:
+        data = _strict_json(lines[-1])
+    except ValueError as exc:
+        raise AssertionError(f"{argv}: last line is not strict JSON ({exc}): {lines[-1][:500]}") from None
+    assert isinstance(data, dict), f"{argv}: last line is not a JSON object"
+    if rc == 0:
+        assert "error" not in data, f"{argv}: exit 0 with an error object {data}"
+        nans = list(_nan_strings(data))
+        assert not nans, f"{argv}: NaN in a success answer at {nans[:5]}"
+        return "ok"
+    assert set(data) >= {"error", "message"}, f"{argv}: error object without error/message: {data}"
+    assert data["error"] in SPECIFIC, f"{argv}: unspecific error class {data['error']}: {data['message'][:500]}"
+    assert data["message"].strip(), f"{argv}: empty error message"
+    return data["error"]
+
+
+@pytest.fixture(scope="module")
+def fuzz_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fuzz")
+    (d / "cwd").mkdir()
+    return d
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _report(request):
+    yield
+    if CASES["n"]:
+        summary = ", ".join(f"{k}: {v}" for k, v in OUTCOMES.most_common())
+        line = (f"fuzz ({'long' if LONG else 'CI'} profile): {CASES['n']} cases in {CASES['wall']:.1f} s -- {summary}"
+                f"\n  slowest: {CASES['slowest']}")
+        capman = request.config.pluginmanager.getplugin("capturemanager")
+        with capman.global_and_fixture_disabled() if capman is not None else contextlib.nullcontext():
+            print("\n" + line, flush=True)
+
+
+@settings(max_examples=EXAMPLES, deadline=None, database=None,
+          derandomize=not (LONG or os.environ.get("INVCTL_FUZZ_RANDOM")),
+          suppress_health_check=list(HealthCheck))
+@given(data=st.data())
+def test_fuzz_cli(fuzz_dir, data):
+    old_smoke = os.environ.get("INVCTL_SMOKE")
+    os.environ["INVCTL_SMOKE"] = "1"
+    try:
+        argv, _ = data.draw(command_line(fuzz_dir))
+        CASES["n"] += 1
+        t = time.perf_counter()
+        rc, out, err = run_case(argv, fuzz_dir / "cwd")
+        dt = time.perf_counter() - t
+        CASES["wall"] += dt
+        CASES["slowest"] = sorted(CASES["slowest"] + [(round(dt, 2), " ".join(argv))], reverse=True)[:3]
+        OUTCOMES[check_property(argv, rc, out, err)] += 1
+    finally:
+        if old_smoke is None:
+            os.environ.pop("INVCTL_SMOKE", None)
+        else:
+            os.environ["INVCTL_SMOKE"] = old_smoke
+
+
+def test_property_checker_rejects_bad_outcomes():
+    """The checker itself fails on what it must catch (so the fuzz test can fail)."""
+    ok = '{"a": 1}'
+    assert check_property(["x"], 0, ok + "\n", "") == "ok"
+    for rc, out, err in [(3, '{"error": "InternalError", "message": "x"}', ""),
+                         (0, '{"a": NaN}', ""), (0, '{"a": "nan"}', ""),
+                         (2, '{"error": "ValueError", "message": "x"}', ""),
+                         (0, ok, "Traceback (most recent call last):"), (0, "", ""), (2, "not json", ""),
+                         (130, '{"error": "RunInterrupted", "message": "x"}', "")]:
+        with pytest.raises((AssertionError, pytest.fail.Exception)):
+            check_property(["x"], rc, out, err)
+    assert check_property(["x"], 2, '{"error": "ParameterError", "message": "bad"}', "") == "ParameterError"
+    assert math.isfinite(CASE_LIMIT_S)

@@ -1,0 +1,229 @@
+"""000 mechanisms beyond the six-bar and the chain: the pivot with gear backlash (Fig. 2(a)), the
+four-bar driven through its motor shaft (Fig. 6(b)), the recursive juggling design (29)-(33) on the
+prismatic joint (Fig. 2(b)); the linkage builder and the subsystem analysis on their own; every new
+scene through the generic commands with JSON and a figure."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+import problems.backlash_pivot as bp
+import problems.fourbar_backlash as fb
+import problems.prismatic_clearance as pc
+from invctl.contact.equilibria import static_equilibrium
+from invctl.contact.linkage import GROUND, Joint, Linkage, bar
+from invctl.contact.structure import open_structure
+from invctl.control.juggling_design import (Juggler, JugglerState, design, design_cycle, juggling_plan_law,
+                                            plan_vs_run)
+from invctl.errors import JugglingInfeasible, ModelError, ParameterError
+from invctl.model import ParamSet
+from invctl.scenes import load_scene
+from invctl.simulate.event_driven import simulate_event_driven
+from invctl.studies.contact import contact_setup, run_contact
+
+
+def _run(name, values, controller=None):
+    scene = load_scene(name)
+    params, settings = scene.split(values)
+    return run_contact(contact_setup(scene, params, settings, controller=controller), progress=False)
+
+
+# ----------------------------------------------------------------- pivot with gear backlash (Fig. 2(a))
+def test_backlash_pivot_converges_to_the_closed_form_rest_point():
+    """PD (36) on the shaft: V (37) never increases, the two flanks are never closed together, and the
+    run ends at the rest point whose closed form (scalar root on flank f1) Newton on (40) reproduces
+    to 1e-12.  The run rests 6e-7 rad away: the penetration left by the unprojected step (h = 1e-4)."""
+    run = _run("backlash_pivot", {})
+    tr, model, s = run.trajectory, run.model, run.settings
+    assert tr.max_V_increase <= 1e-12 * abs(tr.V[0])
+    assert not np.any((tr.gaps[:, 0] <= 1e-9) & (tr.gaps[:, 1] <= 1e-9))
+    np.testing.assert_allclose(tr.gaps.sum(axis=1), 2 * model.values["alpha"], atol=1e-12)
+    cf = bp.closed_form_equilibrium(model.values, s["Kp"], model.values["N"] * s["link_d"])
+    assert cf["flank"] == "f1" and cf["lam"] > 0
+    from invctl.contact.equilibria import static_force
+    import casadi as ca
+
+    u, _, kap = run.law.symbolic(model, ca.SX.sym("t"))
+    e = static_equilibrium(model, ca.substitute(static_force(model, u), kap, ca.DM(run.law.kappa_values)), tr.q[-1])
+    np.testing.assert_allclose(e.q, [cf["theta_m"], cf["theta_l"]], atol=1e-12)
+    np.testing.assert_allclose(e.lam, [cf["lam"], 0.0], atol=1e-12)
+    assert np.abs(tr.q[-1] - e.q).max() < 2e-6 and np.abs(tr.v[-1]).max() < 1e-9
+
+
+def test_backlash_pivot_time_stepping_against_event_driven():
+    """The first impacts of the compiled Moreau-Jean run against the event-driven reference (exact
+    impact times): first-order agreement, error below 3 h at h = 1e-4."""
+    scene = load_scene("backlash_pivot")
+    params, settings = scene.split({"t_end": 0.03})
+    run = run_contact(contact_setup(scene, params, settings), progress=False)
+    ref = simulate_event_driven(run.model, run.q0, run.v0, 0.03, law=run.law, max_impacts=3)
+    t_ref = np.asarray(ref.stats["impact_t"])[:3]
+    t_ts = run.trajectory.impact_times[:3]
+    assert t_ref.size == 3 and np.abs(t_ts - t_ref).max() < 3e-4
+
+
+# ----------------------------------------------------------------- four-bar with motor shaft (Fig. 6(b))
+def test_fourbar_closed_form_loop():
+    """The closed-form position analysis closes the loop: |C - B| = c, |C - D| = d for every crank angle."""
+    v = fb.PARAMS
+    for th in np.linspace(0, 2 * math.pi, 37):
+        (Bx, By), (Cx, Cy) = fb.fourbar_points(th, v["a"], v["b"], v["c"], v["d"])
+        assert abs(math.hypot(Cx - Bx, Cy - By) - v["c"]) < 1e-14
+        assert abs(math.hypot(Cx - v["a"], Cy) - v["d"]) < 1e-14
+
+
+def test_fourbar_rests_on_a_flank_with_the_gravity_torque():
+    """PD (36) at J11 (shaft measurement only): V never increases, the crank changes flank on its way,
+    and at rest the flank's multiplier equals the four-bar's gravity torque about J1 by virtual work
+    (central differences of numpy positions, error O(1e-10)); the shaft balances lam / N."""
+    run = _run("fourbar_backlash", {})
+    tr, s, v = run.trajectory, run.settings, run.model.values
+    assert tr.max_V_increase <= 1e-12 * abs(tr.V[0])
+    from problems.fourbar_backlash import rest_report
+
+    class Ctx:
+        result, model, settings = tr, run.model, s
+
+    rep = rest_report(Ctx)
+    assert rep["changes of the flank in contact"] >= 1 and not rep["both flanks closed at some step"]
+    assert rep["|lam - sign dU/dtheta_1|"] < 1e-8
+    assert abs(rep["shaft: K_p (theta_ms - theta_msd) + lam_1/N - lam_2/N"]) < 1e-10
+    assert np.abs(tr.v[-1]).max() < 1e-8
+
+
+def test_fourbar_rejects_a_non_grashof_linkage():
+    scene = load_scene("fourbar_backlash")
+    with pytest.raises(ParameterError, match="Grashof"):
+        scene.split({"b": 0.35})
+
+
+# ----------------------------------------------------------------- juggling design (29)-(33)
+J = Juggler(1.0, 0.5, 0.05, 0.11, 0.5)
+
+
+def test_step2_closed_form_and_impact_maps():
+    """One cycle: the designed end state is the target, the approach speeds are negative, and the
+    maps (28) conserve momentum and restore e times the approach speed at each impact."""
+    st = JugglerState(0.0, 0.0, 0.0, 0.05, 0.3)
+    c = design_cycle(J, st, 0.1, 0.2)
+    assert c.A < 0 and c.B < 0 and abs(c.end.q2 - 0.1) < 1e-15 and abs(c.end.v2 - 0.2) < 1e-15
+    t1, q2, v2p, q1, v1p = c.impact1
+    v2m, v1m = st.v2, st.v2 + c.A                      # body 2 flies freely; y2' = v1 - v2 = A before
+    assert abs(J.m1 * v1p + J.m2 * v2p - (J.m1 * v1m + J.m2 * v2m)) < 1e-15
+    assert abs((v1p - v2p) + J.e * c.A) < 1e-15        # Newton: y2'(t1+) = -e y2'(t1-)
+    assert abs(q1 - q2 + J.L - J.l) < 1e-15            # y2(t1) = 0
+    assert abs(c.end.q2 - c.end.q1 - J.l) < 1e-15      # y1(t2) = 0
+    assert abs((c.end.v2 - c.end.v1) + J.e * c.B) < 1e-15
+
+
+def test_step2_failure_is_reported():
+    """Body 2 leaving the first wall backwards cannot be brought ahead of its start within one cycle:
+    step 2 fails and says so; in a sequence the failing cycle is named and the plan before it kept."""
+    with pytest.raises(JugglingInfeasible, match="step 2 fails") as exc:
+        design_cycle(J, JugglerState(0.0, 0.0, -0.5, 0.05, -0.2), 0.15, 0.2)
+    assert exc.value.diagnostics["step2"] == exc.value.diagnostics["pairs"]
+    with pytest.raises(JugglingInfeasible, match="cycle 2 of 2") as exc:
+        design(J, JugglerState(0.0, 0.0, 0.0, 0.05, 0.3), [(0.1, -0.2), (0.3, 0.2)])
+    assert len(exc.value.partial.cycles) == 1
+    with pytest.raises(ParameterError, match="follow an impact on y1"):
+        design_cycle(J, JugglerState(0.0, 0.0, 0.5, 0.05, 0.3), 0.1, 0.2)
+
+
+def test_plan_reproduced_by_the_event_driven_simulation():
+    """The plan's law (step 3) driving the model in the event-driven simulator (impacts located exactly)
+    hits body 2 at the planned times with the planned states, to 1e-9: an independent check of the
+    impact maps (28), the flights and the fictitious inputs of step 2."""
+    scene = load_scene("prismatic_clearance")
+    params, settings = scene.split({})
+    model = scene.model(params)
+    plan = design(J, JugglerState(0.0, 0.0, 0.0, 0.05, 0.3), [(0.1, 0.2)])
+    law = juggling_plan_law(model, plan, Kp=settings["Kp"], Kv=settings["Kv"])
+    tr = simulate_event_driven(model, [0.0, 0.05], [0.0, 0.3], plan.t_end + 0.02, law=law)
+    rep = plan_vs_run(plan, tr)
+    assert rep["realized impacts"] == 2
+    assert rep["max |t_run - t_plan|"] < 1e-9 and rep["max |q2_run - q2_plan| at the impacts"] < 1e-9
+    assert rep["max |q2'_run - q2'_plan| after the impacts"] < 1e-9
+
+
+def test_juggling_design_controller_converges_with_h():
+    """The scene's controller under the compiled Moreau-Jean scheme: three cycles, six impacts, and the
+    state errors at the planned impacts shrink about linearly with h (event capturing is first order)."""
+    errs = []
+    for h in (4e-4, 1e-4):
+        run = _run("prismatic_clearance", {"h": h}, controller="juggling_design")
+        plan = pc.juggling_plan(run.model, run.settings)
+        rep = plan_vs_run(plan, run.trajectory)
+        assert rep["realized impacts"] == rep["planned impacts"] == 6
+        errs.append(rep["max |q2'_run - q2'_plan| after the impacts"])
+    assert errs[1] < 0.5 * errs[0] and errs[1] < 2e-3
+
+
+def test_juggling_design_needs_one_actuator():
+    from invctl.errors import SceneError
+
+    scene = load_scene("prismatic_clearance")
+    params, settings = scene.split({"actuators": 2})
+    with pytest.raises(SceneError, match="actuators=1"):
+        contact_setup(scene, params, settings, controller="juggling_design")
+
+
+# ----------------------------------------------------------------- builder and structure on their own
+def test_linkage_rejects_loops_and_bad_points():
+    P = ParamSet(["l"])
+    bars = [bar("A", P["l"], 1.0), bar("B", P["l"], 1.0)]
+    loop = [Joint("J1", "revolute", GROUND, (0.0, 0.0), "A", "start"),
+            Joint("J2", "revolute", "A", "end", "B", "start"),
+            Joint("J3", "revolute", GROUND, (1.0, 0.0), "B", "end")]
+    with pytest.raises(ModelError, match="closes a loop"):
+        Linkage(bars, loop)
+    with pytest.raises(ModelError, match="has no point 'tip'"):
+        Linkage(bars, [Joint("J1", "revolute", GROUND, (0.0, 0.0), "A", "tip")])
+
+
+def test_linkage_coordinates_round_trip():
+    """Poses -> open coordinates -> poses (prismatic joint, floating body, relative angles)."""
+    import casadi as ca
+
+    import problems.chain14 as ch
+
+    m = ch.build()
+    link = m.linkage
+    poses = ch.nominal_poses()
+    ev = ca.Function("p", [m.q], [ca.vertcat(*[ca.vertcat(link.poses[b][0], link.poses[b][1]) for b in poses])])
+    got = np.array(ev(link.nominal)).reshape(-1, 3)
+    np.testing.assert_allclose(got, np.array([poses[b] for b in poses]), atol=1e-14)
+
+
+def test_structure_of_existing_scenes():
+    """The generic analysis on scenes written by hand: the slider-crank with a journal clearance has the
+    crank and the rod-slider as subsystems (000 Example 5), the prismatic joint two bodies."""
+    import problems.slider_crank_clearance as sc
+
+    st = open_structure(sc.build())
+    assert st.n_ind == 2 and [s.q_names for s in st.subsystems] == [("theta",), ("s", "phi")]
+    assert st.subsystems[1].status == "unactuated" and st.contacts[0][1] == "S1-S2"
+    st = open_structure(pc.build(actuators=1))
+    assert [s.status for s in st.subsystems] == ["fully actuated", "unactuated"]
+
+
+# ----------------------------------------------------------------- every new scene through the commands
+@pytest.mark.parametrize("name, values, controller", [
+    ("sixbar_pd", {"t_end": 0.05}, None), ("sixbar_tracking", {"t_end": 0.05}, "pdplus_violating"),
+    ("sixbar", {"t_end": 0.05, "structure": 3}, None), ("chain14", {"t_end": 0.05}, None),
+    ("backlash_pivot", {"t_end": 0.2}, None), ("fourbar_backlash", {"t_end": 0.2}, None),
+    ("prismatic_clearance", {"t_end": 0.3}, "juggling_design")])
+def test_scene_commands_json_and_figure(name, values, controller, tmp_path, capsys):
+    from invctl.cli import main
+
+    args = ["simulate", name, "--json", "--plot", str(tmp_path / "run.png")]
+    for k, v in values.items():
+        args += ["--set", f"{k}={v}"]
+    if controller:
+        args += ["--controller", controller]
+    assert main(args) == 0
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert d["steps"] > 0 and (tmp_path / "run.png").stat().st_size > 0
+    assert main(["analyze", name, "--json"]) == 0
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert d["reports"]
