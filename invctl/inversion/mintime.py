@@ -130,6 +130,21 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
                            rated=rb.rated, compiled=disc.compiled)
     tc = tr.collocation_times(t_mesh)
     tau0 = float(np.clip(tau_ref if warm_start is None else warm_start.tf - warm_start.t0, lo, hi))
+    if guess is not None and warm_start is None and not relaxed:
+        # start where the exact inverse nearly respects the input and rate bounds (they scale like
+        # tau^-2 and tau^-3 for a fixed shape): from a duration the bounds cut deeply into, IPOPT's
+        # first steps can leave towards very short moves, where the non-minimum-phase inverse explodes
+        tau_s = _feasible_duration(guess, servo, reference, theta, rb, tau_ref)
+        tau_s = float(np.clip(tau_s, lo, hi))
+        if tau_s > tau0 * (1 + 1e-9):
+            mesh_s = tr.retimed_mesh(t_mesh, mask, tau_ref, tau_s)
+            try:
+                guess = solve_square(model, retime(reference, tau_s), replace(
+                    opts, horizon=replace(hz, T0=float(mesh_s[0]), Tf=float(mesh_s[-1]), plan=None),
+                    discretization=replace(disc, mesh=mesh_s), bounds=None, objective=None))
+                warm_start, tau0 = guess, tau_s
+            except InversionFailed:
+                pass  # keep the reference's duration as the start
     if warm_start is not None:  # a solution for another duration: sample it at the same shape positions
         ws_mesh = tr.retimed_mesh(t_mesh, mask, tau_ref, tau0)
         x0 = tr.pack(warm_start.X(ws_mesh), warm_start.X(tr.collocation_times(ws_mesh)) if tc.size else None,
@@ -214,3 +229,20 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
             diagnostics=inv.diagnostics)
     return inv
 
+
+def _feasible_duration(inv, servo, reference, theta, rb, tau_ref) -> float:
+    """A duration at which the exact inverse of the shape about meets the input (``tau^-2``) and rate
+    (``tau^-3``) bounds, estimated from the inverse ``inv`` of duration ``tau_ref``, 5 % longer."""
+    _ts, X, _tr, U = constraint_points(inv, servo, reference, theta)
+    ub = servo.layout.blocks["u"]
+    factor = 1.0
+    for i in rb.bounded:
+        if ub.start <= i < ub.stop:
+            need = max(np.max(X[i]) / rb.hi[i] if rb.hi[i] > 0 else 0.0,
+                       np.min(X[i]) / rb.lo[i] if rb.lo[i] < 0 else 0.0)
+            factor = max(factor, need ** 0.5)
+    for j in rb.rated:
+        need = max(np.max(U[j]) / rb.rate_hi[j] if rb.rate_hi[j] > 0 else 0.0,
+                   np.min(U[j]) / rb.rate_lo[j] if rb.rate_lo[j] < 0 else 0.0)
+        factor = max(factor, need ** (1 / 3))
+    return tau_ref * factor * (1.05 if factor > 1 else 1.0)
