@@ -297,17 +297,24 @@ INTERRUPT_LIKE = (KeyboardInterrupt, SystemError, NotImplementedError)
 """What a Ctrl-C can surface as from compiled code (``except INTERRUPT_LIKE`` then :func:`is_interrupt`)."""
 
 
-def interrupt_delivered() -> None:
-    """Note that a Ctrl-C reached the code that handles it (nothing pending any more)."""
-    global _SIGINT_PENDING
-    _SIGINT_PENDING = False
-
-
 class JugglingInfeasible(FeedbackDesignError):
     """The recursive impact design of 000 (29)-(33) has no solution for a cycle: step 2 (no impact
     speeds of the right sign reach the target) or step 4 (viability) fails; ``partial`` holds the plan
     of the cycles before, ``diagnostics`` the start, the target and the search window."""
 
+
+
+class OptionError(InvctlError, ValueError):
+    """An option of the inversion (:mod:`invctl.inversion.options`) has a wrong type or value."""
+
+
+class BoundsError(OptionError):
+    """Bounds of a bounded inversion are malformed (unknown names, lower > upper, negative limits)."""
+
+
+class InfeasibleBoundsError(InversionFailed):
+    """No trajectory satisfies the bounds together with the boundary conditions; the diagnostics
+    hold the closest feasible relaxation found (``diagnostics["relaxation"]``)."""
 
 
 __all__ = [
@@ -318,5 +325,6 @@ __all__ = [
     "SingularDecouplingError", "ReferenceSmoothnessError", "NoDichotomyError", "HorizonTooLongError",
     "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
     "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted", "watch_sigint",
-    "remember_sigint", "check_interrupt", "is_interrupt", "INTERRUPT_LIKE", "interrupt_delivered", "JugglingInfeasible",
+    "remember_sigint", "check_interrupt", "is_interrupt", "INTERRUPT_LIKE",
+    "JugglingInfeasible", "OptionError", "BoundsError", "InfeasibleBoundsError",
 ]

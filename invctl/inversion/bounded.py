@@ -1,0 +1,531 @@
+"""Bounded inversion: exact tracking when the exact inverse respects the bounds, least-squares
+tracking with the servo constraint relaxed when it does not (:mod:`invctl.inversion.ocp`).
+
+1. The exact (square) inverse is computed on the horizon of the automatic setup and checked
+   against the bounds at every point where the bounded problem imposes them.  If it satisfies
+   them, it *is* the answer (``diagnostics["tracking"]["exact"]``; the margins are reported).
+2. Otherwise the relaxed problem is solved from it (IPOPT): the inputs are free, the output
+   error is minimized in the least-squares sense with the user's :class:`Objective` weights.
+   A pre-/post-actuation bound shorter than the setup needs makes the inverse start/end at
+   rest at the shortened ``T0``/``Tf`` (every entry of ``X`` fixed to the equilibrium).
+3. The report (``diagnostics["bounds"]``) lists every active bound, the time intervals where it
+   is active, the exact inverse's excursion beyond it, and the sensitivity of the optimal
+   objective to relaxing it (the sum of its multipliers); ``diagnostics["tracking"]`` holds
+   the output error all bounds together cost (largest, RMS, per output).
+4. If IPOPT finds the bounds infeasible, the elastic problem (every bound relaxed by a
+   nonnegative amount, the scaled sum minimized) gives the closest feasible relaxation, and
+   :class:`~invctl.errors.InfeasibleBoundsError` reports it.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import (InfeasibleBoundsError, InversionFailed, OptionError, RunInterrupted, WallTimeLimitError,
+                      watch_sigint)
+from .backends import _TIME_LIMIT, IPOPT_DEFAULTS
+from .cache import ocp_transcription, servo_model
+from .ocp import slack_scale
+from .options import Objective, Options
+from .problem import prepare, resolve_plan
+
+#: IPOPT options of the bounded problems (measured on the manipulator with an active input bound,
+#: HS N = 100: 13 Gauss-Newton iterations with the adaptive barrier update against 27 monotone)
+IPOPT_BOUNDED_DEFAULTS = {"ipopt.mu_strategy": "adaptive"}
+#: distance (relative to max(1, |bound|)) within which a bound counts as active
+ACTIVE_TOL = 1e-6
+#: weight of the least-squares tracking in the elastic problem (relaxations weigh 1/|bound|): small,
+#: so that the smallest relaxation wins, large enough to keep the Gauss-Newton steps regular
+ELASTIC_EPS = 1e-3
+#: statuses meaning "IPOPT believes the constraints cannot be satisfied"
+INFEASIBLE = ("Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeasibility",
+              "Not_Enough_Degrees_Of_Freedom")
+
+
+def constraint_points(inv, servo, reference, theta):
+    """States and rates of an (exact) inverse where the bounded problem imposes its bounds:
+    ``(t_states, X, t_rates, U')`` (mesh and collocation points / midpoints; rates where
+    ``F`` is evaluated)."""
+    tm = inv.t_mesh
+    ub = servo.layout.blocks["u"]
+    if inv._scheme.is_hs:
+        tmid = 0.5 * (tm[:-1] + tm[1:])
+        Xm = inv.X(tmid)  # the Hermite interpolant at the midpoint is the HS midpoint state
+        Fm = np.array(servo.rhs.map(tmid.size)(Xm, servo.reference_samples(reference, tmid), theta))
+        return (np.concatenate([tm, tmid]), np.hstack([inv.X_mesh, Xm]), np.concatenate([tm, tmid]),
+                np.hstack([inv.dX_mesh[ub], Fm[ub]]))
+    tc = (tm[:-1, None] + np.diff(tm)[:, None] * inv._scheme.tau[None, :]).ravel()
+    Fc = np.array(servo.rhs.map(tc.size)(inv.X_col, servo.reference_samples(reference, tc), theta))
+    return np.concatenate([tm, tc]), np.hstack([inv.X_mesh, inv.X_col]), tc, Fc[ub]
+
+
+def _margins(rb, X, rates) -> dict:
+    """Smallest distance of ``X`` / ``rates`` to each bound (negative: violated)."""
+    out = {}
+    for i in rb.bounded:
+        out[rb.labels[i]] = float(min(np.min(rb.hi[i] - X[i]), np.min(X[i] - rb.lo[i])))
+    for j in rb.rated:
+        out[rb.rate_labels[j]] = float(min(np.min(rb.rate_hi[j] - rates[j]), np.min(rates[j] - rb.rate_lo[j])))
+    return out
+
+
+def _intervals(times, spacing):
+    """Merge sorted times into intervals (gaps larger than 1.5 local spacings split)."""
+    times = np.sort(np.asarray(times, float))
+    if times.size == 0:
+        return []
+    out, a, b = [], times[0], times[0]
+    for t in times[1:]:
+        if t - b <= 1.5 * spacing(b):
+            b = t
+        else:
+            out.append([float(a), float(b)])
+            a = b = t
+    out.append([float(a), float(b)])
+    return out
+
+
+def _bound_rows(tr, rb, t_mesh):
+    """Every bounded quantity of the transcription: ``(label, lo, hi, time, source, index)`` with
+    ``source`` "x" (a decision variable) or "g" (a constraint row)."""
+    rows = []
+    nx, N = tr.nx, tr.N
+    tc = tr.collocation_times(t_mesh)
+    if not tr.elastic:
+        for i in rb.bounded:
+            for k in range(N + 1):
+                rows.append((rb.labels[i], rb.lo[i], rb.hi[i], t_mesh[k], "x", k * nx + i))
+            for k in range(tr.n_col):
+                rows.append((rb.labels[i], rb.lo[i], rb.hi[i], tc[k], "x", nx * (N + 1) + k * nx + i))
+    times = tr.row_times(t_mesh)
+    base = tr.n_defect + tr.n_bc
+    for q, (r, t) in enumerate(zip(tr.path_rows, times)):
+        if r.kind == "X":
+            rows.append((rb.labels[r.entry], rb.lo[r.entry], rb.hi[r.entry], t, "g", base + q))
+        else:
+            rows.append((rb.rate_labels[r.entry], rb.rate_lo[r.entry], rb.rate_hi[r.entry], t, "g", base + q))
+    return rows
+
+
+def _limits(tr, rb, tau_range=None):
+    """``lbx, ubx, lbg, ubg`` of a (non-elastic or elastic) bounded transcription."""
+    lbx, ubx = np.full(tr.nX, -np.inf), np.full(tr.nX, np.inf)
+    lbg, ubg = np.zeros(tr.ng), np.zeros(tr.ng)
+    nx, N = tr.nx, tr.N
+    if not tr.elastic:
+        for i in rb.bounded:
+            for start, count in ((i, N + 1), (nx * (N + 1) + i, tr.n_col)):
+                sl = slice(start, start + nx * count, nx)
+                lbx[sl], ubx[sl] = rb.lo[i], rb.hi[i]
+    if tr.free_time:
+        lbx[tr.i_tau], ubx[tr.i_tau] = tau_range
+    if tr.nr:
+        lbx[tr.i_r:], ubx[tr.i_r:] = 0.0, np.inf
+    base = tr.n_defect + tr.n_bc
+    lo = np.array([rb.lo[r.entry] if r.kind == "X" else rb.rate_lo[r.entry] for r in tr.path_rows])
+    hi = np.array([rb.hi[r.entry] if r.kind == "X" else rb.rate_hi[r.entry] for r in tr.path_rows])
+    n = len(tr.path_rows)
+    if tr.elastic:  # first copy: value - r_up <= hi; second: value + r_lo >= lo
+        lbg[base:base + n], ubg[base:base + n] = -np.inf, hi
+        lbg[base + n:base + 2 * n], ubg[base + n:base + 2 * n] = lo, np.inf
+    else:
+        lbg[base:base + n], ubg[base:base + n] = lo, hi
+    return lbx, ubx, lbg, ubg
+
+
+def active_bounds(tr, rb, t_mesh, x, lam_x, lam_g, g, *, exact_margins=None) -> list[dict]:
+    """The active bounds of a solution (module doc, item 3), largest sensitivity first."""
+    spacing_t = np.asarray(t_mesh, float)
+    h = np.diff(spacing_t)
+
+    def spacing(t):
+        k = int(np.clip(np.searchsorted(spacing_t, t) - 1, 0, h.size - 1))
+        return h[k]
+
+    groups: dict = {}
+    for label, lo, hi, t, src, idx in _bound_rows(tr, rb, t_mesh):
+        val = x[idx] if src == "x" else g[idx]
+        lam = lam_x[idx] if src == "x" else lam_g[idx]
+        for side, b in (("lower", lo), ("upper", hi)):
+            if not math.isfinite(b) or abs(val - b) > ACTIVE_TOL * max(1.0, abs(b)):
+                continue
+            e = groups.setdefault((label, side), {"bound": label, "side": side, "value": float(b), "times": [],
+                                                  "sensitivity": 0.0, "peak_multiplier": 0.0})
+            e["times"].append(float(t))
+            e["sensitivity"] += abs(float(lam))
+            e["peak_multiplier"] = max(e["peak_multiplier"], abs(float(lam)))
+    out = []
+    for e in groups.values():
+        e["intervals"] = _intervals(e.pop("times"), spacing)
+        e["points"] = sum(1 for _ in e["intervals"])
+        if exact_margins is not None and e["bound"] in exact_margins:
+            e["exact_inverse_excess"] = max(0.0, -exact_margins[e["bound"]])
+        out.append(e)
+    return sorted(out, key=lambda e: -e["sensitivity"])
+
+
+def output_error(inv, servo, reference, theta, samples_per_interval: int = 8) -> dict:
+    """``e = h(q) - y_ref`` of an inverse on ``[T0, Tf]``: largest per output and overall,
+    RMS over the horizon, and where the largest occurs."""
+    tm = inv.t_mesh
+    s = np.linspace(0.0, 1.0, samples_per_interval, endpoint=False)
+    t = np.concatenate([(tm[:-1, None] + np.diff(tm)[:, None] * s[None, :]).ravel(), [tm[-1]]])
+    X = inv.X(t)
+    e = np.array(servo.output.map(t.size)(X, servo.reference_samples(reference, t), theta)) - reference(t)
+    ea = np.abs(e)
+    k = int(np.argmax(np.max(ea, axis=0)))
+    rms = np.sqrt(np.trapezoid(e * e, t, axis=1) / (t[-1] - t[0]))
+    names = list(servo.model.y_names)
+    return {"max": float(ea.max()), "t_max": float(t[k]), "rms": float(np.sqrt(np.mean(rms ** 2))),
+            "by_output": {nm: {"max": float(ea[i].max()), "rms": float(rms[i])} for i, nm in enumerate(names)}}
+
+
+def solve_scaled(tr, slv, x0, params, limits, *, hessian: str, scale: float = 1e3):
+    """Solve with the objective scaled by ``scale``; when the optimal scaled objective is below
+    1e-2 (tiny output errors), solve again warm-started with the objective scaled to 1, so that
+    the multipliers are large against IPOPT's final barrier parameter and active bounds are
+    met to ~1e-9 instead of ~1e-5 (measured on the manipulator, u2 <= 8).
+
+    Returns ``(solution, stats, scale)``; ``stats["iterations"]`` counts both solves."""
+    lbx, ubx, lbg, ubg = limits
+    opts = _ipopt_options(slv)
+    if slv.progress:
+        opts["iteration_callback"] = _progress(tr)
+    solver = tr.ipopt(opts, hessian=hessian)
+    with watch_sigint() as sigint:  # Ctrl-C inside IPOPT ends as User_Requested_Stop: an interruption
+        sol = solver(x0=x0, p=params(scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    st = dict(solver.stats())
+    _interrupted(sigint, st, tr)
+    st["iterations"] = int(st.get("iter_count", -1))
+    f = float(sol["f"]) / scale
+    inequalities = bool(tr.bounded or tr.rated)  # without them there is nothing to sharpen
+    if (inequalities and st.get("success") and 0 < f * scale < 1e-2
+            and "ipopt.obj_scaling_factor" not in (slv.ipopt_options or {})):
+        s2 = min(1.0 / f, 1e9)
+        warm = dict(opts, **{"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
+                             "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.mu_init": 1e-9,
+                             "ipopt.max_iter": min(int(opts["ipopt.max_iter"]), 50)})
+        solver2 = tr.ipopt(warm, hessian=hessian)
+        k = s2 / scale
+        with watch_sigint() as sigint:
+            sol2 = solver2(x0=sol["x"], lam_x0=sol["lam_x"] * k, lam_g0=sol["lam_g"] * k, p=params(s2), lbx=lbx,
+                           ubx=ubx, lbg=lbg, ubg=ubg)
+        st2 = dict(solver2.stats())
+        _interrupted(sigint, st2, tr)
+        if st2.get("success"):
+            st2["iterations"] = st["iterations"] + int(st2.get("iter_count", 0))
+            return sol2, st2, s2
+    return sol, st, scale
+
+
+def _interrupted(sigint, st, tr):
+    if sigint.seen and not st.get("success", False):
+        raise RunInterrupted(f"interrupted during the IPOPT solve of the {'free-time' if tr.free_time else 'bounded'} "
+                             f"problem ({tr.scheme.name} N={tr.N}) after {st.get('iter_count', '?')} iterations",
+                             diagnostics={"status": st.get("return_status", "?"),
+                                          "iterations": int(st.get("iter_count", -1))})
+
+
+def _progress(tr):
+    """IPOPT iteration callback: objective and largest equality violation (defects, boundary rows);
+    one per transcription (restarted per solve), so it never makes a cached solver new."""
+    import sys
+
+    from .backends import _Progress
+
+    label = f"{tr.scheme.name} N={tr.N} {'free time' if tr.free_time else 'bounded'}"
+    cb = getattr(tr, "_progress", None)
+    if cb is not None:
+        cb.restart(label)
+        return cb
+    n_eq = tr.n_defect + tr.n_bc
+
+    class OCPProgress(_Progress):
+        def eval(self, arg):
+            import casadi as ca
+
+            names = ca.nlpsol_out()
+            g = np.array(arg[names.index("g")]).ravel()[:n_eq]
+            f = float(np.array(arg[names.index("f")]).ravel()[0])
+            print(f"  [{self.label}] iter {self.k:3d}  objective {f:.6e}  max|defect| = "
+                  f"{np.max(np.abs(g)) if g.size else 0.0:.3e}  ({time.perf_counter() - self.t:.2f} s)",
+                  file=sys.stderr, flush=True)
+            self.k += 1
+            return [0]
+
+    tr._progress = OCPProgress(tr.nX, tr.ng, tr.np, label)
+    return tr._progress
+
+
+def _hessian(slv, auto: str) -> str:
+    return auto if slv.hessian == "auto" else slv.hessian
+
+
+def _ipopt_options(slv):
+    opts = dict(IPOPT_DEFAULTS)
+    opts.update(IPOPT_BOUNDED_DEFAULTS)
+    opts["ipopt.max_iter"] = int(slv.max_iter)
+    opts["ipopt.max_wall_time"] = float(slv.max_wall_time)
+    opts.update(slv.ipopt_options or {})
+    return opts
+
+
+def _equilibrium_check(setup, rb):
+    """Bounds violated by the entries the boundary conditions fix to the equilibria."""
+    bad = []
+    for side, idx, E, when in (("start", setup.selection.start, setup.E0, "T0"),
+                               ("end", setup.selection.end, setup.Ef, "Tf")):
+        for i in idx:
+            if E[i] > rb.hi[i] + 1e-12 or E[i] < rb.lo[i] - 1e-12:
+                bad.append({"bound": rb.labels[i], "side": "upper" if E[i] > rb.hi[i] else "lower",
+                            "value": float(rb.hi[i] if E[i] > rb.hi[i] else rb.lo[i]), "needed": float(E[i]),
+                            "where": f"{side} equilibrium (fixed at {when})"})
+    return bad
+
+
+def invert_bounded(model, reference, opts: Options, *, warm_start=None):
+    """The bounded inversion (module doc); called by :func:`invctl.inversion.invert` with ``bounds``."""
+    from .solve import make_inverse, residuals, solve_square
+
+    t_all = time.perf_counter()
+    disc, slv, hz = opts.discretization, opts.solver, opts.horizon
+    objective = opts.objective or Objective()
+    if not isinstance(objective, Objective):
+        raise OptionError("invert: bounded inversions need an Objective, not a number")
+    servo = servo_model(model, disc.formulation, disc.omega)
+    rb = opts.bounds.resolve(servo)
+    plan_result = resolve_plan(model, reference, disc, hz)
+    T0p, Tfp = plan_result[0], plan_result[1]
+    T0, Tf = T0p, Tfp
+    rest_start = rb.max_pre_actuation is not None and reference.t0 - T0p > rb.max_pre_actuation + 1e-12
+    rest_end = rb.max_post_actuation is not None and Tfp - reference.tf > rb.max_post_actuation + 1e-12
+    if rest_start:
+        T0 = reference.t0 - rb.max_pre_actuation
+    if rest_end:
+        Tf = reference.tf + rb.max_post_actuation
+    theta = model.theta_values
+    # 1. the exact inverse (on the setup's horizon) and its margins
+    exact, margins, exact_s = None, None, 0.0
+    hz_plan = replace(hz, T0=T0p, Tf=Tfp, start=plan_result[2], end=plan_result[3], plan=plan_result[4],
+                      plan_options=None)
+    from .boundary import _resolve
+
+    square = len(_resolve("start", plan_result[2], servo)) + len(_resolve("end", plan_result[3], servo)) == \
+        servo.layout.nx
+    if square and (warm_start is None or not (rest_start or rest_end)):
+        t0_ = time.perf_counter()
+        exact_opts = replace(opts, horizon=hz_plan, bounds=None, objective=None)
+        if disc.tol is not None:
+            from .refine import refine
+
+            exact = refine(model, reference, exact_opts, warm_start,
+                           lambda o, ws: solve_square(model, reference, o, ws), servo)
+            disc = replace(disc, tol=None, mesh=None, N=exact.N)
+        else:
+            exact = solve_square(model, reference, exact_opts, warm_start)
+        exact_s = time.perf_counter() - t0_
+        _ts, Xs, _tr, Us = constraint_points(exact, servo, reference, theta)
+        margins = _margins(rb, Xs, Us)
+        if not (rest_start or rest_end) and all(v >= -ACTIVE_TOL * max(1.0, _bound_size(rb, k))
+                                                for k, v in margins.items()):
+            exact.diagnostics["bounds"] = {"active": [], "margins": margins, "rest": [False, False],
+                                           "describe": "exact tracking within the bounds (no bound active)"}
+            exact.diagnostics["tracking"] = {"exact": True, "max_output_error": 0.0, "rms_output_error": 0.0}
+            return exact
+    elif disc.tol is not None:
+        raise OptionError("invert: tol (mesh refinement) needs an exact inverse first (a square selection and no "
+                          "warm start with a shortened pre-/post-actuation); give N instead")
+    # 2. the relaxed problem
+    setup = prepare(model, reference, disc, hz, T0=T0, Tf=Tf, rest_start=rest_start, rest_end=rest_end,
+                    plan_result=plan_result, any_count=True)
+    bad = _equilibrium_check(setup, rb)
+    if bad:
+        worst = bad[0]
+        raise InfeasibleBoundsError(
+            f"the bounds exclude the equilibrium the boundary conditions fix: {worst['bound']} = "
+            f"{worst['needed']:.6g} at the {worst['where']} is outside the {worst['side']} bound "
+            f"{worst['value']:.6g}; no trajectory can satisfy them. Relax {worst['bound']} to at least "
+            f"{worst['needed']:.6g} (or change the reference's end points)",
+            diagnostics={"relaxation": {b["bound"] + ":" + b["side"]: {"bound": b["value"], "needed": b["needed"],
+                                                                       "where": b["where"]} for b in bad}})
+    sch, t_mesh, N = setup.scheme, setup.t_mesh, setup.t_mesh.size - 1
+    t_build = time.perf_counter()
+    tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=True, bounded=rb.bounded, rated=rb.rated,
+                           compiled=disc.compiled)
+    build_s = setup.timings["build_s"] + time.perf_counter() - t_build
+    guess = warm_start if warm_start is not None else exact
+    tc = tr.collocation_times(t_mesh)
+    if guess is not None:
+        x0 = tr.pack(guess.X(t_mesh), guess.X(tc) if tc.size else None)
+    else:
+        x0 = tr.pack(setup.initial_guess(t_mesh), setup.initial_guess(tc) if tc.size else None)
+    Y = servo.reference_samples(reference, tr.sample_times(t_mesh))
+    c = slack_scale(servo, reference.tf - reference.t0)
+    lbx, ubx, lbg, ubg = _limits(tr, rb)
+
+    def params(scale):
+        return tr.parameters(t_mesh, Y, theta, setup.E0, setup.Ef, W=objective.output_weights(model),
+                             rho=objective.slack, energy=objective.energy, rate=objective.rate, c=c, scale=scale)
+
+    t_solve = time.perf_counter()
+    hessian = _hessian(slv, "gauss-newton")
+    sol, st, scale = solve_scaled(tr, slv, x0, params, (lbx, ubx, lbg, ubg), hessian=hessian)
+    solve_s = time.perf_counter() - t_solve
+    x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
+    viol = _violation(g, lbg, ubg, x, lbx, ubx)
+    status = st.get("return_status", "?")
+    ok = bool(st.get("success", False)) or (status == "Solved_To_Acceptable_Level" and viol < 1e-8)
+    inv = _inverse(tr, servo, reference, sch, t_mesh, x, Y, theta, c, make_inverse)
+    if not ok and status in _TIME_LIMIT:
+        raise WallTimeLimitError(
+            f"bounded inversion stopped at the wall-time limit of {slv.max_wall_time:g} s after "
+            f"{st['iterations']} iterations ({sch.name} N={N}); raise max_wall_time or use fewer intervals (N); "
+            "the last iterate is in exc.partial", partial=inv, diagnostics={"status": status, "constraint_violation":
+                                                                           viol})
+    if not ok and (status in INFEASIBLE or viol > 1e-6):
+        raise _infeasible(model, reference, servo, setup, rb, sch, t_mesh, Y, theta, c, objective, slv, x0, status,
+                          make_inverse, viol)
+    res = residuals(inv, servo, reference, theta)
+    err = output_error(inv, servo, reference, theta)
+    active = active_bounds(tr, rb, t_mesh, x, np.array(sol["lam_x"]).ravel() / scale,
+                           np.array(sol["lam_g"]).ravel() / scale, g, exact_margins=margins)
+    if rest_start:
+        active.insert(0, {"bound": "max_pre_actuation", "side": "upper", "value": rb.max_pre_actuation,
+                          "intervals": [[T0, T0]], "needed": reference.t0 - T0p,
+                          "describe": f"the inverse starts at rest at T0 = {T0:.6g} (the exact one needs "
+                                      f"{reference.t0 - T0p:.4g} s of pre-actuation)"})
+    if rest_end:
+        active.insert(0, {"bound": "max_post_actuation", "side": "upper", "value": rb.max_post_actuation,
+                          "intervals": [[Tf, Tf]], "needed": Tfp - reference.tf,
+                          "describe": f"the inverse ends at rest at Tf = {Tf:.6g} (the exact one needs "
+                                      f"{Tfp - reference.tf:.4g} s of post-actuation)"})
+    Xm, _Xc, S, _tau, _r = tr.unpack(x)
+    inv.diagnostics.update({
+        "status": status, "iterations": int(st["iterations"]), "success": ok,
+        "max_constraint_violation": viol, "backend": "ipopt", "hessian": hessian, "scheme": sch.name,
+        "N": int(N), "formulation": disc.formulation, "omega": disc.omega, "build_s": build_s, "solve_s": solve_s,
+        "exact_solve_s": exact_s, "guess_s": setup.timings["guess_s"], "unknowns": tr.nX, "equations": tr.ng,
+        "selection": setup.selection.describe(), "T0": T0, "Tf": Tf, "residuals": res, "compiled": False,
+        "plan": None if setup.plan is None else setup.plan.to_dict(), "mesh": setup.mesh_kind,
+        "objective": float(sol["f"]) / scale, "objective_scale": scale,
+        "slack_max": float(np.max(np.abs(S))) if S.size else 0.0,
+        "bounds": {"active": active, "margins": margins, "rest": [bool(rest_start), bool(rest_end)],
+                   "describe": describe_active(active, err)},
+        "tracking": {"exact": False, "max_output_error": err["max"], "t_max_output_error": err["t_max"],
+                     "rms_output_error": err["rms"], "by_output": err["by_output"]},
+        "wall_s": time.perf_counter() - t_all,
+    })
+    if not ok:
+        raise InversionFailed(
+            f"bounded inversion failed (IPOPT: {status} after {inv.diagnostics['iterations']} iterations, max "
+            f"constraint violation {viol:.3g}) on {sch.name} N={N}. Try more iterations (max_iter), a finer mesh, "
+            "a larger slack weight (Objective(slack=...)) or hessian='exact'; the last iterate is in exc.partial",
+            partial=inv, diagnostics=inv.diagnostics)
+    if res["holonomic_mesh"] > slv.residual_tol:
+        raise InversionFailed(
+            f"the bounded solution violates the holonomic constraints g = 0 by {res['holonomic_mesh']:.3g} > "
+            f"residual_tol = {slv.residual_tol:.3g} at the mesh ({sch.name} N={N}); refine the mesh",
+            partial=inv, diagnostics=inv.diagnostics)
+    return inv
+
+
+def _bound_size(rb, label) -> float:
+    labels = list(rb.labels)
+    if label in labels:
+        i = labels.index(label)
+        return max(abs(v) for v in (rb.lo[i], rb.hi[i]) if math.isfinite(v))
+    j = list(rb.rate_labels).index(label)
+    return max(abs(v) for v in (rb.rate_lo[j], rb.rate_hi[j]) if math.isfinite(v))
+
+
+def _violation(g, lbg, ubg, x, lbx, ubx) -> float:
+    v = max(float(np.max(g - ubg, initial=0.0)), float(np.max(lbg - g, initial=0.0)))
+    return max(v, float(np.max(x - ubx, initial=0.0)), float(np.max(lbx - x, initial=0.0)))
+
+
+def _inverse(tr, servo, reference, sch, t_mesh, x, Y, theta, c, make_inverse, tau=None, tau_ref=1.0):
+    """The :class:`Inverse` of a bounded solution (Hermite-Simpson slopes from the relaxed model)."""
+    Xm, Xc, S, _tau, _r = tr.unpack(x)
+    dX = None
+    if sch.is_hs:
+        zeta = np.vstack([Xm, S[:, :Xm.shape[1]]]) if tr.relaxed else Xm
+        dX = tr.point_values(zeta, Y[:, :Xm.shape[1]], theta, c, tau=tau, tau_ref=tau_ref)[:tr.nx]
+    return make_inverse(servo.model, reference, servo, sch, t_mesh, Xm, Xc, theta, dX=dX)
+
+
+def _infeasible(model, reference, servo, setup, rb, sch, t_mesh, Y, theta, c, objective, slv, x_start, status,
+                make_inverse, viol):
+    """:class:`InfeasibleBoundsError` with the closest feasible relaxation (module doc, item 4)."""
+    tr = ocp_transcription(servo, setup.selection, sch, t_mesh.size - 1, relaxed=True, bounded=rb.bounded,
+                           rated=rb.rated, elastic=True)
+    scale = []
+    for kind, i, _side in tr.relax_labels:
+        lo, hi = (rb.lo[i], rb.hi[i]) if kind == "X" else (rb.rate_lo[i], rb.rate_hi[i])
+        scale.append(max([abs(v) for v in (lo, hi) if math.isfinite(v)] + [1e-3]))
+    p = tr.parameters(t_mesh, Y, theta, setup.E0, setup.Ef, W=objective.output_weights(model),
+                      rho=max(objective.slack, 1e-6), energy=objective.energy, rate=objective.rate, c=c,
+                      relax_weights=1.0 / np.array(scale), eps=ELASTIC_EPS)
+    # start where the bounded solve started, with the relaxations its bound rows need
+    x0 = np.concatenate([x_start, np.zeros(tr.nr)])  # the elastic layout extends the bounded one
+    lbx, ubx, lbg, ubg = _limits(tr, rb)
+    g0 = np.array(tr.g_function()(x0, p)).ravel()
+    base, n = tr.n_defect + tr.n_bc, len(tr.path_rows)
+    need_up = g0[base:base + n] - ubg[base:base + n]
+    need_lo = lbg[base + n:base + 2 * n] - g0[base + n:base + 2 * n]
+    index = {lab: k for k, lab in enumerate(tr.relax_labels)}
+    for q, r in enumerate(tr.path_rows):
+        for side, need in (("upper", need_up[q]), ("lower", need_lo[q])):
+            k = tr.i_r + index[(r.kind, r.entry, side)]
+            if np.isfinite(need):
+                x0[k] = max(x0[k], need + 1e-6 * scale[k - tr.i_r])
+    solver = tr.ipopt(_ipopt_options(slv), hessian=_hessian(slv, "gauss-newton"))
+    sol = solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    st = solver.stats()
+    xe = np.array(sol["x"]).ravel()
+    relax = xe[tr.i_r:]
+    found = {}
+    for (kind, i, side), r_, sc in zip(tr.relax_labels, relax, scale):
+        if r_ <= 1e-7 * max(1.0, sc):
+            continue
+        label = rb.labels[i] if kind == "X" else rb.rate_labels[i]
+        b = (rb.hi[i] if side == "upper" else rb.lo[i]) if kind == "X" else (
+            rb.rate_hi[i] if side == "upper" else rb.rate_lo[i])
+        found[f"{label}:{side}"] = {"bound": float(b), "relaxed": float(b + r_ if side == "upper" else b - r_),
+                                    "by": float(r_)}
+    partial = _inverse(tr, servo, reference, sch, t_mesh, xe, Y, theta, c, make_inverse)
+    elastic_ok = bool(st.get("success", False))
+    if found:
+        what = "; ".join(f"{k.split(':')[0]} {k.split(':')[1]} bound {v['bound']:.6g} -> {v['relaxed']:.6g}"
+                         for k, v in sorted(found.items(), key=lambda kv: -kv[1]["by"]))
+        hint = f"the closest feasible relaxation IPOPT found: {what}"
+    else:
+        hint = ("the elastic problem needs no relaxation (IPOPT's infeasibility verdict was local; try the "
+                "relaxed solution in exc.partial as warm_start, more iterations or a finer mesh)")
+    return InfeasibleBoundsError(
+        f"no trajectory satisfies the bounds with the boundary conditions on [{setup.T0:.6g}, {setup.Tf:.6g}] "
+        f"(IPOPT: {status}, constraint violation {viol:.3g}); {hint}"
+        + ("" if elastic_ok else f" (the elastic solve ended with {st.get('return_status')})"),
+        partial=partial, diagnostics={"relaxation": found, "status": status, "elastic_status":
+                                      st.get("return_status"), "constraint_violation": viol})
+
+
+def describe_active(active: list[dict], err: dict) -> str:
+    """One paragraph for reports: what is active where, and the output error it costs."""
+    if not active:
+        return f"no bound active; output error {err['max']:.3g} (max)"
+    parts = []
+    for e in active:
+        if "describe" in e:
+            parts.append(e["describe"])
+            continue
+        iv = ", ".join(f"[{a:.4g}, {b:.4g}]" if b > a else f"{a:.4g}" for a, b in e["intervals"][:4])
+        more = "" if len(e["intervals"]) <= 4 else f" (+{len(e['intervals']) - 4} more)"
+        exc = (f"; the exact inverse exceeds it by {e['exact_inverse_excess']:.3g}"
+               if e.get("exact_inverse_excess") else "")
+        parts.append(f"{e['bound']} {e['side']} bound {e['value']:.6g} active at t = {iv}{more}{exc}; "
+                     f"objective sensitivity {e['sensitivity']:.3g}")
+    return ("; ".join(parts) + f". Output error they cost: max {err['max']:.3g} at t = {err['t_max']:.4g} s, "
+            f"RMS {err['rms']:.3g}")

@@ -1,0 +1,248 @@
+"""Free transition time: the shortest (or a time-energy optimal) duration of a reference whose
+shape is fixed, under bounds, with exact tracking (:mod:`invctl.inversion.ocp`, ``free_time``).
+
+The reference ``y_ref`` on ``[t0, tf]`` defines the shape ``y_ref(t0 + s (tf - t0))``,
+``s in [0, 1]``; a duration ``tau`` gives ``y(t) = shape((t - t0) / tau)`` on ``[t0, t0 + tau]``.
+The pre- and post-actuation of the automatic setup (they depend on the internal dynamics at the
+end equilibria, not on ``tau``) keep their lengths; the mesh intervals of ``[t0, tf]`` scale with
+``tau``.  The problem::
+
+    minimize   tau + w_E int_{T0}^{Tf} |u|^2 dt          (w_E = 0: minimum time)
+    subject to the collocation equations of 003 (35) for y_ref of duration tau,
+               the boundary conditions 003 (36) and the bounds,  duration[0] <= tau <= duration[1]
+
+With exact tracking the states are a function of ``tau`` alone (the square system), so the
+optimum is where a bound becomes active (minimum time) or where the energy saved by a longer
+move balances the time (``w_E > 0``).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import casadi as ca
+import numpy as np
+
+from ..errors import InfeasibleBoundsError, InversionFailed, OptionError, WallTimeLimitError
+from .backends import _TIME_LIMIT
+from .bounded import _inverse, _limits, _violation, active_bounds, constraint_points, solve_scaled
+from .cache import ocp_transcription, servo_model
+from .options import Bounds, from_keywords
+from .problem import prepare, resolve_plan
+
+
+def retime(reference, duration: float):
+    """``reference`` with its transition ``[t0, tf]`` stretched to ``[t0, t0 + duration]`` (same shape)."""
+    from ..reference import Reference
+
+    tau_ref = reference.tf - reference.t0
+    t = reference.t
+    expr = ca.substitute(reference.expr, t, reference.t0 + (t - reference.t0) * (tau_ref / float(duration)))
+    return Reference(t, expr, reference.t0, reference.t0 + float(duration), reference.smoothness, reference.name,
+                     diagnostics={**reference.diagnostics, "retimed_from": [reference.t0, reference.tf]})
+
+
+def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration=None, objective=None,
+                 discretization=None, solver=None, horizon=None, warm_start=None, **keywords):
+    """The minimum-time (``energy = 0``) or time-energy optimal duration of ``reference``'s
+    transition under ``bounds`` (module doc).
+
+    Parameters
+    ----------
+    model, reference : Model, Reference
+        As for :func:`~invctl.inversion.invert`; ``reference`` gives the shape and the initial
+        duration.
+    bounds : Bounds
+        Bounds on ``u``, ``u'``, ``q``, ``v`` (pre-/post-actuation bounds are not used here).
+    energy : float
+        Weight ``w_E`` of the input energy (``int |u|^2 dt`` over the horizon) against the duration.
+    duration : (float, float), optional
+        Range of ``tau``; default ``(0.02, 50) * (tf - t0)``.
+    objective : Objective, optional
+        Relax the servo constraint and add this least-squares objective (output error, slack,
+        energy, rate weights) to ``tau``: the fastest transition that tracks the shape as well as
+        the weights ask.  With ``Objective(output=0, slack=0)`` and a selection fixing ``q``,
+        ``v`` (and ``u``) at both ends it is the classical free-input minimum-time problem
+        between the reference's end equilibria.
+    discretization, solver, horizon, **keywords
+        As for :func:`~invctl.inversion.invert` (the horizon's ``T0``/``Tf`` fix the pre- and
+        post-actuation lengths for the reference's duration).
+
+    Returns
+    -------
+    Inverse
+        The exact inverse of the retimed reference (``inv.y_ref`` is the retimed reference);
+        ``diagnostics["free_time"]`` holds the optimal ``duration``, the ``energy``, the
+        objective and the active bounds.
+
+    Raises
+    ------
+    InfeasibleBoundsError
+        No duration in the range satisfies the bounds (e.g. the equilibria violate them).
+    InversionFailed
+        IPOPT did not converge (the last iterate in ``exc.partial``).
+    """
+    t_all = time.perf_counter()
+    opts = from_keywords("minimum_time", discretization=discretization, solver=solver, horizon=horizon,
+                         bounds=bounds, objective=objective, **keywords)
+    objective = opts.objective
+    if opts.bounds is None and not energy > 0:
+        raise OptionError("minimum_time: give bounds (minimum time under bounds) and/or energy > 0 (time-energy "
+                          "trade); without either the shortest duration is zero")
+    if not (np.isfinite(energy) and energy >= 0):
+        raise OptionError(f"minimum_time: energy must be a nonnegative weight, got {energy!r}")
+    bnd = opts.bounds or Bounds()
+    if bnd.max_pre_actuation is not None or bnd.max_post_actuation is not None:
+        raise OptionError("minimum_time: pre-/post-actuation bounds are not supported with a free duration; fix "
+                          "T0/Tf through horizon=Horizon(T0=..., Tf=...) instead")
+    disc, slv = opts.discretization, opts.solver
+    if disc.tol is not None:
+        raise OptionError("minimum_time: tol (mesh refinement) is not supported; give N (and check the result "
+                          "with forward_check on inv.y_ref)")
+    tau_ref = reference.tf - reference.t0
+    lo, hi = (0.02 * tau_ref, 50.0 * tau_ref) if duration is None else (float(duration[0]), float(duration[1]))
+    if not 0 < lo < hi:
+        raise OptionError(f"minimum_time: duration must be (lower, upper) with 0 < lower < upper, got {duration!r}")
+    servo = servo_model(model, disc.formulation, disc.omega)
+    rb = bnd.resolve(servo)
+    plan_result = resolve_plan(model, reference, disc, opts.horizon)
+    relaxed = objective is not None
+    setup = prepare(model, reference, disc, opts.horizon, plan_result=plan_result, any_count=relaxed)
+    from .solve import make_inverse, solve_square
+
+    t_mesh = setup.t_mesh
+    inside = (t_mesh[:-1] >= reference.t0 - 1e-12) & (t_mesh[1:] <= reference.tf + 1e-12)
+    covered = np.sum(np.diff(t_mesh)[inside])
+    if abs(covered - tau_ref) > 1e-9 * max(1.0, tau_ref):
+        raise OptionError("minimum_time: the mesh must have t0 and tf as mesh points (the default meshes do)")
+    mask = inside.astype(float)
+    theta = model.theta_values
+    # the exact inverse at the reference's duration: the initial guess
+    hz = replace(opts.horizon, T0=setup.T0, Tf=setup.Tf, start=plan_result[2], end=plan_result[3],
+                 plan=plan_result[4], plan_options=None)
+    square = len(setup.selection.start) + len(setup.selection.end) == servo.layout.nx
+    if warm_start is None and square:
+        guess = solve_square(model, reference, replace(opts, horizon=hz, bounds=None, objective=None), setup=setup)
+    else:
+        guess = None
+    sch, N = setup.scheme, t_mesh.size - 1
+    tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True, bounded=rb.bounded,
+                           rated=rb.rated, compiled=disc.compiled)
+    tc = tr.collocation_times(t_mesh)
+    tau0 = float(np.clip(tau_ref if warm_start is None else warm_start.tf - warm_start.t0, lo, hi))
+    if guess is not None and warm_start is None and not relaxed:
+        # start where the exact inverse nearly respects the input and rate bounds (they scale like
+        # tau^-2 and tau^-3 for a fixed shape): from a duration the bounds cut deeply into, IPOPT's
+        # first steps can leave towards very short moves, where the non-minimum-phase inverse explodes
+        tau_s = _feasible_duration(guess, servo, reference, theta, rb, tau_ref)
+        tau_s = float(np.clip(tau_s, lo, hi))
+        if tau_s > tau0 * (1 + 1e-9):
+            mesh_s = tr.retimed_mesh(t_mesh, mask, tau_ref, tau_s)
+            try:
+                guess = solve_square(model, retime(reference, tau_s), replace(
+                    opts, horizon=replace(hz, T0=float(mesh_s[0]), Tf=float(mesh_s[-1]), plan=None),
+                    discretization=replace(disc, mesh=mesh_s), bounds=None, objective=None))
+                warm_start, tau0 = guess, tau_s
+            except InversionFailed:
+                pass  # keep the reference's duration as the start
+    if warm_start is not None:  # a solution for another duration: sample it at the same shape positions
+        ws_mesh = tr.retimed_mesh(t_mesh, mask, tau_ref, tau0)
+        x0 = tr.pack(warm_start.X(ws_mesh), warm_start.X(tr.collocation_times(ws_mesh)) if tc.size else None,
+                     tau=tau0)
+    elif guess is not None:
+        x0 = tr.pack(guess.X(t_mesh), guess.X(tc) if tc.size else None, tau=tau0)
+    else:
+        x0 = tr.pack(setup.initial_guess(t_mesh), setup.initial_guess(tc) if tc.size else None, tau=tau0)
+    Y = servo.reference_samples(reference, tr.sample_times(t_mesh))
+    lbx, ubx, lbg, ubg = _limits(tr, rb, (lo, hi))
+
+    from .ocp import slack_scale
+
+    c = slack_scale(servo, tau_ref)
+    ow = objective.output_weights(model) if relaxed else 0.0
+    rho, e_w, r_w = (objective.slack, objective.energy + energy, objective.rate) if relaxed else (0.0, energy, 0.0)
+
+    def params(scale):
+        return tr.parameters(t_mesh, Y, theta, setup.E0, setup.Ef, W=ow, rho=rho, energy=e_w, rate=r_w,
+                             time_weight=1.0, c=c, mask=mask, tau_ref=tau_ref, scale=scale)
+
+    t_solve = time.perf_counter()
+    hessian = "exact" if slv.hessian == "auto" else slv.hessian
+    sol, st, scale = solve_scaled(tr, slv, x0, params, (lbx, ubx, lbg, ubg), hessian=hessian, scale=1.0)
+    solve_s = time.perf_counter() - t_solve
+    x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
+    viol = _violation(g, lbg, ubg, x, lbx, ubx)
+    status = st.get("return_status", "?")
+    ok = bool(st.get("success", False)) or (status == "Solved_To_Acceptable_Level" and viol < 1e-8)
+    tau = float(x[tr.i_tau])
+    ref_opt = retime(reference, tau)
+    mesh_opt = tr.retimed_mesh(t_mesh, mask, tau_ref, tau)
+    Yopt = servo.reference_samples(ref_opt, tr.sample_times(mesh_opt))
+    inv = _inverse(tr, servo, ref_opt, sch, mesh_opt, x, Yopt, theta, c, make_inverse)
+    # energy by the scheme's quadrature (the objective's own), and the active bounds at the optimum
+    w_unit = tr.parameters(mesh_opt, Yopt, theta, setup.E0, setup.Ef, W=0.0, energy=1.0, time_weight=0.0,
+                           mask=np.zeros(N), tau_ref=tau)
+    E = float(np.sum(np.array(tr.residual(x, w_unit)) ** 2))
+    active = active_bounds(tr, rb, mesh_opt, x, np.array(sol["lam_x"]).ravel() / scale,
+                           np.array(sol["lam_g"]).ravel() / scale, g)
+    at_limit = [name for name, val, b in (("duration lower", tau, lo), ("duration upper", tau, hi))
+                if abs(val - b) <= 1e-6 * b]
+    from .solve import residuals
+
+    res = residuals(inv, servo, ref_opt, theta)
+    _ts, Xs, _tr, Us = constraint_points(inv, servo, ref_opt, theta)
+    inv.diagnostics.update({
+        "status": status, "iterations": int(st["iterations"]), "success": ok, "max_constraint_violation": viol,
+        "backend": "ipopt", "hessian": hessian, "scheme": sch.name, "N": int(N), "relaxed": relaxed,
+        "formulation": disc.formulation, "omega": disc.omega, "build_s": setup.timings["build_s"] + tr.build_s,
+        "solve_s": solve_s, "guess_s": setup.timings["guess_s"], "unknowns": tr.nX, "equations": tr.ng,
+        "selection": setup.selection.describe(), "T0": inv.T0, "Tf": inv.Tf, "residuals": res,
+        "plan": None if setup.plan is None else setup.plan.to_dict(), "mesh": setup.mesh_kind,
+        "free_time": {"duration": tau, "reference_duration": tau_ref, "t0": reference.t0, "tf": reference.t0 + tau,
+                      "energy": E, "energy_weight": float(energy), "objective": tau + energy * E,
+                      "duration_range": [lo, hi], "at_duration_limit": at_limit, "active": active,
+                      "bound_violation": max([0.0] + [v for v in rb.violations(Xs, Us).values()])},
+        "wall_s": time.perf_counter() - t_all,
+    })
+    key = "holonomic_mesh" if relaxed else "position_mesh"
+    if ok and res[key] > slv.residual_tol:
+        raise InversionFailed(
+            f"minimum_time: the solution violates the position-level constraints by {res[key]:.3g} > residual_tol "
+            f"= {slv.residual_tol:.3g} at the mesh ({sch.name} N={N}); refine the mesh", partial=inv,
+            diagnostics=inv.diagnostics)
+    if not ok and status in _TIME_LIMIT:
+        raise WallTimeLimitError(
+            f"minimum_time stopped at the wall-time limit of {slv.max_wall_time:g} s after "
+            f"{inv.diagnostics['iterations']} iterations ({sch.name} N={N}); raise max_wall_time or use fewer "
+            "intervals (N); the last iterate is in exc.partial", partial=inv, diagnostics=inv.diagnostics)
+    if not ok:
+        if status in ("Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeasibility"):
+            raise InfeasibleBoundsError(
+                f"minimum_time: no duration in [{lo:.4g}, {hi:.4g}] s lets the exact inverse satisfy the bounds "
+                f"(IPOPT: {status}, constraint violation {viol:.3g}); widen the duration range or relax the bounds "
+                "(invert with bounds= gives the least-squares compromise and the closest feasible relaxation)",
+                partial=inv, diagnostics=inv.diagnostics)
+        raise InversionFailed(
+            f"minimum_time failed (IPOPT: {status} after {inv.diagnostics['iterations']} iterations, constraint "
+            f"violation {viol:.3g}); try more iterations (max_iter), another initial duration (a reference of a "
+            "feasible duration) or hessian='exact'; the last iterate is in exc.partial", partial=inv,
+            diagnostics=inv.diagnostics)
+    return inv
+
+
+def _feasible_duration(inv, servo, reference, theta, rb, tau_ref) -> float:
+    """A duration at which the exact inverse of the shape about meets the input (``tau^-2``) and rate
+    (``tau^-3``) bounds, estimated from the inverse ``inv`` of duration ``tau_ref``, 5 % longer."""
+    _ts, X, _tr, U = constraint_points(inv, servo, reference, theta)
+    ub = servo.layout.blocks["u"]
+    factor = 1.0
+    for i in rb.bounded:
+        if ub.start <= i < ub.stop:
+            need = max(np.max(X[i]) / rb.hi[i] if rb.hi[i] > 0 else 0.0,
+                       np.min(X[i]) / rb.lo[i] if rb.lo[i] < 0 else 0.0)
+            factor = max(factor, need ** 0.5)
+    for j in rb.rated:
+        need = max(np.max(U[j]) / rb.rate_hi[j] if rb.rate_hi[j] > 0 else 0.0,
+                   np.min(U[j]) / rb.rate_lo[j] if rb.rate_lo[j] < 0 else 0.0)
+        factor = max(factor, need ** (1 / 3))
+    return tau_ref * factor * (1.05 if factor > 1 else 1.0)

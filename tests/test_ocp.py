@@ -1,0 +1,389 @@
+"""Bounded inversion, free transition time and the option objects (invctl.inversion.ocp, bounded,
+mintime, options), checked against closed forms, square inversions and finite differences."""
+import math
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import problems.cartpole as cp
+import problems.manipulator as mn
+from invctl.errors import BoundsError, InfeasibleBoundsError, OptionError
+from invctl.inversion import (Bounds, Discretization, Horizon, Objective, SolverOptions, forward_check, invert,
+                              resolve_selection, servo_model)
+from invctl.inversion.bounded import _limits, constraint_points
+from invctl.inversion.cache import ocp_transcription
+from invctl.inversion.collocation import get_scheme
+from invctl.inversion.mintime import minimum_time, retime
+from invctl.model import Model, ParamSet
+from invctl.reference import rest_to_rest
+
+REST = {"q": "all", "v": "all"}  # rest-to-rest: position and velocity fixed, the input free at the ends
+FULL = {"q": "all", "v": "all", "u": "all"}  # ... and the input at rest too (continuous through the ends)
+
+
+def double_integrator():
+    P = ParamSet(["mass"])
+    q, v = ca.SX.sym("q"), ca.SX.sym("v")
+    return Model("double_integrator", q, v, P, {"mass": 1.0}, M=P["mass"], f=0, B=1, h=q, q_names=["x"],
+                 u_names=["u"], y_names=["x"])
+
+
+@pytest.fixture(scope="module")
+def dint():
+    return double_integrator()
+
+
+@pytest.fixture(scope="module")
+def manip():
+    md = mn.build()
+    return md, mn.reference(md), mn.initial_configuration(md)
+
+
+@pytest.fixture(scope="module")
+def manip_exact(manip):
+    md, ref, q0 = manip
+    return invert(md, ref, q_guess=q0, N=100)
+
+
+# ----------------------------------------------------------------------------- closed forms
+@pytest.mark.parametrize("N", [8, 16])
+def test_double_integrator_minimum_energy_with_input_bound(dint, N):
+    # min int u^2 from rest at 0 to rest at D in T = 1, |u| <= U: u = U up to t1, linear to -U at
+    # T - t1, -U after, with D = U T^2/4 - U a^2/3 (a = T/2 - t1) and int u^2 = 2 U^2 (t1 + a/3).
+    # D = 11 U/48 puts t1 = T/4 on a mesh point; then u (piecewise linear), v, x (cubic) are
+    # polynomials Legendre-3 collocation reproduces exactly, so the optimum is met to IPOPT's
+    # tolerance (1e-10; measured 5e-11 in the objective, 6e-10 in u)
+    U, T = 1.0, 1.0
+    D = 11 * U / 48
+    inv = invert(dint, rest_to_rest(0.0, D, 0.0, T), bounds=Bounds(u=U),
+                 objective=Objective(output=0.0, slack=0.0, energy=1.0), T0=0.0, Tf=T, start=REST, end=REST, N=N,
+                 scheme="legendre3")
+    d = inv.diagnostics
+    assert d["objective"] == pytest.approx(2 * U**2 * (0.25 + 0.25 / 3), rel=1e-8)
+    t = np.linspace(0.0, T, 801)
+    assert np.max(np.abs(inv.u(t)[0] - np.clip(U * (0.5 - t) / 0.25, -U, U))) < 1e-8
+    upper = next(a for a in d["bounds"]["active"] if a["side"] == "upper")
+    lower = next(a for a in d["bounds"]["active"] if a["side"] == "lower")
+    assert upper["bound"] == "u[u]" and upper["intervals"][0][0] == 0.0 and upper["intervals"][-1][1] <= 0.25
+    assert lower["intervals"][0][0] >= 0.75 and lower["intervals"][-1][1] == T
+    assert d["tracking"]["exact"] is False
+
+
+def test_double_integrator_minimum_energy_unbounded(dint):
+    # the inactive bound leaves u = 6 D/T^2 (1 - 2 t/T), int u^2 = 12 D^2/T^3 (exact for Legendre-3)
+    D, T = 0.2, 1.0
+    inv = invert(dint, rest_to_rest(0.0, D, 0.0, T), bounds=Bounds(u=10.0),
+                 objective=Objective(output=0.0, slack=0.0, energy=1.0), T0=0.0, Tf=T, start=REST, end=REST, N=6,
+                 scheme="legendre3")
+    t = np.linspace(0.0, T, 401)
+    assert np.max(np.abs(inv.u(t)[0] - 6 * D / T**2 * (1 - 2 * t / T))) < 1e-8
+    assert inv.diagnostics["objective"] == pytest.approx(12 * D**2 / T**3, rel=1e-8)
+    assert inv.diagnostics["bounds"]["active"] == []
+
+
+@pytest.mark.parametrize("N", [8, 16])
+def test_double_integrator_minimum_time_rate_bound_bang_bang(dint, N):
+    # min T from rest to rest (x, v and u = 0 at both ends), |u'| <= R: u' = +R, -R, +R switching at
+    # T/4 and 3T/4, D = R T^3/32. On a uniform mesh with N divisible by 4 the switches are mesh points
+    # and u' is constant per interval, so Legendre-3 is exact: T to IPOPT's tolerance (measured 3e-10)
+    R, D = 5.0, 0.1
+    T = (32 * D / R) ** (1 / 3)
+    inv = minimum_time(dint, rest_to_rest(0.0, D, 0.0, 1.0), bounds=Bounds(u_rate=R),
+                       objective=Objective(output=0.0, slack=0.0), T0=0.0, Tf=1.0, start=FULL, end=FULL, N=N,
+                       scheme="legendre3")
+    ft = inv.diagnostics["free_time"]
+    assert ft["duration"] == pytest.approx(T, rel=1e-8)
+    assert inv.Tf == pytest.approx(T, rel=1e-8)
+    # the switching times: u peaks at +-R T/4 at T/4 and 3T/4
+    assert inv.u(T / 4)[0, 0] == pytest.approx(R * T / 4, rel=1e-7)
+    assert inv.u(3 * T / 4)[0, 0] == pytest.approx(-R * T / 4, rel=1e-7)
+    sides = {a["side"] for a in ft["active"] if a["bound"] == "u_rate[u]"}
+    assert sides == {"lower", "upper"}
+
+
+def test_double_integrator_minimum_time_input_and_rate_bounds(dint):
+    # |u| <= U, |u'| <= R (jerk-limited S-curve without cruise): u' = +R for tj = U/R, u = U for ta,
+    # u' = -R for tj, then mirrored; with ta = tj: T = 6 tj and D = 6 U tj^2. U = 1, tj = 0.2: R = 5,
+    # D = 0.24, T = 1.2; switches at multiples of T/6 are mesh points for N = 12 (exact, as above)
+    inv = minimum_time(dint, rest_to_rest(0.0, 0.24, 0.0, 1.0), bounds=Bounds(u=1.0, u_rate=5.0),
+                       objective=Objective(output=0.0, slack=0.0), T0=0.0, Tf=1.0, start=FULL, end=FULL, N=12,
+                       scheme="legendre3")
+    assert inv.diagnostics["free_time"]["duration"] == pytest.approx(1.2, rel=1e-8)
+    t = np.linspace(0.2, 0.4, 11)
+    assert np.max(np.abs(inv.u(t)[0] - 1.0)) < 1e-8  # the plateau u = U on [tj, 2 tj]
+
+
+def test_time_energy_trade_matches_closed_form(dint):
+    # exact tracking of the C^4 shape x = D S(t/tau): u = D S''/tau^2, int u^2 = D^2 C/tau^3 with
+    # C = int_0^1 S''^2; tau + w D^2 C/tau^3 is smallest at tau = (3 w D^2 C)^(1/4). The discrete
+    # optimum converges at the scheme's order 4 (measured rel. errors 1.4e-7, 8.9e-9, 5.5e-10 at
+    # N = 50, 100, 200)
+    S = np.poly1d([70, -315, 540, -420, 126, 0, 0, 0, 0, 0])  # poly9 smoothstep
+    C = np.polyint(np.polyder(S, 2) ** 2)(1.0)
+    w, D = 0.05, 0.5
+    tau = (3 * w * D**2 * C) ** 0.25
+    errs = []
+    for N in (50, 100):
+        inv = minimum_time(dint, rest_to_rest(0.0, D, 0.0, 1.0), energy=w, N=N)
+        errs.append(abs(inv.diagnostics["free_time"]["duration"] / tau - 1))
+    assert errs[1] < 2e-8 and errs[0] / errs[1] > 10  # order 4: 16 per halving
+    assert inv.diagnostics["free_time"]["energy"] == pytest.approx(D**2 * C / tau**3, rel=1e-7)
+
+
+@pytest.mark.parametrize("N", [16, 32])
+def test_infeasible_bounds_report_the_closest_relaxation(dint, N):
+    # from rest to rest over D = 1/4 in T = 1 needs max |u| >= 4 D/T^2 = 1 (bang-bang); |u| <= 0.5 is
+    # infeasible and the closest relaxation converges to 1 at second order (measured 1 + 5.9e-4,
+    # 1 + 1.5e-4 at N = 16, 32: the switch is smeared over one interval)
+    with pytest.raises(InfeasibleBoundsError, match=r"closest feasible relaxation.*u\[u\]") as exc:
+        invert(dint, rest_to_rest(0.0, 0.25, 0.0, 1.0), bounds=Bounds(u=0.5),
+               objective=Objective(output=0.0, slack=0.0, energy=1.0), T0=0.0, Tf=1.0, start=REST, end=REST, N=N,
+               scheme="legendre3")
+    relax = exc.value.diagnostics["relaxation"]
+    bound = 1.0 + 0.16 / N**2  # 1 + c h^2 with c measured 0.15
+    assert 1.0 < relax["u[u]:upper"]["relaxed"] <= bound and -bound <= relax["u[u]:lower"]["relaxed"] < -1.0
+    assert exc.value.partial is not None
+
+
+def test_equilibrium_outside_bounds_is_infeasible(manip):
+    md, ref, q0 = manip
+    # alpha = beta = asin(0.6) = 0.6435 at the start (fixed at T0 by the selection): alpha <= 0.6 excludes it
+    with pytest.raises(InfeasibleBoundsError, match=r"q\[alpha\] = 0.643501 at the start equilibrium") as exc:
+        invert(md, ref, q_guess=q0, N=40, bounds=Bounds(q={"alpha": (0.0, 0.6)}, u=9.0))
+    assert exc.value.diagnostics["relaxation"]["q[alpha]:upper"]["needed"] == pytest.approx(math.asin(0.6), abs=1e-9)
+
+
+# ----------------------------------------------------------------------------- exact vs constrained solver
+def test_constrained_solver_without_active_bounds_equals_square_inverse(manip, manip_exact):
+    # the OCP transcription with the servo constraint kept (exact mode), every input and rate bounded
+    # far from the exact inverse, solved by IPOPT (structured exact Hessian) from the quasi-static
+    # guess: its feasible set is the square system's solution, so it must reproduce the square
+    # (Newton-independent IPOPT) inverse to the solver tolerance; <= 1e-8 as required
+    md, ref, q0 = manip
+    a = manip_exact
+    sv = servo_model(md)
+    plan = a.diagnostics["plan"]
+    sel = resolve_selection(sv, plan["start"], plan["end"])
+    rb = Bounds(u=100.0, u_rate=1e4, q={"gamma": 1.0}).resolve(sv)
+    tr = ocp_transcription(sv, sel, get_scheme("hermite-simpson"), a.N, relaxed=False, bounded=rb.bounded,
+                           rated=rb.rated)
+    from invctl.inversion.bounded import IPOPT_BOUNDED_DEFAULTS
+    from invctl.inversion.backends import IPOPT_DEFAULTS
+    from invctl.inversion.problem import prepare
+
+    setup = prepare(md, ref, Discretization(N=a.N), Horizon(q_guess=q0))
+    Y = sv.reference_samples(ref, tr.sample_times(a.t_mesh))
+    p = tr.parameters(a.t_mesh, Y, md.theta_values, setup.E0, setup.Ef, W=0.0)
+    solver = tr.ipopt({**IPOPT_DEFAULTS, **IPOPT_BOUNDED_DEFAULTS}, hessian="exact")
+    lbx, ubx, lbg, ubg = _limits(tr, rb)
+    sol = solver(x0=tr.pack(setup.initial_guess(a.t_mesh)), p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    assert solver.stats()["success"]
+    Xm = tr.unpack(sol["x"])[0]
+    assert np.max(np.abs(Xm - a.X_mesh)) <= 1e-8
+
+
+def test_inactive_bounds_return_the_exact_inverse(manip, manip_exact):
+    md, ref, q0 = manip
+    b = invert(md, ref, q_guess=q0, N=100, bounds=Bounds(u=50.0, q={"gamma": (-0.5, 0.5)}, max_pre_actuation=5.0))
+    assert np.max(np.abs(b.X_mesh - manip_exact.X_mesh)) <= 1e-8
+    d = b.diagnostics
+    assert d["tracking"]["exact"] is True and d["bounds"]["active"] == []
+    # margins measured on the exact inverse: |u2| peaks at 9.7 (50 - 9.7), gamma at 0.141
+    assert d["bounds"]["margins"]["u[u2]"] == pytest.approx(50 - np.max(np.abs(manip_exact.X_mesh[-1])), abs=0.5)
+    assert 0.35 < d["bounds"]["margins"]["q[gamma]"] < 0.37
+
+
+@pytest.fixture(scope="module")
+def manip_u2(manip):
+    md, ref, q0 = manip
+    return invert(md, ref, q_guess=q0, N=100, bounds=Bounds(u={"u2": 8.0}))
+
+
+def test_active_input_bound_on_the_manipulator(manip, manip_exact, manip_u2):
+    md, ref, q0 = manip
+    inv = manip_u2
+    d = inv.diagnostics
+    sv = servo_model(md)
+    _ts, X, _tr, _U = constraint_points(inv, sv, ref, md.theta_values)
+    u2 = X[sv.layout.blocks["u"]][1]
+    assert np.max(np.abs(u2)) <= 8.0 + 1e-7  # IPOPT's bound_relax_factor 1e-8 relative
+    active = {(a["bound"], a["side"]): a for a in d["bounds"]["active"]}
+    assert set(active) == {("u[u2]", "lower"), ("u[u2]", "upper")}
+    # where the exact inverse exceeds the bound, and by how much (its |u2| peaks at 9.72)
+    t = np.linspace(inv.T0, inv.Tf, 4001)
+    ue = manip_exact.u(t)[1]
+    for (name, side), a in active.items():
+        for lo, hi in a["intervals"]:
+            sel = (t >= lo - 0.02) & (t <= hi + 0.02)
+            assert np.max(np.abs(ue[sel])) > 8.0  # active only where the exact inverse needs more
+        assert a["exact_inverse_excess"] == pytest.approx(np.max(np.abs(ue)) - 8.0, abs=0.02)
+    assert d["tracking"]["exact"] is False and 1e-3 < d["tracking"]["max_output_error"] < 1e-2
+
+
+def test_bounded_output_error_matches_forward_simulation(manip, manip_u2):
+    # independent of the collocation: the model simulated under the bounded feedforward (CVODES)
+    # reproduces the output the OCP predicts, h(q(t)), to the discretization error (measured
+    # 2.3e-7 at HS N = 100), and so the reported output error (measured 4.16369e-3 sampled vs
+    # 4.16377e-3 simulated)
+    md, ref, q0 = manip
+    inv = manip_u2
+    sv = servo_model(md)
+
+    class Predicted:
+        t0, tf = ref.t0, ref.tf
+
+        def __call__(self, t):
+            t = np.atleast_1d(t)
+            return np.array(sv.output.map(t.size)(inv.X(t), np.zeros((4 * md.m, t.size)), md.theta_values))
+
+    assert forward_check(md, inv, Predicted())["error"] < 1e-6
+    fc = forward_check(md, inv, ref)
+    assert fc["error"] == pytest.approx(inv.diagnostics["tracking"]["max_output_error"], rel=1e-3)
+
+
+def test_gauss_newton_and_exact_hessians_reach_the_same_optimum(manip, manip_u2):
+    md, ref, q0 = manip
+    b = invert(md, ref, q_guess=q0, N=100, bounds=Bounds(u={"u2": 8.0}), hessian="exact")
+    assert b.diagnostics["hessian"] == "exact" and manip_u2.diagnostics["hessian"] == "gauss-newton"
+    # both converge to IPOPT's tolerance on the same (locally unique) optimum
+    assert b.diagnostics["objective"] == pytest.approx(manip_u2.diagnostics["objective"], rel=1e-6)
+    assert np.max(np.abs(b.X_mesh - manip_u2.X_mesh)) < 1e-5 * np.max(np.abs(b.X_mesh))
+
+
+def test_pre_actuation_bound_costs_error_at_the_unstable_rate(manip):
+    # the inverse must start at rest at T0 = t0 - pre; the exact one leaves the start equilibrium along
+    # the unstable internal mode (rate 24.4/s, plan), whose neglected part ~exp(-rate pre) is what the
+    # output error must absorb: between pre = 0.2 and 0.3 the error falls by exp(0.1 rate) = 11.5
+    # (measured 11.9; within 25 %)
+    md, ref, q0 = manip
+    errs = {}
+    for pre in (0.2, 0.3):
+        inv = invert(md, ref, q_guess=q0, N=120, bounds=Bounds(max_pre_actuation=pre))
+        assert inv.T0 == pytest.approx(ref.t0 - pre)
+        plan = inv.diagnostics["plan"]
+        np.testing.assert_allclose(inv.X(inv.T0)[:, 0], inv.X(inv.T0 - 1.0)[:, 0])  # held before T0
+        assert np.max(np.abs(inv.v(inv.T0))) < 1e-9  # at rest
+        assert inv.diagnostics["bounds"]["active"][0]["bound"] == "max_pre_actuation"
+        errs[pre] = inv.diagnostics["tracking"]["max_output_error"]
+        rate = plan["rate_pre"]
+    ratio = errs[0.2] / errs[0.3]
+    assert abs(ratio / math.exp(0.1 * rate) - 1) < 0.25
+
+
+# ----------------------------------------------------------------------------- free transition time
+def test_minimum_time_cartpole_matches_square_inversions(manip):
+    # |F| <= 1 N on the non-minimum-phase cart-pole (exact inverse peaks at 1.32 N for 2 s): the
+    # optimal duration is where the square inverse of the retimed reference first touches the
+    # bound; checked by square solves of the retimed reference on the same mesh (an independent
+    # solver path): equal states (1e-8), |F| = 1 at the optimum, violated 1e-4 shorter
+    md = cp.build()
+    ref = cp.reference(md)
+    inv = minimum_time(md, ref, bounds=Bounds(u=1.0), N=100)
+    ft = inv.diagnostics["free_time"]
+    tau = ft["duration"]
+    assert 2.0 < tau < 3.0 and ft["active"]
+    plan = inv.diagnostics["plan"]
+
+    sq = invert(md, retime(ref, tau), mesh=inv.t_mesh, T0=inv.T0, Tf=inv.Tf, start=plan["start"], end=plan["end"],
+                backend="newton")
+    assert np.max(np.abs(sq.X_mesh - inv.X_mesh)) < 1e-8
+    sv = servo_model(md)
+    peak = np.max(np.abs(constraint_points(sq, sv, sq.y_ref_fn, md.theta_values)[1][sv.layout.blocks["u"]]))
+    assert peak == pytest.approx(1.0, abs=1e-8)
+    # 0.1 % shorter: the peak grows like 1/tau^2 (+0.2 %), beyond the bound
+    shorter = invert(md, retime(ref, tau * (1 - 1e-3)), N=100, T0=inv.T0, Tf=inv.Tf, start=plan["start"],
+                     end=plan["end"], backend="newton")
+    assert np.max(np.abs(shorter.u(np.linspace(shorter.T0, shorter.Tf, 20001)))) > 1.001
+
+
+def test_minimum_time_manipulator_reports_the_active_constraint(manip):
+    md, ref, q0 = manip
+    inv = minimum_time(md, ref, bounds=Bounds(q={"gamma": 0.1}), q_guess=q0, N=80)
+    ft = inv.diagnostics["free_time"]
+    assert ft["duration"] > 1.0  # the reference's 1 s swings gamma to 0.141 > 0.1
+    assert [a["bound"] for a in ft["active"]] == ["q[gamma]"]
+    assert ft["bound_violation"] <= 1e-8
+    assert inv.y_ref_fn.tf == pytest.approx(ref.t0 + ft["duration"])
+
+
+# ----------------------------------------------------------------------------- derivatives
+@pytest.mark.parametrize("scheme,relaxed,free_time,elastic", [
+    ("hermite-simpson", True, False, False), ("legendre2", True, True, False), ("hermite-simpson", False, True, False),
+    ("radau2", True, False, True),
+])
+def test_assembled_derivatives_match_automatic_differentiation(scheme, relaxed, free_time, elastic):
+    # the custom Jacobian and the structured exact Hessian against CasADi's AD of the plain graph,
+    # at a random point (relative 1e-12: rounding of ~1e10-sized entries)
+    md = mn.build()
+    sv = servo_model(md)
+    sel = resolve_selection(sv, mn.BOUNDARY["start"], mn.BOUNDARY["end"])
+    ub = sv.layout.blocks["u"]
+    tr = ocp_transcription(sv, sel, get_scheme(scheme), 3, relaxed=relaxed, free_time=free_time,
+                           bounded=(3,) + tuple(range(ub.start, ub.stop)), rated=(0, 1), elastic=elastic)
+    rng = np.random.default_rng(1)
+    x = 0.3 * rng.random(tr.nX)
+    if free_time:
+        x[tr.i_tau] = 1.2
+    p = tr.parameters(np.linspace(0, 1, 4), rng.random((8, tr.nY)), md.theta_values, rng.random(14), rng.random(14),
+                      W=[1.0, 2.0], rho=0.3, energy=0.2, rate=0.1, time_weight=0.5, c=2.0, mask=np.array([0, 1, 1.0]),
+                      tau_ref=1.0, relax_weights=np.ones(tr.nr) if tr.nr else None, eps=0.7, scale=1.3)
+    lam_g = rng.standard_normal(tr.ng)
+    f, g = tr._plain
+    J_ad = ca.Function("j", [tr._x, tr._p], [ca.jacobian(g, tr._x)])(x, p).full()
+    J = ca.Function("j2", [tr._x, tr._p], [ca.jacobian(tr.g, tr._x)])(x, p).full()
+    assert np.max(np.abs(J - J_ad)) <= 1e-12 * np.max(np.abs(J_ad))
+    L = 0.8 * f + ca.dot(ca.DM(lam_g), g)
+    H_ad = ca.Function("h", [tr._x, tr._p], [ca.triu(ca.hessian(L, tr._x)[0])])(x, p).full()
+    H = tr._build_exact_hessian()(x, p, 0.8, lam_g).full()
+    assert np.max(np.abs(H - H_ad)) <= 1e-12 * np.max(np.abs(H_ad))
+
+
+# ----------------------------------------------------------------------------- options
+def test_legacy_keywords_map_onto_option_objects(manip):
+    md, ref, q0 = manip
+    a = invert(md, ref, q_guess=q0, N=40, backend="newton")
+    b = invert(md, ref, discretization=Discretization(N=40), solver=SolverOptions(backend="newton"),
+               horizon=Horizon(q_guess=q0))
+    c = invert(md, ref, discretization=Discretization(N=80), horizon=Horizon(q_guess=q0), N=40, backend="newton")
+    for other in (b, c):
+        assert other.N == 40 and other.diagnostics["backend"] == "newton"
+        assert np.max(np.abs(other.X_mesh - a.X_mesh)) < 1e-12
+
+
+@pytest.mark.parametrize("make,error,words", [
+    (lambda: Discretization(N=1), OptionError, "N must be >= 2"),
+    (lambda: Discretization(scheme="euler"), OptionError, "unknown collocation scheme"),
+    (lambda: Discretization(mesh=[0, 1, 1, 2]), OptionError, "strictly increasing"),
+    (lambda: SolverOptions(backend="scipy"), OptionError, "backend must be one of"),
+    (lambda: SolverOptions(hessian="bfgs"), OptionError, "hessian must be one of"),
+    (lambda: Horizon(T0=1.0, Tf=0.0), OptionError, "must be after T0"),
+    (lambda: Bounds(u=-1.0), BoundsError, ">= 0"),
+    (lambda: Bounds(q={"gamma": (1.0, 0.0)}), BoundsError, "lower <= upper"),
+    (lambda: Bounds(q=[1.0]), BoundsError, "must be a dict"),
+    (lambda: Objective(slack=-1.0), OptionError, "slack must be nonnegative"),
+    (lambda: Bounds.parse(["u.u2=abc"]), BoundsError, "not a number"),
+    (lambda: Bounds.parse(["w=3"]), BoundsError, "unknown kind"),
+])
+def test_options_check_themselves(make, error, words):
+    with pytest.raises(error, match=words):
+        make()
+
+
+def test_unknown_names_and_keywords(manip):
+    md, ref, q0 = manip
+    with pytest.raises(BoundsError, match=r"unknown name 'gama'.*did you mean \['gamma'\]"):
+        invert(md, ref, q_guess=q0, N=40, bounds=Bounds(q={"gama": 0.1}))
+    with pytest.raises(TypeError, match=r"unknown keyword\(s\) \['Nn'\].*\['N'\]"):
+        invert(md, ref, Nn=40)
+    with pytest.raises(OptionError, match="unknown output"):
+        invert(md, ref, q_guess=q0, N=40, bounds=Bounds(u={"u2": 8.0}), objective=Objective(output={"y9": 1.0}))
+
+
+def test_bounds_parse_from_strings():
+    b = Bounds.parse(["u=8", "q.gamma=-0.2:0.2", "u_rate.u1=:50", "v.s2=1.5", "pre=0.3", "post=0.5"])
+    assert b.u == (-8.0, 8.0) and b.q == {"gamma": (-0.2, 0.2)} and b.u_rate == {"u1": (-math.inf, 50.0)}
+    assert b.v == {"s2": (-1.5, 1.5)} and b.max_pre_actuation == 0.3 and b.max_post_actuation == 0.5
+    sv = servo_model(mn.build())
+    rb = b.resolve(sv)
+    assert rb.hi[sv.layout.blocks["v"].start + 1] == 1.5 and rb.rate_hi[0] == 50.0 and rb.rate_lo[1] == -math.inf
