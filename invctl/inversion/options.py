@@ -457,6 +457,37 @@ class Objective:
             out = tuple(_finite(f"output[{i}]", x, nonnegative=True, where=w) for i, x in enumerate(np.ravel(out)))
         object.__setattr__(self, "output", out)
 
+    @classmethod
+    def parse(cls, items) -> "Objective":
+        """Weights from strings (a command line; never evaluated): ``output=1`` (all outputs),
+        ``output.NAME=10`` (one output by name), ``slack=1e-2``, ``energy=1e-3``, ``rate=0``."""
+        kw: dict = {}
+        for item in items or ():
+            key, sep, text = str(item).partition("=")
+            key = key.strip()
+            if not sep or not text.strip():
+                raise OptionError(f"weight {item!r}: expected name=value (e.g. output=1, output.y1=10, slack=1e-2, "
+                                  "energy=1e-3, rate=0)")
+            try:
+                val = float(text)
+            except ValueError:
+                raise OptionError(f"weight {item!r}: {text.strip()!r} is not a number") from None
+            block, _, name = key.partition(".")
+            if block == "output" and name:
+                if isinstance(kw.get("output"), float):
+                    raise OptionError(f"weight {item!r}: output given for all outputs and by name")
+                kw.setdefault("output", {})[name] = val
+            elif block == "output":
+                if isinstance(kw.get("output"), dict):
+                    raise OptionError(f"weight {item!r}: output given for all outputs and by name")
+                kw["output"] = val
+            elif block in ("slack", "energy", "rate") and not name:
+                kw[block] = val
+            else:
+                raise OptionError(f"weight {item!r}: unknown weight {key!r}; use output, output.<name>, slack, "
+                                  "energy or rate")
+        return cls(**kw)
+
     def output_weights(self, model) -> np.ndarray:
         """The output weights as an array over ``model``'s outputs."""
         if isinstance(self.output, float):

@@ -100,6 +100,19 @@ OPTIONS: dict[str, Option] = {
                           "('events')", ("simulate", "pipeline"), None, choices=("steps", "events")),
     "max_wall_time": Option(float, "stop the inversion's solver after this many seconds", ("invert",), None,
                             _positive),
+    "bound": Option(str, "a bound of the inversion: u=8, u.NAME=-5:8, u_rate=100, q.NAME=-0.2:0.2, v.NAME=1.5, "
+                    "pre=0.3, post=0.5 (repeatable; an open side: q.NAME=:0.2); the exact inverse when it "
+                    "meets them, least-squares tracking otherwise", ("invert",), None, repeat=True,
+                    metavar="NAME=VALUE"),
+    "weight": Option(str, "a weight of the least-squares tracking under bounds (and of --minimum-time): output=1, "
+                     "output.NAME=10, slack=1e-2, energy=1e-3, rate=0 (repeatable)", ("invert",), None, repeat=True,
+                     metavar="NAME=VALUE"),
+    "minimum_time": Option(bool, "the shortest duration of the reference's transition (its shape kept) under "
+                           "--bound; with --energy W the time-energy trade", ("invert",), False, flag=True),
+    "energy": Option(float, "--minimum-time: weight of the input energy against the duration", ("invert",), None,
+                     lambda v: None if math.isfinite(v) and v >= 0 else "must be a nonnegative number"),
+    "duration": Option(str, "--minimum-time: range LO:HI of the duration searched (s)", ("invert",), None,
+                       metavar="LO:HI"),
 }
 
 #: ``invctl generate`` (trajectory libraries, :mod:`.library`): its own options; it shares N, scheme, tol,
@@ -495,13 +508,48 @@ def invert(scene, values=None, **options) -> CommandResult:
         raise ParameterError("--dt sets the sampling of the saved trajectory; give --out FILE.npz too")
     out = str(check_output_path(o["out"], suffix=".npz", force=o["force"])) if o["out"] else None
     params, settings = scene.split(values, preset=o["preset"])
+    limits = _limits(scene, o)
     check_resources("invert", scene, params, settings, o)
     from ..scenes import scene_reference
 
     return _interruptible(lambda: _kind(scene).invert(scene, params, settings, N=o["N"], scheme=o["scheme"],
                                                       tol=o["tol"], backend=o["backend"], out=out, dt=o["dt"],
-                                                      quiet=o["quiet"], max_wall_time=o["max_wall_time"]),
+                                                      quiet=o["quiet"], max_wall_time=o["max_wall_time"], **limits),
                           out=out, dt=o["dt"], meta={"scene": scene_reference(scene), "params": params})
+
+
+def _limits(scene: Scene, o: dict) -> dict:
+    """``bounds``, ``objective`` and ``minimum_time`` of ``invctl invert`` from ``--bound``, ``--weight``,
+    ``--minimum-time``, ``--energy`` and ``--duration`` (parsed, never evaluated)."""
+    from ..inversion import Bounds, Objective
+
+    out = {}
+    if o["bound"]:
+        out["bounds"] = Bounds.parse(o["bound"])
+    if o["weight"]:
+        out["objective"] = Objective.parse(o["weight"])
+    free = {k: o[k] for k in ("energy", "duration") if o[k] is not None}
+    if free and not o["minimum_time"]:
+        raise ParameterError(f"{', '.join('--' + k for k in free)}: apply to --minimum-time only")
+    if o["minimum_time"]:
+        if "bounds" not in out and not (o["energy"] or 0) > 0:
+            raise ParameterError("--minimum-time needs bounds (--bound u=...) or an energy weight (--energy W > 0): "
+                                 "without either the shortest duration is zero")
+        if o["tol"] is not None:
+            raise ParameterError("--minimum-time does not refine meshes (--tol); give --N and read the forward check")
+        mt = {"energy": float(o["energy"] or 0.0)}
+        if o["duration"] is not None:
+            lo, sep, hi = o["duration"].partition(":")
+            try:
+                mt["duration"] = (float(lo), float(hi))
+            except ValueError:
+                raise ParameterError(f"--duration {o['duration']!r}: expected LO:HI in seconds, e.g. 0.2:5") from None
+            if not (sep and 0 < mt["duration"][0] < mt["duration"][1] and math.isfinite(mt["duration"][1])):
+                raise ParameterError(f"--duration {o['duration']!r}: expected LO:HI with 0 < LO < HI")
+        out["minimum_time"] = mt
+    if out and scene.kind != "tracking":
+        raise ParameterError("--bound, --weight and --minimum-time apply to tracking scenes only")
+    return out
 
 
 def design(scene, values=None, **options) -> CommandResult:

@@ -201,18 +201,27 @@ def invert_tracking(scene, model, reference, *, progress=False, **options):
     """The stable inverse of the scene's reference model: the automatic setup with the scene's declared
     overrides (``Tracking.inversion``), then ``options``.  ``method`` (``"auto"`` by default) picks the
     servo-constraint route (:func:`invctl.inversion.invert`) or the normal form
-    (:func:`invctl.inversion.invert_normal_form`, outputs of relative degree above 2, flat outputs)."""
-    from ..inversion import invert, invert_normal_form
+    (:func:`invctl.inversion.invert_normal_form`, outputs of relative degree above 2, flat outputs).
+    ``bounds``/``objective`` go to :func:`~invctl.inversion.invert`; ``minimum_time={"energy": w,
+    "duration": (lo, hi)}`` calls :func:`~invctl.inversion.minimum_time` instead."""
+    from ..inversion import invert, invert_normal_form, minimum_time
 
     cfg = dict(scene.tracking.inversion)
     if "q_guess" not in options and scene.tracking.initial_configuration is not None:
         options["q_guess"] = scene.tracking.initial_configuration(model)
     cfg.update({k: v for k, v in options.items() if v is not None})
     method = cfg.pop("method", "auto")
+    free_time = cfg.pop("minimum_time", None)
     if method == "auto":
         method = inversion_method(model, design_configuration(scene, model, reference))
+    if method == "servo" and free_time is not None:
+        # the horizon of the reference's duration does not fit a free one: minimum_time derives its own
+        cfg = {k: v for k, v in cfg.items() if k not in ("T0", "Tf", "tol")}
+        return minimum_time(model, reference, progress=progress, **free_time, **cfg)
     if method == "servo":
         return invert(model, reference, progress=progress, **cfg)
+    if free_time is not None:
+        cfg["minimum_time"] = free_time  # reported below as not applicable to the normal form
     if method != "normal-form":
         raise ParameterError(f"inversion method must be 'auto', 'servo' or 'normal-form', got {method!r}")
     bad = sorted(set(cfg) - set(NORMAL_FORM_OPTIONS))

@@ -165,15 +165,23 @@ def _analyze_flat(scene, model, ref, point, samples, t0) -> CommandResult:
 
 # ------------------------------------------------------------------- invert
 def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None, backend=None, out=None,
-           dt=None, quiet=False, max_wall_time=None) -> CommandResult:
-    """Invert with the automatic setup (and the scene's overrides), forward-check, report."""
+           dt=None, quiet=False, max_wall_time=None, bounds=None, objective=None, minimum_time=None) -> CommandResult:
+    """Invert with the automatic setup (and the scene's overrides), forward-check, report.  ``bounds``
+    (and ``objective``): the bounded inversion; ``minimum_time``: the shortest transition under them."""
     from ..inversion import forward_check
 
     opts = {k: v for k, v in {"N": N, "scheme": scheme, "tol": tol, "backend": backend,
-                              "max_wall_time": max_wall_time}.items() if v is not None}
+                              "max_wall_time": max_wall_time, "bounds": bounds, "objective": objective,
+                              "minimum_time": minimum_time}.items() if v is not None}
     t_wall = time.perf_counter()
     model, reference = tracking_model(scene, params)
     inv = invert_tracking(scene, model, reference, progress=not quiet, **opts)
+    free = inv.diagnostics.get("free_time")
+    # the retimed reference of a minimum-time transition is the one the inverse must track
+    if free:
+        from ..inversion import retime
+
+        reference = retime(reference, free["duration"])
     fc = forward_check(model, inv, reference)
     wall = time.perf_counter() - t_wall
     d = inv.diagnostics
@@ -191,6 +199,9 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
     }
     if "meshes" in d:
         data["meshes"] = d["meshes"]
+    for key in ("bounds", "tracking", "free_time"):
+        if key in d:
+            data[key] = d[key]
     if d.get("method") == "normal-form":
         lines = [f"invctl invert {scene.name}: {d['status']} (normal form of 003 Sect. 2: relative degree "
                  f"{d.get('relative_degree')}, internal dynamics of dimension {d.get('internal_dim')}; "
@@ -222,6 +233,7 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
     ]
     if "meshes" in d:
         lines.append("  meshes tried: " + ", ".join(f"N={m['N']} (err {m['error']:.1e})" for m in d["meshes"]))
+    lines += _limit_lines(d)
     if out:
         from ..scenes import scene_reference
 
@@ -231,6 +243,34 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
     if not quiet:
         print(f"invert {scene.name}: done in {wall:.2f} s", file=sys.stderr)
     return CommandResult("\n".join(lines), data)
+
+
+def _limit_lines(d: dict) -> list[str]:
+    """Report lines of a bounded or minimum-time inversion (none for a square one)."""
+    lines = []
+    b, tr, ft = d.get("bounds"), d.get("tracking"), d.get("free_time")
+    if ft:
+        act = ", ".join(f"{a.get('bound', '?')} {a.get('side', '')} {a.get('value', '')} at t = "
+                        + ", ".join(f"{i[0]:.4g}" if i[0] == i[1] else f"[{i[0]:.4g}, {i[1]:.4g}]"
+                                    for i in a.get("intervals", []))
+                        if isinstance(a, dict) else str(a) for a in ft.get("active", [])) or "none"
+        lines.append(f"  minimum time: duration {ft['duration']:.6g} s (the reference's {ft['reference_duration']:.6g} s"
+                     f"), energy {ft['energy']:.4g} (weight {ft['energy_weight']:g}); active bounds: {act}"
+                     + ("; AT THE LIMIT of the duration range searched" if ft.get("at_duration_limit") else ""))
+    if tr is not None:
+        if tr.get("exact"):
+            lines.append("  bounds: the exact inverse meets them (it is the answer)")
+        else:
+            lines.append(f"  bounds: exact tracking is not possible within them; least-squares tracking with max "
+                         f"|y - y_ref| = {tr['max_output_error']:.3g} (RMS {tr['rms_output_error']:.3g})")
+    if b:
+        if b.get("describe"):
+            lines.append("  " + str(b["describe"]).replace("\n", "\n  "))
+        margins = b.get("margins") or {}
+        if margins and tr is not None and tr.get("exact"):
+            lines.append("  margins: " + ", ".join(f"{k} {v:.3g}" for k, v in margins.items()
+                                                      if isinstance(v, (int, float))))
+    return lines
 
 
 # ------------------------------------------------------------------- design
