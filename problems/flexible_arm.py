@@ -107,7 +107,7 @@ def linear_matrices(n: int, values: dict) -> tuple[np.ndarray, np.ndarray, np.nd
     return M, K + p["k"] * L, p["d"] * L + p["alpha"] * M
 
 
-def reference(model: Model, *, y0: float = 0.0, yf: float = 0.2, t0: float = 0.0, tf: float = 1.0) -> Reference:
+def reference(model: Model, *, y0: float = 0.0, yf: float = 0.05, t0: float = 0.0, tf: float = 1.0) -> Reference:
     """The output angle moved from y0 to yf (rad) with the C^4 timing law of 003 Sect. 6."""
     t = ca.SX.sym("t")
     return Reference(t, y0 + (yf - y0) * poly9_timing_law(t, t0, tf), t0, tf, smoothness=4, name="y_ref")

@@ -26,6 +26,10 @@ import numpy as np
 import scipy.sparse as sp
 
 SCHEME_RE = re.compile(r"^(hermite-simpson|hs|legendre(\d+)|radau(\d+))$")
+#: above this many unknowns per node the Hermite-Simpson Jacobian blocks are formed by MX matrix
+#: products (C loops) instead of nx^3 inlined SX instructions per interval (measured in
+#: benchmarks/bench_scaling.py: 4x faster at nx = 65, no gain below ~20)
+MX_PRODUCTS_NX = 20
 
 
 @dataclass(frozen=True)
@@ -218,6 +222,18 @@ class Transcription:
                 self._blk = ca.Function("coll_block", [Js, hs, cs], [(cs * I - hs * Js).T])
         return self._blk
 
+    def _product_function(self) -> ca.Function:
+        """MX ``(Ja, Jb, Jm, h) -> (Da^T, Db^T)``: the Hermite-Simpson blocks from the right-hand side
+        Jacobians at both ends and the midpoint (the same formulas as :meth:`_block_function`)."""
+        if getattr(self, "_prod", None) is None:
+            nx = self.nx
+            I = ca.DM.eye(nx)  # noqa: E741
+            Ja, Jb, Jm, hs = ca.MX.sym("Ja", nx, nx), ca.MX.sym("Jb", nx, nx), ca.MX.sym("Jm", nx, nx), ca.MX.sym("h")
+            Da = -I - hs / 6 * (Ja + 4 * ca.mtimes(Jm, 0.5 * I + hs / 8 * Ja))
+            Db = I - hs / 6 * (Jb + 4 * ca.mtimes(Jm, 0.5 * I - hs / 8 * Jb))
+            self._prod = ca.Function("hs_block_products", [Ja, Jb, Jm, hs], [Da.T, Db.T])
+        return self._prod
+
     def _jacobian_mx(self, x, p):
         """The Jacobian of ``g`` as a sparse MX built from mapped per-node/per-interval
         SX functions (the same blocks as :meth:`residual_and_jacobian`)."""
@@ -236,7 +252,18 @@ class Transcription:
         rj = self._c(rj_sx)
         I = ca.DM.eye(nx)  # noqa: E741
         vals = []
-        if self.scheme.is_hs:
+        if self.scheme.is_hs and not self.compiled and nx > MX_PRODUCTS_NX:
+            # large blocks: the right-hand side Jacobian with numeric solves by M (ServoModel.rhs_jac_numeric),
+            # at the midpoints by the mapped function, and the two nx^3 products of every interval as MX
+            # matrix products (compiled C loops), not as nx^3 SX instructions per interval
+            rjn = self.servo.rhs_jac_numeric
+            F, JF = rjn.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
+            Fa, Fb = F[:, :N], F[:, 1:]
+            Xm = 0.5 * (Xmesh[:, :N] + Xmesh[:, 1:]) + ca.repmat(h / 8, nx, 1) * (Fa - Fb)
+            _Fm, JFm = rjn.map(N)(Xm, Y[:, N + 1:], theta)
+            DaT, DbT = self._product_function().map(N)(JF[:, :nx * N], JF[:, nx:], JFm, h)
+            vals = [ca.vec(DaT), ca.vec(DbT)]
+        elif self.scheme.is_hs:
             blk = self._c(self._block_function())
             F, JF = rj.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
             DaT, DbT = blk.map(N)(Xmesh[:, :N], Xmesh[:, 1:], F[:, :N], F[:, 1:], JF[:, :nx * N], JF[:, nx:],
@@ -296,6 +323,13 @@ class Transcription:
             g = self._g_function()(self._x, self._p) if (assembled_jacobian and self.square) else self.g
             nlp = {"x": self._x, "p": self._p, "f": self.f, "g": g}
             opts = dict(options)
+            if assembled_jacobian and self.square and "jac_g" not in opts:
+                # the assembled Jacobian once per call: derived from the custom Jacobian of g by AD,
+                # CasADi would evaluate it once per 64 seed directions of the banded coloring
+                # (3 times for nx = 65)
+                opts["jac_g"] = ca.Function("servo_jac_g", [self._x, self._p],
+                                            [self.g, self._jacobian_mx(self._x, self._p)],
+                                            ["x", "p"], ["g", "jac_g_x"])
             if zero_hessian:
                 lf, lg = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
                 opts["hess_lag"] = ca.Function("zero_hess_lag", [self._x, self._p, lf, lg],
