@@ -294,12 +294,28 @@ def _check_position_output(model) -> None:
             diagnostics={"outputs": list(model.y_names), "problems": bad})
 
 
+def _decoupling_scales(model, Q) -> np.ndarray:
+    """``||C M^-1||_2 ||W||_2`` at the configurations ``Q`` (columns), ``C = [G; J; h']``,
+    ``W = [G^T J^T B]`` (numerically; the scale of the product ``A_z = C M^-1 W``)."""
+    H = ca.jacobian(model.h, model.q)
+    parts = ca.Function("decoupling_parts", [model.q, model.theta],
+                        [model.M, ca.vertcat(model.G, model.J, H), ca.horzcat(model.G.T, model.J.T, model.B)])
+    th = model.theta_values
+    out = []
+    for k in range(Q.shape[1]):
+        M, C, W = (np.array(x) for x in parts(Q[:, k], th))
+        out.append(np.linalg.norm(np.linalg.solve(M, C.T), 2) * np.linalg.norm(W, 2))
+    return np.array(out)
+
+
 def check_decoupling(model, Az, times, Q, rcond: float = 1e-10) -> None:
     """Raise :class:`SingularDecouplingError` where the decoupling matrices ``Az`` (shape
     ``(k, k, K)`` at ``times``, configurations ``Q``) are singular (smallest over largest singular
     value below ``rcond``): there the vector relative degree is not (2, ..., 2)."""
     sv = np.linalg.svd(Az.transpose(2, 0, 1), compute_uv=False)
-    ratio = sv[:, -1] / np.maximum(sv[:, 0], 1e-300)
+    # A_z = (C M^-1) W: a singular value that is only rounding of that product counts as zero, so the
+    # ratio is taken against ||C M^-1|| ||W|| too (a 1 x 1 A_z has sigma_min = sigma_max)
+    ratio = sv[:, -1] / np.maximum(np.maximum(sv[:, 0], _decoupling_scales(model, Q)), 1e-300)
     bad = np.flatnonzero(~(ratio >= rcond))
     if bad.size == 0:
         return
