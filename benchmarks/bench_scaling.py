@@ -102,7 +102,8 @@ def main() -> None:
                                   timeout=args.timeout, env=dict(os.environ))
             line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
             if not line:
-                raise RuntimeError(proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no result")
+                why = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no output"
+                raise RuntimeError(f"no result (exit code {proc.returncode}: {why})")
             r = json.loads(line[0][7:])
         except subprocess.TimeoutExpired:
             r = {"n": n, "error": f"not finished in {args.timeout:.0f} s"}

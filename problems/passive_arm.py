@@ -157,10 +157,11 @@ def _check(v: dict) -> None:
                              f"D2 = {v['D2']}")
     values = resolve_params(PARAMS, DERIVED, {k: v[k] for k in PARAMS if k in v and v[k] != PARAMS[k]})
     if singular_elbow_angle(values) <= SINGULAR_MARGIN:
+        b = values["I2"] + values["m2"] * values["lc2"] ** 2
+        c0 = values["m2"] * values["L1"] * values["lc2"]
         raise ParameterError(
             f"passive_arm: with w = {values['w']:.4g} the relative degree is lost at the hanging arm (Gamma = "
-            f"b - w (b + c0 cos q2) = 0 near q2 = 0); choose w away from b / (b + c0) = "
-            f"{(values['I2'] + values['m2'] * values['lc2'] ** 2) / (values['I2'] + values['m2'] * values['lc2'] ** 2 + values['m2'] * values['L1'] * values['lc2']):.4g}")
+            f"b - w (b + c0 cos q2) = 0 near q2 = 0); choose w away from b / (b + c0) = {b / (b + c0):.4g}")
 
 
 SCENE = Scene(

@@ -25,11 +25,10 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from .servo import NUMERIC_SOLVES_NX
+
 SCHEME_RE = re.compile(r"^(hermite-simpson|hs|legendre(\d+)|radau(\d+))$")
-#: above this many unknowns per node the Hermite-Simpson Jacobian blocks are formed by MX matrix
-#: products (C loops) instead of nx^3 inlined SX instructions per interval (measured in
-#: benchmarks/bench_scaling.py: 4x faster at nx = 65, no gain below ~20)
-MX_PRODUCTS_NX = 20
+
 
 
 @dataclass(frozen=True)
@@ -129,6 +128,8 @@ class Transcription:
                                    [ca.vertcat(ca.vec(res), cont), energy],
                                    ["Xk", "Xc", "Xk1", "h", "Yc", "theta"], ["defect", "energy"])
             self.n_col, self.nY = d * N, d * N
+        if self._compile_request == "auto" and nx > NUMERIC_SOLVES_NX:
+            self._compile_request = False  # large models: numeric solves, nothing to look up in the cache
         if self._compile_request:
             from .compiled import compile_cached, is_cached
 
@@ -252,7 +253,7 @@ class Transcription:
         rj = self._c(rj_sx)
         I = ca.DM.eye(nx)  # noqa: E741
         vals = []
-        if self.scheme.is_hs and not self.compiled and nx > MX_PRODUCTS_NX:
+        if self.scheme.is_hs and not self.compiled and nx > NUMERIC_SOLVES_NX:
             # large blocks: the right-hand side Jacobian with numeric solves by M (ServoModel.rhs_jac_numeric),
             # at the midpoints by the mapped function, and the two nx^3 products of every interval as MX
             # matrix products (compiled C loops), not as nx^3 SX instructions per interval
@@ -295,6 +296,13 @@ class Transcription:
         vals.append(ca.DM.ones(s0.size + sf.size))
         return ca.vertcat(*vals)[np.asarray(perm, np.int64).tolist()]
 
+    def _jacobian_function(self) -> ca.Function:
+        """``(x, p) -> dg/dx`` (the assembled sparse Jacobian), built once."""
+        if getattr(self, "_jfun", None) is None:
+            x, p = ca.MX.sym("x", self.nX), ca.MX.sym("p", self.np)
+            self._jfun = ca.Function("servo_jac_g_x", [x, p], [self._jacobian_mx(x, p)], ["x", "p"], ["jac_g_x"])
+        return self._jfun
+
     def _g_function(self) -> ca.Function:
         """``(x, p) -> g`` with the assembled Jacobian as its custom Jacobian, so that
         IPOPT does not differentiate the mapped graph by AD.  The parameter Jacobian
@@ -303,7 +311,7 @@ class Transcription:
             x, p = ca.MX.sym("x", self.nX), ca.MX.sym("p", self.np)
             gexpr = ca.substitute([self.g], [self._x, self._p], [x, p])[0]
             og = ca.MX.sym("out_g", self.ng)
-            jac = ca.Function("jac_servo_g", [x, p, og], [self._jacobian_mx(x, p), ca.MX(self.ng, self.np)],
+            jac = ca.Function("jac_servo_g", [x, p, og], [self._jacobian_function()(x, p), ca.MX(self.ng, self.np)],
                               ["x", "p", "out_g"], ["jac_g_x", "jac_g_p"])
             self._gfun = ca.Function("servo_g", [x, p], [gexpr], ["x", "p"], ["g"],
                                      {"custom_jacobian": jac, "jac_penalty": 0})
@@ -320,16 +328,17 @@ class Transcription:
         """
         key = repr((sorted((k, repr(v)) for k, v in options.items()), assembled_jacobian, zero_hessian))
         if key not in self._solvers:
-            g = self._g_function()(self._x, self._p) if (assembled_jacobian and self.square) else self.g
-            nlp = {"x": self._x, "p": self._p, "f": self.f, "g": g}
             opts = dict(options)
-            if assembled_jacobian and self.square and "jac_g" not in opts:
+            assembled = assembled_jacobian and self.square
+            g = self._g_function()(self._x, self._p) if assembled else self.g
+            if assembled and "jac_g" not in opts:
                 # the assembled Jacobian once per call: derived from the custom Jacobian of g by AD,
                 # CasADi would evaluate it once per 64 seed directions of the banded coloring
                 # (3 times for nx = 65)
                 opts["jac_g"] = ca.Function("servo_jac_g", [self._x, self._p],
-                                            [self.g, self._jacobian_mx(self._x, self._p)],
+                                            [self.g, self._jacobian_function()(self._x, self._p)],
                                             ["x", "p"], ["g", "jac_g_x"])
+            nlp = {"x": self._x, "p": self._p, "f": self.f, "g": g}
             if zero_hessian:
                 lf, lg = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
                 opts["hess_lag"] = ca.Function("zero_hess_lag", [self._x, self._p, lf, lg],

@@ -45,6 +45,10 @@ FORMULATIONS = ("jerk", "baumgarte")
 #: linear solver of :attr:`ServoModel.rhs_jac_numeric`: CasADi's sparse LDL^T (M is symmetric positive
 #: definite; 3x faster than LAPACK LU through CasADi at n = 32, benchmarks/bench_scaling.py)
 LINSOL = "ldl"
+#: above this many unknowns per node (2n + l + p + m) Jacobians of the inverse model are evaluated with
+#: numeric solves (:attr:`ServoModel.rhs_jac_numeric`) and the Hermite-Simpson blocks by MX matrix
+#: products: 4x faster at 65 unknowns (benchmarks/bench_scaling.py), no gain below ~20
+NUMERIC_SOLVES_NX = 20
 
 
 @dataclass(frozen=True)
@@ -213,6 +217,12 @@ class ServoModel:
         nx = X.shape[0]
         dv = ca.horzcat(ca.SX(n, n), ca.SX.eye(n), ca.SX(n, nx - 2 * n))
         return self._fn("servo_rhs_jac", [S["F"], ca.densify(ca.vertcat(dv, da, dzdot))], ["F", "dFdX"])
+
+    @property
+    def jacobian_evaluator(self) -> ca.Function:
+        """The Jacobian function for numeric evaluation: :attr:`rhs_jac_numeric` above
+        :data:`NUMERIC_SOLVES_NX` unknowns (cheaper to build and to evaluate), :attr:`rhs_jac` below."""
+        return self.rhs_jac_numeric if self.layout.nx > NUMERIC_SOLVES_NX else self.rhs_jac
 
     @cached_property
     def rhs_jac_numeric(self) -> ca.Function:

@@ -203,7 +203,8 @@ def plant_acceleration(model, alpha: float = 20.0, beta: float = 20.0) -> ca.Fun
     # with the exact Jacobian CVODES needs by the implicit-function rule (invctl.model.linalg)
     acc = acceleration_function("plant_acc_all", q, v, u, th, model.M, model.f + ca.mtimes(model.B, u),
                                 ca.vertcat(model.G, model.J), bias)
-    qm, vm, um, tm = ca.MX.sym("q", model.n), ca.MX.sym("v", model.n), ca.MX.sym("u", model.m), ca.MX.sym("theta", th.numel())
+    qm, vm = ca.MX.sym("q", model.n), ca.MX.sym("v", model.n)
+    um, tm = ca.MX.sym("u", model.m), ca.MX.sym("theta", th.numel())
     a, lam_mu = acc(qm, vm, um, tm)
     return ca.Function("plant_acc", [qm, vm, um, tm], [a, lam_mu[:l]], ["q", "v", "u", "theta"], ["a", "lam"])
 
