@@ -19,7 +19,10 @@ Default coordinates (Lemma 3.1/3.2): ``phi1 = E q`` with ``E^T`` a kernel basis 
 ``[G; h'](q0)`` at a design point ``q0``; ``phi2 = V^+ (I - M^-1 [J^T G^T B]
 Gamma^-1 [J; G; h'])`` (27) with ``V(q) = Pi(q) V0`` a smooth kernel basis of
 ``[J; G; h'](q)`` (``Pi`` the orthogonal projector onto that kernel, ``V0`` the
-kernel basis at ``q0``).
+kernel basis at ``q0``).  When ``eta2`` has more than :data:`LEMMA32_MAX_DIM` entries and the
+directions ``[J^T G^T B]`` are constant, the default is the construction in the proof of Lemma 3.1,
+``phi2 = T2^T M(q)`` (``im T2 = ker [J; G; B^T]``): O(n^2) expressions instead of the O(n^4) of the
+symbolic pseudo-inverse in (27), the same internal dynamics up to a linear change of ``eta2``.
 """
 from __future__ import annotations
 

@@ -30,6 +30,15 @@ non-holonomic rows) to the differentiated constraint, so the drift decays
 forward in time at rate ``w`` instead of growing polynomially.  It requires
 the selection to fix the constraint modes at ``T0`` (decaying modes cannot be
 fixed at ``Tf``); the paper's Sect. 6 selection does not, hence not the default.
+
+Solves by M
+-----------
+``a`` and ``S = M^-1 [G; J; h']^T`` (so ``A_z = S^T [G^T J^T B]``) are solves with one symbolic
+LDL^T of ``M`` (:class:`invctl.model.linalg.SymmetricSolver`); the jerk level and the Jacobian
+``dF/dX`` differentiate them by the implicit-function rule (``d(M^-1 b) = M^-1 (db - dM M^-1 b)``
+with the solution frozen), never through the factors: O(n^2) nodes per right-hand side (the
+Jacobian of the n-link arm grows like n^2.3 instead of n^3.5).  Above :data:`NUMERIC_SOLVES_NX`
+unknowns the same formulas are evaluated with numeric solves (:attr:`ServoModel.rhs_jac_numeric`).
 """
 from __future__ import annotations
 
