@@ -59,7 +59,8 @@ class AuxiliarySystem:
     Bt : casadi.SX
         ``[J^T, G^T, B]`` (n x (p + l + m)).
     MinvBt, Minvf : casadi.SX
-        ``M^-1 [J^T G^T B]`` and ``M^-1 f`` (symbolic solves).
+        ``M^-1 [J^T G^T B]`` and ``M^-1 f`` (solves with the shared LDL^T factors of ``M``,
+        :func:`mass_solver`).
     blocks : tuple of int
         ``(p, l, m)``: sizes of ``O1``, ``O2``, ``O3``.
     """
@@ -102,14 +103,23 @@ class AuxiliarySystem:
         return ca.mtimes(ca.jacobian(expr, self.model.v), self.MinvBt)
 
 
+def mass_solver(model):
+    """The :class:`~invctl.model.linalg.SymmetricSolver` of ``model.M`` (one symbolic LDL^T, cached):
+    every ``M^-1`` of the analysis is a solve with these factors, O(n^2) per right-hand side."""
+    from ..model.linalg import SymmetricSolver
+
+    return cached(model, "mass_solver", lambda: SymmetricSolver(model.M))
+
+
 def auxiliary_system(model) -> AuxiliarySystem:
     """The auxiliary ODE (10) of ``model`` (cached)."""
 
     def build():
         n = model.n
         Bt = ca.horzcat(model.J.T, model.G.T, ca.SX(model.B))
-        MinvBt = ca.solve(model.M, Bt)
-        Minvf = ca.solve(model.M, model.f)
+        solver = mass_solver(model)
+        MinvBt = solver.solve(Bt)
+        Minvf = solver.solve(model.f)
         F = ca.vertcat(model.v, Minvf)
         K = ca.vertcat(ca.SX(n, Bt.shape[1]), MinvBt)
         O = ca.vertcat(ca.mtimes(model.J, model.v) + model.j, model.g, model.h)

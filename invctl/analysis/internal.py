@@ -19,7 +19,10 @@ Default coordinates (Lemma 3.1/3.2): ``phi1 = E q`` with ``E^T`` a kernel basis 
 ``[G; h'](q0)`` at a design point ``q0``; ``phi2 = V^+ (I - M^-1 [J^T G^T B]
 Gamma^-1 [J; G; h'])`` (27) with ``V(q) = Pi(q) V0`` a smooth kernel basis of
 ``[J; G; h'](q)`` (``Pi`` the orthogonal projector onto that kernel, ``V0`` the
-kernel basis at ``q0``).
+kernel basis at ``q0``).  When ``eta2`` has more than :data:`LEMMA32_MAX_DIM` entries and the
+directions ``[J^T G^T B]`` are constant, the default is the construction in the proof of Lemma 3.1,
+``phi2 = T2^T M(q)`` (``im T2 = ker [J; G; B^T]``): O(n^2) expressions instead of the O(n^4) of the
+symbolic pseudo-inverse in (27), the same internal dynamics up to a linear change of ``eta2``.
 """
 from __future__ import annotations
 
@@ -150,8 +153,44 @@ def _null_rows(A: np.ndarray, k: int) -> np.ndarray:
     return N
 
 
-def default_coordinates(model, q0) -> tuple[ca.SX, np.ndarray]:
-    """Lemma 3.1/3.2 coordinates ``(E q, phi2(q) v)`` at design point ``q0``; returns (phi, E)."""
+#: largest eta2 dimension for which the default coordinates use the normalized form (27): its
+#: pseudo-inverse (V^T V)^-1 V^T is then at most 3 x 3 (closed-form minors); beyond, (27) grows like
+#: n^4 nodes and the momentum form of the proof of Lemma 3.1 (O(n^2) nodes) is used
+LEMMA32_MAX_DIM = 3
+
+
+def _constant_input_directions(model):
+    """``[J^T G^T B]`` as a number matrix if it depends on neither ``q`` nor the parameters, else None."""
+    Bt = ca.horzcat(model.J.T, model.G.T, ca.SX(model.B))
+    if ca.depends_on(Bt, ca.vertcat(model.q, model.theta)):
+        return None
+    return np.array(ca.DM(ca.evalf(Bt)))
+
+
+def coordinate_form(model, form: str = "auto") -> str:
+    """``"lemma32"`` or ``"momentum"``: which default coordinates ``form`` means for ``model``."""
+    if form not in ("auto", "lemma32", "momentum"):
+        raise CoordinateError(f"form must be 'auto', 'lemma32' or 'momentum', got {form!r}")
+    Bt = _constant_input_directions(model)
+    if form == "momentum" and Bt is None:
+        raise CoordinateError(f"{model.name}: the momentum coordinates need constant input and constraint "
+                              "directions [J^T G^T B] (independent of q and of the parameters); use form='lemma32'")
+    if form != "auto":
+        return form
+    dim2 = model.n - model.p - model.ell - model.ny
+    return "momentum" if Bt is not None and dim2 > LEMMA32_MAX_DIM else "lemma32"
+
+
+def default_coordinates(model, q0, form: str = "auto") -> tuple[ca.SX, np.ndarray]:
+    """Lemma 3.1 coordinates ``(E q, phi2(q) v)`` at design point ``q0``; returns (phi, E).
+
+    ``form="lemma32"``: ``phi2`` of (27), normalized by ``phi2 V = I``.  ``form="momentum"``: the
+    construction in the proof of Lemma 3.1, ``phi2 = T2^T M(q)`` with ``T2`` an orthonormal basis of
+    ``ker [J; G; B^T]`` (constant directions only): the momenta conjugate to the unactuated,
+    unconstrained directions.  By Lemma 3.2 both differ by the invertible left factor
+    ``T2^T M V``, so the internal dynamics agree up to a linear change of ``eta2``.  ``"auto"``:
+    (27) while ``eta2`` has at most :data:`LEMMA32_MAX_DIM` entries, the momentum form beyond.
+    """
     aux = auxiliary_system(model)
     n, p, l, m = model.n, model.p, model.ell, model.ny
     H = ca.jacobian(model.h, model.q)
@@ -160,10 +199,13 @@ def default_coordinates(model, q0) -> tuple[ca.SX, np.ndarray]:
     C = ca.vertcat(model.J, model.G, H)
     Cf = ca.Function("C", [model.q, model.theta], [C])
     E = _null_rows(np.array(GH(q0, th)), n - l - m)
-    V0 = _null_rows(np.array(Cf(q0, th)), n - p - l - m).T
     phi1 = ca.mtimes(ca.DM(E), model.q)
-    if V0.shape[1] == 0:
+    if n - p - l - m == 0:
         return phi1, E
+    if coordinate_form(model, form) == "momentum":
+        T2 = _null_rows(_constant_input_directions(model).T, n - p - l - m).T
+        return ca.vertcat(phi1, ca.mtimes(ca.DM(T2.T), ca.mtimes(model.M, model.v))), E
+    V0 = _null_rows(np.array(Cf(q0, th)), n - p - l - m).T
     Pi = ca.SX.eye(n) - ca.mtimes(C.T, ca.solve(ca.mtimes(C, C.T), C))
     V = ca.mtimes(Pi, ca.DM(V0))
     Vdag = ca.solve(ca.mtimes(V.T, V), V.T)
@@ -171,6 +213,31 @@ def default_coordinates(model, q0) -> tuple[ca.SX, np.ndarray]:
     PiK = ca.SX.eye(n) - ca.mtimes(aux.MinvBt, ca.solve(Gamma, C))
     phi2 = ca.mtimes(Vdag, PiK)
     return ca.vertcat(phi1, ca.mtimes(phi2, model.v)), E
+
+
+def _momentum_tail(model, phi1, T2, qsol, y1, e2, TH):
+    """``(eta', v)`` of the momentum coordinates ``eta2 = T2^T M v`` from ``q``, ``y'`` and ``eta2``
+    (MX): ``M v = T2 eta2 + Bt beta`` with ``beta`` from ``C v = (-j, 0, y')``, and
+    ``eta2' = T2^T (dM/dt v + f)`` (``T2^T Bt = 0`` removes the inputs and multipliers).  One numeric
+    factorization of ``M`` per evaluation; nothing symbolic grows beyond O(n^2)."""
+    n, l = model.n, model.ell
+    H = ca.jacobian(model.h, model.q)
+    C = ca.vertcat(model.J, model.G, H)
+    Bt = ca.DM(_constant_input_directions(model))
+    T2 = ca.DM(T2)
+    parts = ca.Function("momentum_parts", [model.q, model.theta], [model.M, C, model.j])
+    Mq, Cq, jq = parts(qsol, TH)
+    k = C.shape[0]
+    Z = ca.solve(Mq, ca.horzcat(Cq.T, ca.mtimes(T2, e2), Bt), "qr")
+    w, SB = Z[:, k], Z[:, k + 1:]
+    c = ca.vertcat(-jq, ca.MX.zeros(l), y1)
+    beta = ca.solve(ca.mtimes(Cq, SB), c - ca.mtimes(Cq, w))
+    vsol = w + ca.mtimes(SB, beta)
+    vs = ca.SX.sym("v", n)
+    d2 = ca.mtimes(T2.T, ca.jtimes(ca.mtimes(model.M, vs), model.q, vs) + ca.substitute(model.f, model.v, vs))
+    tail = ca.Function("momentum_tail", [model.q, vs, model.theta],
+                       [ca.vertcat(ca.mtimes(ca.jacobian(phi1, model.q), vs), d2)])
+    return tail(qsol, vsol, TH), vsol
 
 
 def _as_expr(model, phi) -> ca.SX:
@@ -206,7 +273,7 @@ def design_point(model, q0=None, rng=0) -> np.ndarray:
 
 
 def internal_dynamics(model, method: str = "sect3", phi=None, *, point=None, samples: int = 100,
-                      rng=0, check_points=None) -> InternalDynamics:
+                      rng=0, check_points=None, form: str = "auto") -> InternalDynamics:
     """Internal dynamics of ``model`` by 003 Sect. 2 (``"sect2"``) or Sect. 3 (``"sect3"``).
 
     Parameters
@@ -215,13 +282,15 @@ def internal_dynamics(model, method: str = "sect3", phi=None, *, point=None, sam
     phi : SX or callable ``model -> SX``, optional
         Internal coordinates ``eta = phi(q, v)`` (2n - r_bar rows).  For ``sect3`` the first
         ``n - l - m`` rows must depend on ``q`` only and the rest be linear in ``v``.
-        Default: Lemma 3.1/3.2 coordinates at ``point``.
+        Default: Lemma 3.1/3.2 coordinates at ``point`` (``form``, see :func:`default_coordinates`).
     point : array, optional
         Design configuration ``q0`` (Newton start; where ``E`` is taken).
     samples : int
         Region points at which ``L_K phi = 0`` and ``Phi'`` invertible are checked.
         With default coordinates (only local by Lemma 3.1) the check is made on
         ``check_points`` (default: the design point) instead of the whole region.
+    form : {"auto", "lemma32", "momentum"}
+        Which default coordinates (ignored when ``phi`` is given).
 
     Raises
     ------
@@ -235,19 +304,19 @@ def internal_dynamics(model, method: str = "sect3", phi=None, *, point=None, sam
         raise CoordinateError(f"method must be 'sect2' or 'sect3', got {method!r}")
     key = None
     if phi is None or callable(phi):
-        key = ("internal", method, phi, None if point is None else tuple(np.asarray(point, float).ravel()),
+        key = ("internal", method, phi, form, None if point is None else tuple(np.asarray(point, float).ravel()),
                samples, repr(rng), tuple(model.theta_values),
                None if check_points is None else repr([np.asarray(c).tolist() for c in check_points]))
         cache = cache_of(model)
         if key in cache:
             return cache[key]
-    result = _internal_dynamics(model, method, phi, point, samples, rng, check_points)
+    result = _internal_dynamics(model, method, phi, point, samples, rng, check_points, form)
     if key is not None:
         cache[key] = result
     return result
 
 
-def _internal_dynamics(model, method, phi, point, samples, rng, check_points) -> InternalDynamics:
+def _internal_dynamics(model, method, phi, point, samples, rng, check_points, form="auto") -> InternalDynamics:
     # without a declared region, the relative degree is checked around the design point (not on a default box)
     local = [np.asarray(point, float).ravel()] if model.region is None and point is not None else None
     rd = relative_degree(model, samples=samples, rng=rng, points=local)
@@ -261,13 +330,15 @@ def _internal_dynamics(model, method, phi, point, samples, rng, check_points) ->
         raise CoordinateError(f"{model.name}: Sect. 3 coordinates need a position output h(q) with r_hat = 2 "
                               f"(here r_hat = {rd.r_hat}); use method='sect2' with your own phi")
     q0 = design_point(model, point, rng)
-    E = None
+    E, momentum = None, False
     if phi is None:
         if not (is_position_output(model) and rd.r_hat == 2):
             raise CoordinateError(f"{model.name}: default coordinates need a position output with r_hat = 2; "
                                   "pass phi")
-        phi_expr, E = default_coordinates(model, q0)
-        coords = "phi1 = E q (Lemma 3.1), phi2 by Lemma 3.2 (27)"
+        momentum = dim2 > 0 and coordinate_form(model, form) == "momentum"
+        phi_expr, E = default_coordinates(model, q0, "momentum" if momentum else "lemma32")
+        coords = ("phi1 = E q (Lemma 3.1), phi2 = T2^T M (momenta, proof of Lemma 3.1)" if momentum
+                  else "phi1 = E q (Lemma 3.1), phi2 by Lemma 3.2 (27)")
     else:
         phi_expr = _as_expr(model, phi)
         coords = "user-given phi"
@@ -349,6 +420,10 @@ def _internal_dynamics(model, method, phi, point, samples, rng, check_points) ->
         res = ca.Function("theta_res", [model.q, ca.vertcat(target, model.theta)], [vartheta - target])
         rf = ca.rootfinder("vartheta_inv", "newton", res, _NEWTON_OPTS)
         qsol = rf(ca.DM(q0), ca.vertcat(ca.MX.zeros(l), Y[0], ETA[:dim1], TH))
+    if method == "sect3" and momentum:
+        T2 = _null_rows(_constant_input_directions(model).T, dim2).T
+        eta_dot, vsol = _momentum_tail(model, phi1, T2, qsol, Y[1], ETA[dim1:], TH)
+    elif method == "sect3":
         y1s, e2s = ca.SX.sym("y_1", m), ca.SX.sym("eta2", dim2)
         Cfull = ca.vertcat(model.J, model.G, H, phi2)
         v_expr = ca.solve(Cfull, ca.vertcat(-model.j, ca.SX.zeros(l), y1s, e2s))      # (28)

@@ -122,7 +122,7 @@ def tangent_dynamics(servo, X, Y, theta):
     """
     import scipy.linalg as sla
 
-    A = np.array(servo.rhs_jac(X, Y, theta)[1])
+    A = np.array(servo.jacobian_evaluator(X, Y, theta)[1])
     C = np.array(servo.constraint_jacobian(X, Y, theta))
     T = sla.null_space(C) if C.size else np.eye(A.shape[0])
     return A, T, T.T @ A @ T

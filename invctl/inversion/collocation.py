@@ -25,7 +25,10 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from .servo import NUMERIC_SOLVES_NX
+
 SCHEME_RE = re.compile(r"^(hermite-simpson|hs|legendre(\d+)|radau(\d+))$")
+
 
 
 @dataclass(frozen=True)
@@ -125,6 +128,8 @@ class Transcription:
                                    [ca.vertcat(ca.vec(res), cont), energy],
                                    ["Xk", "Xc", "Xk1", "h", "Yc", "theta"], ["defect", "energy"])
             self.n_col, self.nY = d * N, d * N
+        if self._compile_request == "auto" and nx > NUMERIC_SOLVES_NX:
+            self._compile_request = False  # large models: numeric solves, nothing to look up in the cache
         if self._compile_request:
             from .compiled import compile_cached, is_cached
 
@@ -218,6 +223,18 @@ class Transcription:
                 self._blk = ca.Function("coll_block", [Js, hs, cs], [(cs * I - hs * Js).T])
         return self._blk
 
+    def _product_function(self) -> ca.Function:
+        """MX ``(Ja, Jb, Jm, h) -> (Da^T, Db^T)``: the Hermite-Simpson blocks from the right-hand side
+        Jacobians at both ends and the midpoint (the same formulas as :meth:`_block_function`)."""
+        if getattr(self, "_prod", None) is None:
+            nx = self.nx
+            I = ca.DM.eye(nx)  # noqa: E741
+            Ja, Jb, Jm, hs = ca.MX.sym("Ja", nx, nx), ca.MX.sym("Jb", nx, nx), ca.MX.sym("Jm", nx, nx), ca.MX.sym("h")
+            Da = -I - hs / 6 * (Ja + 4 * ca.mtimes(Jm, 0.5 * I + hs / 8 * Ja))
+            Db = I - hs / 6 * (Jb + 4 * ca.mtimes(Jm, 0.5 * I - hs / 8 * Jb))
+            self._prod = ca.Function("hs_block_products", [Ja, Jb, Jm, hs], [Da.T, Db.T])
+        return self._prod
+
     def _jacobian_mx(self, x, p):
         """The Jacobian of ``g`` as a sparse MX built from mapped per-node/per-interval
         SX functions (the same blocks as :meth:`residual_and_jacobian`)."""
@@ -236,7 +253,18 @@ class Transcription:
         rj = self._c(rj_sx)
         I = ca.DM.eye(nx)  # noqa: E741
         vals = []
-        if self.scheme.is_hs:
+        if self.scheme.is_hs and not self.compiled and nx > NUMERIC_SOLVES_NX:
+            # large blocks: the right-hand side Jacobian with numeric solves by M (ServoModel.rhs_jac_numeric),
+            # at the midpoints by the mapped function, and the two nx^3 products of every interval as MX
+            # matrix products (compiled C loops), not as nx^3 SX instructions per interval
+            rjn = self.servo.rhs_jac_numeric
+            F, JF = rjn.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
+            Fa, Fb = F[:, :N], F[:, 1:]
+            Xm = 0.5 * (Xmesh[:, :N] + Xmesh[:, 1:]) + ca.repmat(h / 8, nx, 1) * (Fa - Fb)
+            _Fm, JFm = rjn.map(N)(Xm, Y[:, N + 1:], theta)
+            DaT, DbT = self._product_function().map(N)(JF[:, :nx * N], JF[:, nx:], JFm, h)
+            vals = [ca.vec(DaT), ca.vec(DbT)]
+        elif self.scheme.is_hs:
             blk = self._c(self._block_function())
             F, JF = rj.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
             DaT, DbT = blk.map(N)(Xmesh[:, :N], Xmesh[:, 1:], F[:, :N], F[:, 1:], JF[:, :nx * N], JF[:, nx:],
@@ -268,6 +296,13 @@ class Transcription:
         vals.append(ca.DM.ones(s0.size + sf.size))
         return ca.vertcat(*vals)[np.asarray(perm, np.int64).tolist()]
 
+    def _jacobian_function(self) -> ca.Function:
+        """``(x, p) -> dg/dx`` (the assembled sparse Jacobian), built once."""
+        if getattr(self, "_jfun", None) is None:
+            x, p = ca.MX.sym("x", self.nX), ca.MX.sym("p", self.np)
+            self._jfun = ca.Function("servo_jac_g_x", [x, p], [self._jacobian_mx(x, p)], ["x", "p"], ["jac_g_x"])
+        return self._jfun
+
     def _g_function(self) -> ca.Function:
         """``(x, p) -> g`` with the assembled Jacobian as its custom Jacobian, so that
         IPOPT does not differentiate the mapped graph by AD.  The parameter Jacobian
@@ -276,7 +311,7 @@ class Transcription:
             x, p = ca.MX.sym("x", self.nX), ca.MX.sym("p", self.np)
             gexpr = ca.substitute([self.g], [self._x, self._p], [x, p])[0]
             og = ca.MX.sym("out_g", self.ng)
-            jac = ca.Function("jac_servo_g", [x, p, og], [self._jacobian_mx(x, p), ca.MX(self.ng, self.np)],
+            jac = ca.Function("jac_servo_g", [x, p, og], [self._jacobian_function()(x, p), ca.MX(self.ng, self.np)],
                               ["x", "p", "out_g"], ["jac_g_x", "jac_g_p"])
             self._gfun = ca.Function("servo_g", [x, p], [gexpr], ["x", "p"], ["g"],
                                      {"custom_jacobian": jac, "jac_penalty": 0})
@@ -293,9 +328,17 @@ class Transcription:
         """
         key = repr((sorted((k, repr(v)) for k, v in options.items()), assembled_jacobian, zero_hessian))
         if key not in self._solvers:
-            g = self._g_function()(self._x, self._p) if (assembled_jacobian and self.square) else self.g
-            nlp = {"x": self._x, "p": self._p, "f": self.f, "g": g}
             opts = dict(options)
+            assembled = assembled_jacobian and self.square
+            g = self._g_function()(self._x, self._p) if assembled else self.g
+            if assembled and "jac_g" not in opts:
+                # the assembled Jacobian once per call: derived from the custom Jacobian of g by AD,
+                # CasADi would evaluate it once per 64 seed directions of the banded coloring
+                # (3 times for nx = 65)
+                opts["jac_g"] = ca.Function("servo_jac_g", [self._x, self._p],
+                                            [self.g, self._jacobian_function()(self._x, self._p)],
+                                            ["x", "p"], ["g", "jac_g_x"])
+            nlp = {"x": self._x, "p": self._p, "f": self.f, "g": g}
             if zero_hessian:
                 lf, lg = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
                 opts["hess_lag"] = ca.Function("zero_hess_lag", [self._x, self._p, lf, lg],

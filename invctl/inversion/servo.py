@@ -30,6 +30,15 @@ non-holonomic rows) to the differentiated constraint, so the drift decays
 forward in time at rate ``w`` instead of growing polynomially.  It requires
 the selection to fix the constraint modes at ``T0`` (decaying modes cannot be
 fixed at ``Tf``); the paper's Sect. 6 selection does not, hence not the default.
+
+Solves by M
+-----------
+``a`` and ``S = M^-1 [G; J; h']^T`` (so ``A_z = S^T [G^T J^T B]``) are solves with one symbolic
+LDL^T of ``M`` (:class:`invctl.model.linalg.SymmetricSolver`); the jerk level and the Jacobian
+``dF/dX`` differentiate them by the implicit-function rule (``d(M^-1 b) = M^-1 (db - dM M^-1 b)``
+with the solution frozen), never through the factors: O(n^2) nodes per right-hand side (the
+Jacobian of the n-link arm grows like n^2.3 instead of n^3.5).  Above :data:`NUMERIC_SOLVES_NX`
+unknowns the same formulas are evaluated with numeric solves (:attr:`ServoModel.rhs_jac_numeric`).
 """
 from __future__ import annotations
 
@@ -42,6 +51,13 @@ import numpy as np
 from ..errors import ModelError, PositionOutputError, SingularDecouplingError
 
 FORMULATIONS = ("jerk", "baumgarte")
+#: linear solver of :attr:`ServoModel.rhs_jac_numeric`: CasADi's sparse LDL^T (M is symmetric positive
+#: definite; 3x faster than LAPACK LU through CasADi at n = 32, benchmarks/bench_scaling.py)
+LINSOL = "ldl"
+#: above this many unknowns per node (2n + l + p + m) Jacobians of the inverse model are evaluated with
+#: numeric solves (:attr:`ServoModel.rhs_jac_numeric`) and the Hermite-Simpson blocks by MX matrix
+#: products: 4x faster at 65 unknowns (benchmarks/bench_scaling.py), no gain below ~20
+NUMERIC_SOLVES_NX = 20
 
 
 @dataclass(frozen=True)
@@ -104,65 +120,81 @@ class ServoModel:
 
     @cached_property
     def _sym(self):
+        """The right-hand side ``F`` and the residuals with every solve by ``M`` through one shared
+        LDL^T factorization (:mod:`invctl.model.linalg`); the derivatives of solutions are written
+        by the implicit-function rule, never by AD through the factors (module doc)."""
+        from ..model.linalg import SymmetricSolver
+
         md, L = self.model, self.layout
         X = ca.SX.sym("X", L.nx)
         Y = ca.SX.sym("Y", 4 * L.m)
         b = L.blocks
-        q, v, lam, mu, u = (X[b[k]] for k in ("q", "v", "lam", "mu", "u"))
-        sub_in = [md.q, md.v]
-        sub_out = [q, v]
+        q, v, z = X[b["q"]], X[b["v"]], X[2 * L.n:]
 
         def s(e):
-            return ca.substitute([ca.SX(e)], sub_in, sub_out)[0]
+            return ca.substitute([ca.SX(e)], [md.q, md.v], [q, v])[0]
 
         M, f, B, G, J, j, h = (s(e) for e in (md.M, md.f, md.B, md.G, md.J, md.j, md.h))
         yr, yd, ydd, yddd = (Y[k * L.m:(k + 1) * L.m] for k in range(4))
         H = ca.jacobian(h, q)
-        force = f + ca.mtimes(B, u)
-        if L.l:
-            force = force + ca.mtimes(G.T, lam)
-        if L.p:
-            force = force + ca.mtimes(J.T, mu)
-        a = ca.solve(M, force)
+        # z = (lam, mu, u) enters the forces through W = [G^T J^T B]; the velocity-level rows are C v + c0
+        W = ca.horzcat(*([G.T] if L.l else []), *([J.T] if L.p else []), B)
+        C = ca.vertcat(*([G] if L.l else []), *([J] if L.p else []), H)
+        force = f + ca.mtimes(W, z)
+        solver = SymmetricSolver(M)
+        A = ca.SX.sym("A", L.n)  # frozen acceleration: a = M^-1 force solves force - M A = 0
         # constraint residuals by level (rows: holonomic, non-holonomic, servo)
         phi_p = ca.vertcat(ca.SX(0, 1) if not L.l else s(md.g), h - yr)
         vel_h = ca.mtimes(G, v) if L.l else ca.SX(0, 1)
         vel_n = (ca.mtimes(J, v) + j) if L.p else ca.SX(0, 1)
         vel_s = ca.mtimes(H, v) - yd
         phi_v = ca.vertcat(vel_h, vel_n, vel_s)
-        av = ca.SX.sym("av", L.n)
-
-        def d_dt(expr, with_a):  # total time derivative along q' = v, v' = av (y_ref handled by caller)
-            out = ca.mtimes(ca.jacobian(expr, q), v)
-            if with_a:
-                out = out + ca.mtimes(ca.jacobian(expr, v), av)
-            return out
-
-        acc_h = d_dt(vel_h, True) if L.l else ca.SX(0, 1)
-        acc_n = d_dt(vel_n, True) if L.p else ca.SX(0, 1)
-        acc_s = d_dt(ca.mtimes(H, v), True) - ydd
-        phi_a_of_av = ca.vertcat(acc_h, acc_n, acc_s)
-        phi_a = ca.substitute(phi_a_of_av, av, a)
-        z = X[2 * L.n:]
-        Az = ca.jacobian(phi_a, z)
-        # d/dt phi_a with z' unknown: A_q v + A_v a + A_z z' + A_t
+        # acceleration level at v' = A: C A + d/dt(C) v (+ j' v) - (0, 0, y'')
+        Cv = ca.vertcat(vel_h, vel_n, ca.mtimes(H, v))
+        ydd_pad = ca.vertcat(ca.SX.zeros(L.l + L.p), ydd)
+        phi_a_A = ca.mtimes(C, A) + ca.jtimes(Cv, q, v) - ydd_pad
+        # jerk level (z frozen, z' unknown): C a' + [d/dt phi_a at frozen A], a' = M^-1 (r1 + W z'),
+        # r1 = d/dt (force - M A) at frozen A and z (the implicit derivative of a along the motion)
+        resid = force - ca.mtimes(M, A)
+        r1 = ca.jtimes(resid, q, v) + ca.jtimes(force, v, A)
         Yd = ca.vertcat(yd, ydd, yddd, ca.SX.zeros(L.m))
-        At = ca.mtimes(ca.jacobian(phi_a, Y), Yd)
-        rest = ca.mtimes(ca.jacobian(phi_a, q), v) + ca.mtimes(ca.jacobian(phi_a, v), a) + At
+        r2 = ca.jtimes(phi_a_A, ca.vertcat(q, v, Y), ca.vertcat(v, A, Yd))
         if self.formulation == "baumgarte":
             w = self.omega
             nh, nn = L.l, L.p
             parts = []
             if nh:
-                parts.append(3 * w * phi_a[:nh] + 3 * w**2 * phi_v[:nh] + w**3 * phi_p[:nh])
+                parts.append(3 * w * phi_a_A[:nh] + 3 * w**2 * phi_v[:nh] + w**3 * phi_p[:nh])
             if nn:
-                parts.append(2 * w * phi_a[nh:nh + nn] + w**2 * phi_v[nh:nh + nn])
-            parts.append(3 * w * phi_a[nh + nn:] + 3 * w**2 * phi_v[nh + nn:] + w**3 * phi_p[nh:])
-            rest = rest + ca.vertcat(*parts)
-        zdot = -ca.solve(Az, rest)
+                parts.append(2 * w * phi_a_A[nh:nh + nn] + w**2 * phi_v[nh:nh + nn])
+            parts.append(3 * w * phi_a_A[nh + nn:] + 3 * w**2 * phi_v[nh + nn:] + w**3 * phi_p[nh:])
+            r2 = r2 + ca.vertcat(*parts)
+        # S = M^-1 C^T: A_z = C M^-1 W = S^T W (the decoupling matrix), C M^-1 r1 = S^T r1
+        k = C.shape[0]
+        Sh = ca.SX.sym("S", L.n, k)
+        Uh = ca.SX.sym("U", L.n, k + 1)
+        Wr = ca.horzcat(W, r1)
+        # T = S^T [W r1] plus a term that vanishes at S = M^-1 C^T, U = M^-1 [W r1] and whose
+        # q-derivative is the variation of S: d(S^T y) = S^T dy + (dC - S^T dM) M^-1 y
+        T = ca.mtimes(Sh.T, Wr) + ca.mtimes(C, Uh) - ca.mtimes(Sh.T, ca.mtimes(M, Uh))
+        zdot_T = -ca.solve(T[:, :k], T[:, k] + r2)
+        # values
+        a = solver.solve(force)
+        S = solver.solve(C.T)
+        sub_a = lambda e: ca.substitute(e, A, a)  # noqa: E731
+        Az = ca.mtimes(S.T, W)
+        zdot = -ca.solve(Az, ca.mtimes(S.T, sub_a(r1)) + sub_a(r2))
         F = ca.vertcat(v, a, zdot)
-        return {"X": X, "Y": Y, "F": F, "a": a, "phi_p": phi_p, "phi_v": phi_v, "phi_a": phi_a, "Az": Az,
-                "h": h}
+        return {"X": X, "Y": Y, "F": F, "a": a, "phi_p": phi_p, "phi_v": phi_v, "phi_a": sub_a(phi_a_A),
+                "Az": Az, "h": h, "solver": solver, "A": A, "S": S, "Sh": Sh, "Uh": Uh, "Wr": Wr, "resid": resid,
+                "zdot_T": zdot_T, "phi_a_A": phi_a_A, "M": M, "C": C, "force": force}
+
+    def _da_dX(self):
+        """``da/dX`` by the implicit-function rule: ``M^-1 d(force - M A)/dX`` at ``A = a``."""
+        from ..model.linalg import solve_derivative
+
+        S = self._sym
+        return solve_derivative(S["solver"], S["resid"], S["A"], S["a"], S["X"])
 
     def _fn(self, name, outs, out_names):
         md, S = self.model, self._sym
@@ -175,9 +207,57 @@ class ServoModel:
 
     @cached_property
     def rhs_jac(self) -> ca.Function:
-        """``(X, Y, theta) -> (F, dF/dX)`` (dense Jacobian, for assembled Newton steps)."""
+        """``(X, Y, theta) -> (F, dF/dX)`` (dense Jacobian, for assembled Newton steps).
+
+        ``d a/dX = M^-1 d(force - M A)/dX`` and ``d z'/dX`` by the chain rule through the frozen
+        acceleration ``A`` and the frozen solves ``S``, ``U`` (their variations are carried by the
+        term of ``T`` that vanishes at the solution), so no derivative passes through the factors."""
         S = self._sym
-        return self._fn("servo_rhs_jac", [S["F"], ca.densify(ca.jacobian(S["F"], S["X"]))], ["F", "dFdX"])
+        X, n = S["X"], self.layout.n
+        da = self._da_dX()
+        Z = S["zdot_T"]
+        U = S["solver"].solve(ca.substitute(S["Wr"], S["A"], S["a"]))
+        frozen = ca.vertcat(S["A"], ca.vec(S["Sh"]), ca.vec(S["Uh"]))
+        values = ca.vertcat(S["a"], ca.vec(S["S"]), ca.vec(U))
+        part = ca.Function("zdot_jac", [X, S["Y"], self.model.theta, frozen],
+                           [ca.jacobian(Z, X), ca.jacobian(Z, S["A"])])
+        jZX, jZA = part(X, S["Y"], self.model.theta, values)
+        dzdot = jZX + ca.mtimes(jZA, da)
+        nx = X.shape[0]
+        dv = ca.horzcat(ca.SX(n, n), ca.SX.eye(n), ca.SX(n, nx - 2 * n))
+        return self._fn("servo_rhs_jac", [S["F"], ca.densify(ca.vertcat(dv, da, dzdot))], ["F", "dFdX"])
+
+    @property
+    def jacobian_evaluator(self) -> ca.Function:
+        """The Jacobian function for numeric evaluation: :attr:`rhs_jac_numeric` above
+        :data:`NUMERIC_SOLVES_NX` unknowns (cheaper to build and to evaluate), :attr:`rhs_jac` below."""
+        return self.rhs_jac_numeric if self.layout.nx > NUMERIC_SOLVES_NX else self.rhs_jac
+
+    @cached_property
+    def rhs_jac_numeric(self) -> ca.Function:
+        """``rhs_jac`` with the solves by ``M`` done numerically (MX, an LDL^T of ``M`` per evaluation)
+        instead of with the symbolic factors: the same formulas, for large models, where the
+        O(n^2 nx) SX instructions of the symbolic triangular solves dominate.  Not callable with
+        SX arguments."""
+        S, L, th = self._sym, self.layout, self.model.theta
+        X, Y, A = S["X"], S["Y"], S["A"]
+        n, nx, k = L.n, L.nx, S["Sh"].shape[1]
+        f1 = ca.Function("servo_parts1", [X, th], [S["M"], S["force"], S["C"].T])
+        f2 = ca.Function("servo_parts2", [X, Y, th, A], [S["Wr"], ca.jacobian(S["resid"], X)])
+        frozen = ca.vertcat(A, ca.vec(S["Sh"]), ca.vec(S["Uh"]))
+        Z = S["zdot_T"]
+        f3 = ca.Function("servo_parts3", [X, Y, th, frozen], [Z, ca.jacobian(Z, X), ca.jacobian(Z, A)])
+        Xm, Ym, Tm = ca.MX.sym("X", nx), ca.MX.sym("Y", Y.numel()), ca.MX.sym("theta", th.numel())
+        Mm, force, CT = f1(Xm, Tm)
+        sol = ca.solve(Mm, ca.horzcat(force, CT), LINSOL)
+        a, Sm = sol[:, 0], sol[:, 1:]
+        Wr, D1 = f2(Xm, Ym, Tm, a)
+        sol2 = ca.solve(Mm, ca.horzcat(Wr, D1), LINSOL)
+        U, da = sol2[:, :k + 1], sol2[:, k + 1:]
+        zdot, jZX, jZA = f3(Xm, Ym, Tm, ca.vertcat(a, ca.vec(Sm), ca.vec(U)))
+        J = ca.vertcat(ca.horzcat(ca.MX(n, n), ca.MX.eye(n), ca.MX(n, nx - 2 * n)), da, jZX + ca.mtimes(jZA, da))
+        return ca.Function("servo_rhs_jac_numeric", [Xm, Ym, Tm], [ca.vertcat(Xm[n:2 * n], a, zdot), J],
+                           ["X", "Y", "theta"], ["F", "dFdX"])
 
     @cached_property
     def residuals(self) -> ca.Function:
@@ -191,8 +271,11 @@ class ServoModel:
         """``(X, Y, theta) -> C``: Jacobian w.r.t. ``X`` of the stacked position, velocity and
         acceleration residuals; its null space is the tangent space of the constraint manifold."""
         S = self._sym
-        res = ca.vertcat(S["phi_p"], S["phi_v"], S["phi_a"])
-        return self._fn("servo_constraint_jac", [ca.densify(ca.jacobian(res, S["X"]))], ["C"])
+        X, A = S["X"], S["A"]
+        pos_vel = ca.vertcat(S["phi_p"], S["phi_v"])
+        dacc = ca.substitute(ca.jacobian(S["phi_a_A"], X) + ca.mtimes(ca.jacobian(S["phi_a_A"], A), self._da_dX()),
+                             A, S["a"])
+        return self._fn("servo_constraint_jac", [ca.densify(ca.vertcat(ca.jacobian(pos_vel, X), dacc))], ["C"])
 
     @cached_property
     def output(self) -> ca.Function:
@@ -230,12 +313,28 @@ def _check_position_output(model) -> None:
             diagnostics={"outputs": list(model.y_names), "problems": bad})
 
 
+def _decoupling_scales(model, Q) -> np.ndarray:
+    """``||C M^-1||_2 ||W||_2`` at the configurations ``Q`` (columns), ``C = [G; J; h']``,
+    ``W = [G^T J^T B]`` (numerically; the scale of the product ``A_z = C M^-1 W``)."""
+    H = ca.jacobian(model.h, model.q)
+    parts = ca.Function("decoupling_parts", [model.q, model.theta],
+                        [model.M, ca.vertcat(model.G, model.J, H), ca.horzcat(model.G.T, model.J.T, model.B)])
+    th = model.theta_values
+    out = []
+    for k in range(Q.shape[1]):
+        M, C, W = (np.array(x) for x in parts(Q[:, k], th))
+        out.append(np.linalg.norm(np.linalg.solve(M, C.T), 2) * np.linalg.norm(W, 2))
+    return np.array(out)
+
+
 def check_decoupling(model, Az, times, Q, rcond: float = 1e-10) -> None:
     """Raise :class:`SingularDecouplingError` where the decoupling matrices ``Az`` (shape
     ``(k, k, K)`` at ``times``, configurations ``Q``) are singular (smallest over largest singular
     value below ``rcond``): there the vector relative degree is not (2, ..., 2)."""
     sv = np.linalg.svd(Az.transpose(2, 0, 1), compute_uv=False)
-    ratio = sv[:, -1] / np.maximum(sv[:, 0], 1e-300)
+    # A_z = (C M^-1) W: a singular value that is only rounding of that product counts as zero, so the
+    # ratio is taken against ||C M^-1|| ||W|| too (a 1 x 1 A_z has sigma_min = sigma_max)
+    ratio = sv[:, -1] / np.maximum(np.maximum(sv[:, 0], _decoupling_scales(model, Q)), 1e-300)
     bad = np.flatnonzero(~(ratio >= rcond))
     if bad.size == 0:
         return

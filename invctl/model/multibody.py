@@ -337,22 +337,20 @@ class Model:
     @cached_property
     def accel_and_multipliers(self) -> ca.Function:
         """``(q, v, u, theta) -> (v', lam, mu)`` from the index-1 system
-        ``[M -G^T -J^T; G 0 0; J 0 0] [v'; lam; mu] = [f + B u; -G' v v; -(J' v) v - j' v]``."""
+        ``[M -G^T -J^T; G 0 0; J 0 0] [v'; lam; mu] = [f + B u; -G' v v; -(J' v) v - j' v]``
+        (solved by the Schur complement on the LDL^T factors of ``M``, :mod:`invctl.model.linalg`)."""
+        from .linalg import constrained_acceleration
+
         u = ca.SX.sym("u", self.m)
-        n, l, p = self.n, self.ell, self.p
-        Gdot_v = ca.mtimes(ca.jacobian(ca.mtimes(self.G, self.v), self.q), self.v)
-        Jv_j = ca.mtimes(self.J, self.v) + self.j
-        Jdot = ca.mtimes(ca.jacobian(Jv_j, self.q), self.v)
-        K = ca.blockcat([
-            [self.M, -self.G.T, -self.J.T],
-            [self.G, ca.SX(l, l), ca.SX(l, p)],
-            [self.J, ca.SX(p, l), ca.SX(p, p)],
-        ])
-        rhs = ca.vertcat(self.f + ca.mtimes(self.B, u), -Gdot_v, -Jdot)
-        sol = ca.solve(K, rhs)
+        l = self.ell
+        Gdot_v = ca.jtimes(ca.mtimes(self.G, self.v), self.q, self.v)
+        Jdot = ca.jtimes(ca.mtimes(self.J, self.v) + self.j, self.q, self.v)
+        # the KKT system by the Schur complement on one LDL^T of M (no symbolic inverse of the KKT matrix)
+        a, lam_mu = constrained_acceleration(self.M, self.f + ca.mtimes(self.B, u), ca.vertcat(self.G, self.J),
+                                             ca.vertcat(-Gdot_v, -Jdot))
         return ca.Function(
             "accel", [self.q, self.v, u, self.theta],
-            [sol[:n], sol[n:n + l], sol[n + l:]], ["q", "v", "u", "theta"], ["a", "lam", "mu"],
+            [a, lam_mu[:l], lam_mu[l:]], ["q", "v", "u", "theta"], ["a", "lam", "mu"],
         )
 
     def __repr__(self) -> str:

@@ -203,19 +203,23 @@ class ClosedLoopResult:
 def plant_acceleration(model, alpha: float = 20.0, beta: float = 20.0) -> ca.Function:
     """``(q, v, u, theta) -> (a, lam)`` of the Baumgarte-stabilized index-1 system
     ``[M -G^T -J^T; G 0 0; J 0 0] [a; lam; mu] = [f + B u; -G'vv - 2 alpha G v - beta^2 g; -(Jv+j)'v - alpha (J v + j)]``."""
+    from ..model.linalg import acceleration_function
+
     q, v, th = model.q, model.v, model.theta
     u = ca.SX.sym("u", model.m)
-    n, l, p = model.n, model.ell, model.p
+    l = model.ell
     Gv = ca.mtimes(model.G, v)
     Jv = ca.mtimes(model.J, v) + model.j
-    K = ca.blockcat([[model.M, -model.G.T, -model.J.T],
-                     [model.G, ca.SX(l, l), ca.SX(l, p)],
-                     [model.J, ca.SX(p, l), ca.SX(p, p)]])
-    rhs = ca.vertcat(model.f + ca.mtimes(model.B, u),
-                     -ca.mtimes(ca.jacobian(Gv, q), v) - 2 * alpha * Gv - beta**2 * model.g,
-                     -ca.mtimes(ca.jacobian(Jv, q), v) - alpha * Jv)
-    sol = ca.solve(K, rhs)
-    return ca.Function("plant_acc", [q, v, u, th], [sol[:n], sol[n:n + l]], ["q", "v", "u", "theta"], ["a", "lam"])
+    bias = ca.vertcat(-ca.jtimes(Gv, q, v) - 2 * alpha * Gv - beta**2 * model.g,
+                      -ca.jtimes(Jv, q, v) - alpha * Jv)
+    # M a = f + B u + [G; J]^T (lam, mu), [G; J] a = bias: Schur complement on the LDL^T factors of M,
+    # with the exact Jacobian CVODES needs by the implicit-function rule (invctl.model.linalg)
+    acc = acceleration_function("plant_acc_all", q, v, u, th, model.M, model.f + ca.mtimes(model.B, u),
+                                ca.vertcat(model.G, model.J), bias)
+    qm, vm = ca.MX.sym("q", model.n), ca.MX.sym("v", model.n)
+    um, tm = ca.MX.sym("u", model.m), ca.MX.sym("theta", th.numel())
+    a, lam_mu = acc(qm, vm, um, tm)
+    return ca.Function("plant_acc", [qm, vm, um, tm], [a, lam_mu[:l]], ["q", "v", "u", "theta"], ["a", "lam"])
 
 
 def sampled_signal(t, values, name="u_ff") -> ca.Function:

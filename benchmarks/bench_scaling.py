@@ -1,0 +1,157 @@
+"""Scaling of analysis, inversion and closed loop with the size of the model (issue 11, "Performance").
+
+The n-link flexible arm (problems/flexible_arm.py) for n = 2, 4, 8, 16, 32, each n in a fresh
+process (cold caches, its own peak memory), at fixed accuracy: the automatic inversion setup (plan
+tails 1e-8, Hermite-Simpson, N = 200 on the graded mesh) and a 2 s closed loop (C1: feedforward +
+funnel on the plant with 20 % heavier links).  Per n it prints the wall time of
+
+  analysis     model, plant, internal dynamics (003 Sect. 3) and their linearization, funnel design
+  inversion    invert(): plan (selection, horizon), servo model, transcription, IPOPT
+  closed loop  build and run of C1 over [0, 2] s
+
+with the breakdown of the inversion (build / equilibria and guess / solve, IPOPT iterations), the
+peak memory of the process, the forward-check error of the inverse (the accuracy that is held
+fixed), the funnel margin of C1 and the size of the servo ODE's Jacobian (SX instructions); then the
+growth exponents fitted in n (least squares of log time over log n, all n and n >= 8).  Timing is
+wall time on a shared machine (single runs vary by up to 70 % at n = 32 under load): each n runs
+``--repeat`` times and the fastest run is kept.
+
+    python benchmarks/bench_scaling.py [--n 2 4 8] [--repeat 2] [--timeout 600]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+NS = (2, 4, 8, 16, 32)
+
+
+def worker(n: int) -> dict:
+    from invctl.inversion import forward_check
+    from invctl.inversion.solve import servo_model
+    from invctl.scenes import load_scene
+    from invctl.studies.tracking import invert_tracking, run_controller, setup_tracking
+
+    scene = load_scene("flexible_arm")
+    out = {"n": n}
+    t = time.perf_counter()
+    setup = setup_tracking(scene, {"n": n}, invert=False)
+    out["analysis_s"] = time.perf_counter() - t
+    out["analysis_parts"] = {k: setup.timings[k] for k in ("analysis", "controller")}
+    t = time.perf_counter()
+    inv = invert_tracking(scene, setup.model, setup.reference)
+    setup.inverse = inv
+    out["inversion_s"] = time.perf_counter() - t
+    d = inv.diagnostics
+    out["inversion_parts"] = {"build_s": d["build_s"], "guess_s": d["guess_s"], "solve_s": d["solve_s"],
+                              "iterations": d["iterations"], "T0": d["T0"], "Tf": d["Tf"], "N": d["N"]}
+    out["inversion_parts"]["plan_and_rest_s"] = out["inversion_s"] - d["build_s"] - d["guess_s"] - d["solve_s"]
+    t = time.perf_counter()
+    loop = setup.loop("C1")
+    build = time.perf_counter() - t
+    res = run_controller(setup, "C1")
+    out["closed_loop_s"] = time.perf_counter() - t
+    out["closed_loop_parts"] = {"build_s": build, "run_s": res.wall_s, "t_end": float(res.t[-1])}
+    out["funnel_ratio"] = res.max_funnel_ratio
+    out["status"] = res.status
+    out["steps"] = loop.integrator.stats().get("nsteps")
+    t = time.perf_counter()
+    fc = forward_check(setup.model, inv, setup.reference)
+    out["forward_check_s"] = time.perf_counter() - t
+    out["forward_error"] = fc["error"]
+    servo = servo_model(setup.model, "baumgarte", 10.0)
+    out["rhs_jac_instructions"] = servo.rhs_jac.n_instructions()
+    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return out
+
+
+def run_worker(n: int, timeout: float) -> dict:
+    """One fresh process for ``n``; its result dict, or ``{"n", "error"}``."""
+    t = time.perf_counter()
+    try:
+        proc = subprocess.run([sys.executable, __file__, "--worker", str(n)], capture_output=True, text=True,
+                              timeout=timeout, env=dict(os.environ))
+        line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+        if not line:
+            why = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no output"
+            raise RuntimeError(f"no result (exit code {proc.returncode}: {why}) after {time.perf_counter() - t:.0f} s")
+        return json.loads(line[0][7:])
+    except subprocess.TimeoutExpired:
+        return {"n": n, "error": f"not finished in {timeout:.0f} s"}
+    except RuntimeError as exc:
+        return {"n": n, "error": str(exc)}
+
+
+def fit(ns, ts) -> float:
+    ns, ts = np.asarray(ns, float), np.asarray(ts, float)
+    ok = np.isfinite(ts) & (ts > 0)
+    if ok.sum() < 2:
+        return float("nan")
+    return float(np.polyfit(np.log(ns[ok]), np.log(ts[ok]), 1)[0])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n", type=int, nargs="*", default=list(NS))
+    ap.add_argument("--timeout", type=float, default=600.0)
+    ap.add_argument("--repeat", type=int, default=2, help="runs per n; the fastest (total) is kept")
+    ap.add_argument("--worker", type=int, default=None)
+    args = ap.parse_args()
+    if args.worker is not None:
+        print("RESULT " + json.dumps(worker(args.worker)))
+        return
+    rows = []
+    print("n-link flexible arm (problems/flexible_arm.py): analysis, inversion, 2 s closed loop (C1); "
+          f"one fresh process per run, fastest of {args.repeat} per n")
+    head = (f"{'n':>3s} {'analysis':>9s} {'inversion':>10s} {'closed loop':>12s} {'total':>8s} {'peak MB':>8s} "
+            f"{'fwd err':>9s} {'C1 phi|e|':>9s} {'iter':>4s} {'jac SX instr':>12s}")
+    print(head)
+    print("-" * len(head))
+    for n in args.n:
+        runs = [run_worker(n, args.timeout) for _ in range(max(1, args.repeat))]
+        good = [r for r in runs if "error" not in r]
+        r = min(good, key=lambda x: x["analysis_s"] + x["inversion_s"] + x["closed_loop_s"]) if good else runs[0]
+        rows.append(r)
+        if "error" in r:
+            print(f"{n:3d}  {r['error']}")
+            continue
+        total = r["analysis_s"] + r["inversion_s"] + r["closed_loop_s"]
+        print(f"{n:3d} {r['analysis_s']:9.2f} {r['inversion_s']:10.2f} {r['closed_loop_s']:12.2f} {total:8.2f} "
+              f"{r['peak_rss_mb']:8.0f} {r['forward_error']:9.1e} {r['funnel_ratio']:9.3f} "
+              f"{r['inversion_parts']['iterations']:4d} {r['rhs_jac_instructions']:12d}", flush=True)
+    done = [r for r in rows if "error" not in r]
+    if not done:
+        return
+    print("\nwhere the time goes (s): analysis = [model, plant, internal dynamics, linearization | funnel "
+          "design]; inversion = [plan and equilibria | build | guess | IPOPT solve]; closed loop = [build | run]")
+    for r in done:
+        a, i, c = r["analysis_parts"], r["inversion_parts"], r["closed_loop_parts"]
+        print(f"{r['n']:3d}  analysis [{a['analysis']:.2f} | {a['controller']:.2f}]  inversion "
+              f"[{i['plan_and_rest_s']:.2f} | {i['build_s']:.2f} | {i['guess_s']:.2f} | {i['solve_s']:.2f}, "
+              f"{i['iterations']} it, horizon [{i['T0']:.2f}, {i['Tf']:.2f}]]  closed loop [{c['build_s']:.2f} | "
+              f"{c['run_s']:.2f}]  (forward check {r['forward_check_s']:.2f})")
+    ns = [r["n"] for r in done]
+    print("\nfitted growth exponents (time ~ n^p), least squares of log t over log n:")
+    for r in done:
+        r["solve_per_iteration_s"] = r["inversion_parts"]["solve_s"] / max(1, r["inversion_parts"]["iterations"])
+    for key, label in (("analysis_s", "analysis"), ("inversion_s", "inversion"),
+                       ("solve_per_iteration_s", "IPOPT per iteration"), ("closed_loop_s", "closed loop"),
+                       ("rhs_jac_instructions", "servo Jacobian size")):
+        vals = [r[key] for r in done]
+        big = [(n, v) for n, v in zip(ns, vals) if n >= 8]
+        tail = fit(*zip(*big)) if len(big) >= 2 else float("nan")
+        print(f"  {label:20s} p = {fit(ns, vals):5.2f} (all n), {tail:5.2f} (n >= 8)")
+    totals = {r["n"]: r["analysis_s"] + r["inversion_s"] + r["closed_loop_s"] for r in done}
+    if 32 in totals:
+        print(f"\nn = 32: analysis + inversion + closed loop = {totals[32]:.1f} s (target < 60 s)")
+
+
+if __name__ == "__main__":
+    main()
