@@ -677,6 +677,9 @@ REJECTED = {
     "chain14": [("rho=0", "positive"), ("c=-1", "positive")],
     "backlash_pivot": [("Jm=0", "positive"), ("alpha=-1", "positive")],
     "fourbar_backlash": [("a=0", "positive"), ("h=0", "positive")],
+    "mass_chain": [("n=2.5", "integer"), ("k=-1", ">= 0"), ("k=0,c=0", "decouples")],
+    "passive_arm": [("L1=0", "positive"), ("c2=-1", ">= 0")],
+    "flexible_arm": [("n=0", "positive"), ("d=-1", ">= 0"), ("w=0", "colocated")],
 }
 
 
