@@ -180,6 +180,19 @@ def _option_values(draw, name: str, scene: str, tmp: Path, case: int) -> list[st
         return [flag, draw(st.sampled_from(["steps", "events"])) if valid else draw(st.sampled_from(["all", ""]))]
     if name == "max_wall_time":
         return [flag, draw(st.sampled_from(["30", "60"])) if valid else draw(st.sampled_from(["0", "-1", "nan", "abc"]))]
+    if name == "bound":
+        return [flag, draw(st.sampled_from(["u=1000", "pre=50", "u_rate=1e6"])) if valid else draw(st.sampled_from(
+            ["u=abc", "u", "x=1", "q=1", "u=1:-1", "u=nan", "u=", "pre=-1", "q.nope=1", "u=1e400"]))]
+    if name == "weight":
+        return [flag, draw(st.sampled_from(["output=1", "slack=1e-2", "energy=0"])) if valid else draw(st.sampled_from(
+            ["output=-1", "slack=nan", "foo=1", "output", "energy=abc", "output.nope=1"]))]
+    if name == "minimum_time":
+        return [flag] if draw(st.integers(0, 3)) == 0 else []
+    if name == "energy":
+        return [flag, draw(st.sampled_from(["0.1", "1"])) if valid else draw(st.sampled_from(["-1", "nan", "abc"]))]
+    if name == "duration":
+        return [flag, draw(st.sampled_from(["0.5:5", "1:3"])) if valid else draw(st.sampled_from(
+            ["3:1", "0:1", "abc", "1", "-1:2", "1:inf"]))]
     raise AssertionError(f"the fuzzer does not know option {name!r}: add it")
 
 

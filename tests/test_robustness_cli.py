@@ -336,12 +336,17 @@ def test_sigint_inside_ipopt_is_an_interruption_not_a_failed_inversion(tmp_path)
 
 
 _SLOW_LOOP = textwrap.dedent("""
-    import sys
+    import sys, time
     from invctl.simulate import closed_loop
     init, run = closed_loop.ClosedLoop.__init__, closed_loop.ClosedLoop.run
-    def slow_init(self, *a, **k):  # tight tolerances and short chunks: a run of ~1 s to interrupt
+    def slow_init(self, *a, **k):  # 40 chunks of at least 0.1 s each: the signal lands inside the loop
         k.update(rtol=1e-13, atol=1e-15, chunks=40)
         init(self, *a, **k)
+        integrate = self.integrator
+        def slow_chunk(*a, **k):
+            time.sleep(0.1)
+            return integrate(*a, **k)
+        self.integrator = slow_chunk
     def marked_run(self, *a, **k):
         print("SIMULATION STARTED", file=sys.stderr, flush=True)
         return run(self, *a, **k)
