@@ -5,7 +5,8 @@ The base inversion is refined to a forward-check error of 1e-6 (Hermite-Simpson)
 on that discretization and afterwards forward-checked (an independent CVODES simulation of the model
 under the point's feedforward).  Printed:
 
-* warm-started library (continuation from solved neighbours, Newton), in this process;
+* warm-started library (continuation from solved neighbours, Newton on the collocation system compiled
+  to C once per machine), in this process; the same in CasADi's virtual machine (``compiled=False``);
 * the same library with every point from its quasi-static guess (``continuation=False``);
 * ``invert()`` per point from its quasi-static guess (what a script without the library does) on a
   subset of the points, same mesh and boundary selection;
@@ -49,11 +50,14 @@ def main():
     common = dict(tol=TOL, verify="none", progress=False)
     _, warm = best_of(2, lambda: generate("manipulator", GRID, executor="serial", **common))
     _, cold = best_of(2, lambda: generate("manipulator", GRID, executor="serial", continuation=False, **common))
+    _, warm_vm = best_of(2, lambda: generate("manipulator", GRID, executor="serial", compiled=False, **common))
     P = len(warm.status)
     b = warm.info["base"]
     print(f"{P} points, grid {' x '.join(GRID)}; base: {b['scheme']} N = {b['N']} (refined to forward-check error "
           f"{b['max_output_error']:.2g} <= {TOL:g}), horizon [{b['T0']:g}, {b['Tf']:g}]")
     rows = []
+    print(f"Newton's residual and Jacobian: compiled {warm.info['compiled']} (C compile {warm.info['compile_s']:.2f} s "
+          "in this run; 0 once cached on disk)")
     for name, lib in (("library, warm starts (continuation)", warm), ("library, quasi-static starts", cold)):
         it = lib.stats["iterations"]
         rows.append((name, lib.counts()["solved"], lib.info["solve_wall_s"], lib.info["points_per_s"],
@@ -76,6 +80,9 @@ def main():
         its.append(inv.diagnostics["iterations"])
     rows.append((f"invert() per point ({len(sub)} of the points)", len(sub), t_inv, len(sub) / t_inv,
                  f"{np.median(its):.0f}", "-", len(sub) / c_inv))
+    vm_row = ("library, warm starts, virtual machine", warm_vm.counts()["solved"], warm_vm.info["solve_wall_s"],
+              warm_vm.info["points_per_s"], f"{np.nanmedian(warm_vm.stats['iterations']):.0f}",
+              f"{np.nanmedian(warm_vm.stats['factorizations']):.0f}", P / np.nansum(warm_vm.stats["cpu_s"]))
     _, pool = best_of(1, lambda: generate("manipulator", GRID, max_workers=2, **common))
     rows.append(("library, warm starts, process pool (2)", pool.counts()["solved"], pool.info["solve_wall_s"],
                  pool.info["points_per_s"], f"{np.nanmedian(pool.stats['iterations']):.0f}",
@@ -84,18 +91,21 @@ def main():
             f"{'LU':>3s}")
     print(head)
     print("-" * len(head))
-    for r in rows:
+    for r in rows + [vm_row]:
         print(f"{r[0]:42s} {r[1]:6d} {r[2]:7.2f} {r[3]:7.1f} {r[6]:10.1f} {r[4]:>9s} {r[5]:>3s}")
     print("(process pool: CPU traj/s of its 2 workers together)")
     rate_w, rate_c, rate_i = rows[0][3], rows[1][3], rows[2][3]
     cpu_w, cpu_c, cpu_i = rows[0][6], rows[1][6], rows[2][6]
     print(f"warm / quasi-static starts (same pipeline): {rate_w / rate_c:.1f}x wall, {cpu_w / cpu_c:.1f}x CPU;  "
           f"warm / invert() per point: {rate_w / rate_i:.1f}x wall, {cpu_w / cpu_i:.1f}x CPU;  "
-          f"process pool / serial: {rows[3][3] / rate_w:.1f}x wall")
+          f"process pool / serial: {rows[3][3] / rate_w:.1f}x wall;  compiled / virtual machine: "
+          f"{rate_w / vm_row[3]:.1f}x wall, {cpu_w / vm_row[6]:.1f}x CPU")
     # the same solutions, and their accuracy
     t = np.linspace(b["T0"], b["Tf"], 601)
     diff = max(np.max(np.abs(warm.inverse(i).u(t) - cold.inverse(i).u(t))) for i in range(P))
     print(f"warm vs quasi-static library: max |u_ff difference| = {diff:.2g} N (both Newton to max |g| < 1e-10)")
+    diff = max(np.max(np.abs(warm.inverse(i).u(t) - warm_vm.inverse(i).u(t))) for i in range(P))
+    print(f"compiled vs virtual machine library: max |u_ff difference| = {diff:.2g} N")
     t0 = time.perf_counter()
     errs = np.array([forward_check(model, warm.inverse(i), scene.reference(
         model, rf=(warm.points[i]["rf[0]"], warm.points[i]["rf[1]"])))["error"] for i in range(P)])

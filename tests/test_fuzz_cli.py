@@ -186,7 +186,7 @@ def _option_values(draw, name: str, scene: str, tmp: Path, case: int) -> list[st
     if name == "weight":
         return [flag, draw(st.sampled_from(["output=1", "slack=1e-2", "energy=0"])) if valid else draw(st.sampled_from(
             ["output=-1", "slack=nan", "foo=1", "output", "energy=abc", "output.nope=1"]))]
-    if name == "minimum_time":
+    if name in ("minimum_time", "no_compile"):
         return [flag] if draw(st.integers(0, 3)) == 0 else []
     if name == "energy":
         return [flag, draw(st.sampled_from(["0.1", "1"])) if valid else draw(st.sampled_from(["-1", "nan", "abc"]))]

@@ -194,3 +194,17 @@ def test_force_starts_over(tmp_path):
     lib = generate("manipulator", {"tf": [0.8, 1.0]}, executor="serial", N=60, verify="none", out=out, force=True,
                    progress=False)
     assert lib.info["resumed"] == 0 and Library.load(out).points == [{"tf": 0.8}, {"tf": 1.0}]
+
+
+def test_compiled_and_virtual_machine_newton_give_the_same_library(lib):
+    # the module fixture compiles when a C compiler exists; the virtual machine evaluates the same
+    # expressions (round-off apart): both Newton runs stop at max |g| < 1e-10, so u_ff agrees to ~1e-8
+    from invctl.inversion.compiled import compiler
+
+    vm = generate("manipulator", GRID, executor="serial", N=60, verify="none", progress=False, compiled=False)
+    assert vm.info["compiled"] == "no" and vm.info["compile_s"] == 0.0
+    assert lib.info["compiled"] == ("yes" if compiler() is not None else "no")
+    t = np.linspace(lib.info["base"]["T0"], lib.info["base"]["Tf"], 301)
+    for i in range(len(lib.points)):
+        u_c, u_vm = lib.inverse(i).u(t), vm.inverse(i).u(t)
+        assert np.max(np.abs(u_c - u_vm)) <= 1e-7 * max(1.0, np.max(np.abs(u_vm)))

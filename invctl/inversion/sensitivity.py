@@ -241,6 +241,7 @@ class ParametricInverse:
         self.t_mesh, self.x, self.p = np.asarray(t_mesh, float), np.asarray(x, float), np.asarray(p, float)
         self.E0, self.Ef = np.asarray(E0, float), np.asarray(Ef, float)
         self.newton_tol = float(newton_tol)
+        self.compiled = "auto"  # of the transcription: True compiles (C, disk-cached), "auto" only reuses the cache
         self._lu = None
         self._lu_at_solution = None
         self._modes: dict = {}
@@ -293,7 +294,9 @@ class ParametricInverse:
                 "computed for", diagnostics={"residual": res})
         return obj
 
-    def transcription(self, compiled="auto"):
+    def transcription(self, compiled=None):
+        """The collocation system (``compiled``: default :attr:`compiled`)."""
+        compiled = self.compiled if compiled is None else compiled
         return transcription(self.servo, self.selection, self.scheme, self.t_mesh.size - 1, 0.0, compiled=compiled)
 
     def _w(self, E):

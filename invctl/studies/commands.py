@@ -128,6 +128,9 @@ OPTIONS.update({
                      choices=("all", "corners", "none")),
     "no_continuation": Option(bool, "solve every point from its quasi-static guess (no warm starts)", ("generate",),
                               False, flag=True),
+    "no_compile": Option(bool, "Newton in CasADi's virtual machine (default: the collocation residual and Jacobian "
+                         "as C code, compiled once per machine when a C compiler is found)", ("generate",), False,
+                         flag=True),
 })
 for _name in ("N", "scheme", "tol", "backend", "out", "force", "quiet"):
     OPTIONS[_name] = replace(OPTIONS[_name], commands=OPTIONS[_name].commands + ("generate",))
@@ -682,7 +685,7 @@ def generate(scene, values=None, **options) -> CommandResult:
         lib = generate_library(scene, o["grid"], params=params, out=out, executor=executor, max_workers=o["workers"],
                                backend=o["backend"] or "newton", N=o["N"], scheme=o["scheme"], tol=o["tol"],
                                continuation=not o["no_continuation"], verify=o["verify"], force=o["force"],
-                               progress=not o["quiet"])
+                               progress=not o["quiet"], compiled=False if o["no_compile"] else None)
     finally:
         if client is not None:
             client.close()

@@ -35,7 +35,7 @@ import os
 import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, Executor, ProcessPoolExecutor, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -60,6 +60,7 @@ class _Context:
     base: dict
     backend: str
     tol: float | None
+    compiled: bool | str = "auto"
 
 
 _STATE: dict = {}
@@ -86,6 +87,8 @@ def _state(ctx: _Context, scene=None, model=None):
         base = ParametricInverse.from_inverse(model, ref, inv) if ctx.backend == "newton" else None
         _STATE.clear()  # one library at a time per process
         st = _STATE[ctx.key] = {"scene": scene, "model": model, "base": base, "inverse": inv}
+    if st["base"] is not None:
+        st["base"].compiled = ctx.compiled
     return st
 
 
@@ -355,7 +358,7 @@ def _run(ctx, points, norm, seed_pos, done: dict, todo: list, *, continuation, v
 def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: int | None = None,
              backend: str = "newton", N: int | None = None, scheme: str | None = None, tol: float | None = None,
              continuation: bool = True, verify: str = "corners", force: bool = False, progress: bool = True,
-             callback: Callable | None = None) -> Library:
+             callback: Callable | None = None, compiled: bool | None = None) -> Library:
     """Solve the scene's stable inversion on a grid (module doc) and return the :class:`Library`.
 
     Parameters
@@ -384,6 +387,10 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
         marked ``inaccurate`` (kept, listed among the failures).
     callback : callable, optional
         ``callback(record)`` after every point (``record["index"]``, ``["status"]``, ...).
+    compiled : bool, optional
+        Newton backend: evaluate the collocation residual and Jacobian through C code generated and
+        compiled once (cached on disk; ``info["compile_s"]``).  Default: when a C compiler is found;
+        a failed compilation falls back to CasADi's virtual machine (``info["compiled"]`` says why).
     """
     from ..scenes import Scene, load_scene, scene_reference
     from .tracking import invert_tracking, tracking_model
@@ -421,10 +428,20 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
                 "diagnostics": {k: base.diagnostics[k] for k in ("selection", "formulation", "omega")},
                 "start": cfg.get("start", plan.get("start")), "end": cfg.get("end", plan.get("end"))}
     ctx_base["warm"] = _warm(dict(ctx_base), -1)
-    ctx = _Context(key, scene_reference(scene), tuple(sorted(params.items())), tuple(ref_kwargs.items()),
-                   tuple(axes), ctx_base, backend, tol)
-    _state(ctx, scene, model)
     base_t = time.perf_counter() - t_start
+    use_c, compile_s, compiled_note = _compile_choice(compiled, backend), 0.0, None
+    ctx = _Context(key, scene_reference(scene), tuple(sorted(params.items())), tuple(ref_kwargs.items()),
+                   tuple(axes), ctx_base, backend, tol, use_c)
+    st = _state(ctx, scene, model)
+    if use_c is True:  # compile now (once per machine: the cache is on disk), not inside the first point
+        t_c = time.perf_counter()
+        try:
+            st["base"].transcription()
+        except RuntimeError as exc:
+            compiled_note = f"not compiled ({str(exc).splitlines()[0]}); CasADi's virtual machine instead"
+            st["base"].compiled = "auto"
+            ctx = replace(ctx, compiled="auto")
+        compile_s = time.perf_counter() - t_c
     # where the base lies in the grid (normalized by the axis spans)
     span = np.array([max(a.values) - min(a.values) or 1.0 for a in axes])
     lo = np.array([min(a.values) for a in axes])
@@ -474,11 +491,23 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
         "reference_arguments": {k: list(v) if isinstance(v, tuple) else v for k, v in ref_kwargs.items()},
         "resumed": resumed, "solved_now": sum(r["status"] != "failed" for r in records.values()) - resumed,
         "wall_s": time.perf_counter() - t_start, "base_s": base_t, "solve_wall_s": solve_wall,
+        "compiled": compiled_note or ("yes" if ctx.compiled is True else "no"), "compile_s": compile_s,
         "points_per_s": (len(todo) / solve_wall) if solve_wall > 0 and todo else None,
         "names": base.names, "sizes": base.sizes})
     if store is not None:
         lib.info["out"] = str(store.finish(lib))
     return lib
+
+
+def _compile_choice(compiled, backend):
+    """``True`` (compile), or ``"auto"`` (only what the disk cache already holds)."""
+    if backend != "newton" or compiled is False:
+        return "auto" if compiled is not False else False
+    if compiled is None:
+        from ..inversion.compiled import compiler
+
+        return True if compiler() is not None else "auto"
+    return True
 
 
 def _default(axis: Axis, scene, ref_kwargs, model) -> float:
