@@ -304,7 +304,10 @@ class Library:
         rate = info.get("points_per_s")
         if rate:
             lines.append(f"  {info.get('solved_now', 0)} solved now in {info['solve_wall_s']:.2f} s "
-                         f"({rate:.1f} points/s; base solve {info['base_s']:.2f} s)")
+                         f"({rate:.1f} points/s; base solve {info['base_s']:.2f} s"
+                         + (f"; compiled Newton, C compile {info['compile_s']:.2f} s" if info.get("compiled") == "yes"
+                            else f"; Newton {info['compiled']}" if str(info.get("compiled", "")).startswith("not")
+                            else "") + ")")
         ok = self.solved
         if ok.any():
             it = self.stats["iterations"][ok]
