@@ -457,3 +457,33 @@ def test_cli_minimum_time_meets_the_bound_and_no_shorter_duration_does(capsys):
 def test_cli_bound_options_are_checked_before_any_work(capsys, argv, error, words):
     rc, d, _ = _cli(capsys, "invert", "cartpole", *argv)
     assert rc == 2 and d["error"] == error and words in d["message"]
+
+
+def test_a_local_infeasibility_verdict_is_retried_from_the_elastic_point(dint, monkeypatch):
+    # the min-energy problem above with its first IPOPT run cut to one iteration: it ends far from
+    # feasible, the elastic problem then meets every bound without relaxing one, and the bounded
+    # problem solved again from there reaches the closed-form optimum
+    import dataclasses
+
+    from invctl.inversion import bounded
+
+    calls = []
+    orig = bounded.solve_scaled
+
+    def first_cut_short(tr, slv, x0, params, limits, **kw):
+        calls.append(1)
+        if len(calls) == 1:
+            slv = dataclasses.replace(slv, max_iter=1)
+        return orig(tr, slv, x0, params, limits, **kw)
+
+    monkeypatch.setattr(bounded, "solve_scaled", first_cut_short)
+    U, T = 1.0, 1.0
+    D = 11 * U / 48
+    inv = invert(dint, rest_to_rest(0.0, D, 0.0, T), bounds=Bounds(u=U),
+                 objective=Objective(output=0.0, slack=0.0, energy=1.0), T0=0.0, Tf=T, start=REST, end=REST, N=8,
+                 scheme="legendre3")
+    assert len(calls) == 2 and "restarted from the elastic" in inv.diagnostics["restarted"]
+    t1, a = T / 4, T / 2 - T / 4
+    tt = np.linspace(0.0, T, 41)
+    u_exact = np.clip(U * (1 - (tt - t1) / a), -U, U)
+    assert np.max(np.abs(inv.u(tt)[0] - u_exact)) < 1e-6

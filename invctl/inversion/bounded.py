@@ -385,9 +385,30 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
             f"{st['iterations']} iterations ({sch.name} N={N}); raise max_wall_time or use fewer intervals (N); "
             "the last iterate is in exc.partial", partial=inv, diagnostics={"status": status, "constraint_violation":
                                                                            viol})
+    restarted = None
     if not ok and (status in INFEASIBLE or viol > 1e-6):
-        raise _infeasible(model, reference, servo, setup, rb, sch, t_mesh, Y, theta, c, objective, slv, x0, status,
-                          make_inverse, viol)
+        err_or_start = _infeasible(model, reference, servo, setup, rb, sch, t_mesh, Y, theta, c, objective, slv, x0,
+                                   status, make_inverse, viol)
+        if isinstance(err_or_start, InversionFailed):
+            raise err_or_start
+        # the elastic problem met every bound without relaxing one: IPOPT's verdict was local; solve the
+        # bounded problem again from that feasible point
+        first = status
+        sol, st, scale = solve_scaled(tr, slv, err_or_start, params, (lbx, ubx, lbg, ubg), hessian=hessian)
+        solve_s = time.perf_counter() - t_solve
+        x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
+        viol = _violation(g, lbg, ubg, x, lbx, ubx)
+        status = st.get("return_status", "?")
+        ok = bool(st.get("success", False)) or (status == "Solved_To_Acceptable_Level" and viol < 1e-8)
+        inv = _inverse(tr, servo, reference, sch, t_mesh, x, Y, theta, c, make_inverse)
+        restarted = f"IPOPT first ended with {first}; restarted from the elastic problem's feasible point"
+        if not ok and (status in INFEASIBLE or viol > 1e-6):
+            raise InfeasibleBoundsError(
+                f"IPOPT reports the bounds infeasible ({first}, then {status} from a point that met every bound, "
+                f"constraint violation {viol:.3g}) on [{setup.T0:.6g}, {setup.Tf:.6g}], {sch.name} N={N}: the "
+                "verdict is local, not a proof; try a finer mesh, more iterations (max_iter) or a warm_start "
+                "(exc.partial is the last iterate)", partial=inv,
+                diagnostics={"relaxation": {}, "status": status, "first_status": first, "constraint_violation": viol})
     res = residuals(inv, servo, reference, theta)
     err = output_error(inv, servo, reference, theta)
     active = active_bounds(tr, rb, t_mesh, x, np.array(sol["lam_x"]).ravel() / scale,
@@ -416,7 +437,7 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
                    "describe": describe_active(active, err)},
         "tracking": {"exact": False, "max_output_error": err["max"], "t_max_output_error": err["t_max"],
                      "rms_output_error": err["rms"], "by_output": err["by_output"]},
-        "wall_s": time.perf_counter() - t_all,
+        "wall_s": time.perf_counter() - t_all, "restarted": restarted,
     })
     if not ok:
         raise InversionFailed(
@@ -458,7 +479,9 @@ def _inverse(tr, servo, reference, sch, t_mesh, x, Y, theta, c, make_inverse, ta
 
 def _infeasible(model, reference, servo, setup, rb, sch, t_mesh, Y, theta, c, objective, slv, x_start, status,
                 make_inverse, viol):
-    """:class:`InfeasibleBoundsError` with the closest feasible relaxation (module doc, item 4)."""
+    """:class:`InfeasibleBoundsError` with the closest feasible relaxation (module doc, item 4), or,
+    when the elastic problem meets every bound without relaxing one, that point (a start for a
+    second bounded solve: IPOPT's infeasibility verdict was local)."""
     tr = ocp_transcription(servo, setup.selection, sch, t_mesh.size - 1, relaxed=True, bounded=rb.bounded,
                            rated=rb.rated, elastic=True)
     scale = []
@@ -497,19 +520,27 @@ def _infeasible(model, reference, servo, setup, rb, sch, t_mesh, Y, theta, c, ob
                                     "by": float(r_)}
     partial = _inverse(tr, servo, reference, sch, t_mesh, xe, Y, theta, c, make_inverse)
     elastic_ok = bool(st.get("success", False))
+    if not found and elastic_ok:
+        return xe[:x_start.size]  # a point meeting every bound: the caller solves again from it
     if found:
         what = "; ".join(f"{k.split(':')[0]} {k.split(':')[1]} bound {v['bound']:.6g} -> {v['relaxed']:.6g}"
                          for k, v in sorted(found.items(), key=lambda kv: -kv[1]["by"]))
-        hint = f"the closest feasible relaxation IPOPT found: {what}"
-    else:
-        hint = ("the elastic problem needs no relaxation (IPOPT's infeasibility verdict was local; try the "
-                "relaxed solution in exc.partial as warm_start, more iterations or a finer mesh)")
-    return InfeasibleBoundsError(
-        f"no trajectory satisfies the bounds with the boundary conditions on [{setup.T0:.6g}, {setup.Tf:.6g}] "
-        f"(IPOPT: {status}, constraint violation {viol:.3g}); {hint}"
-        + ("" if elastic_ok else f" (the elastic solve ended with {st.get('return_status')})"),
-        partial=partial, diagnostics={"relaxation": found, "status": status, "elastic_status":
-                                      st.get("return_status"), "constraint_violation": viol})
+        return InfeasibleBoundsError(
+            f"no trajectory satisfies the bounds with the boundary conditions on [{setup.T0:.6g}, {setup.Tf:.6g}] "
+            f"(IPOPT: {status}, constraint violation {viol:.3g}); the closest feasible relaxation IPOPT found: {what}"
+            + ("" if elastic_ok else f" (the elastic solve ended with {st.get('return_status')})"),
+            partial=partial, diagnostics={"relaxation": found, "status": status, "elastic_status":
+                                          st.get("return_status"), "constraint_violation": viol})
+    # neither solve converged: whether the bounds can be met is not decided
+    cls = InfeasibleBoundsError if status in INFEASIBLE else InversionFailed
+    return cls(
+        f"the bounded inversion did not converge (IPOPT: {status}, constraint violation {viol:.3g} on "
+        f"[{setup.T0:.6g}, {setup.Tf:.6g}], {sch.name} N={t_mesh.size - 1}), and neither did the elastic problem "
+        f"that relaxes the bounds with a penalty ({st.get('return_status')}, no bound relaxed at its last iterate): "
+        "whether these bounds can be met is undecided. Try more iterations (max_iter), looser bounds to see where "
+        "feasibility ends, or the last elastic iterate (exc.partial) as warm_start",
+        partial=partial, diagnostics={"relaxation": {}, "status": status, "elastic_status": st.get("return_status"),
+                                      "constraint_violation": viol})
 
 
 def describe_active(active: list[dict], err: dict) -> str:
