@@ -74,3 +74,15 @@ def test_clearance_grid_dask_local_cluster(tmp_path):
     assert np.all(res.array("regulation_error_final") < 5e-3)
     res.to_csv(tmp_path / "grid.csv")
     assert (tmp_path / "grid.csv").read_text().count("\n") == 7
+
+
+def test_every_error_class_is_documented_for_users():
+    from pathlib import Path
+
+    import invctl.errors as errors
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "errors.md").read_text()
+    classes = [n for n in errors.__all__ if isinstance(getattr(errors, n), type)
+               and issubclass(getattr(errors, n), errors.InvctlError)]
+    assert len(classes) > 20
+    assert [n for n in classes if f"`{n}`" not in doc] == []
