@@ -559,7 +559,7 @@ class MoreauJean:
         if x_final is not None:
             rec.finish(self._final_row(x_final), N)
         R, Sx = rec.rows()
-        col = lambda name: R[:, L.sl(name)]  # noqa: E731
+        col = lambda name: R[:, L.sl(name)].T  # noqa: E731  (views, time along the last axis)
         nP = R.shape[0] - 1 if x_final is not None else R.shape[0]
         x0 = meta["x_init"]
         stats = {"wall_s": wall, "steps": N, "steps_per_s": N / wall if wall > 0 else float("inf"),
@@ -582,5 +582,5 @@ class MoreauJean:
         if not rec.complete:
             stats.update(rec.impact_table())
         names = {"q": list(self.model.q_names), "gaps": list(self.cs.names), "u": list(self.model.u_names)}
-        return ContactTrajectory(col("t")[:, 0], col("q"), col("v"), col("P")[:nP], col("act")[:nP] > 0.5,
-                                 col("gap"), col("E")[:, 0], col("V")[:, 0], meta["h"], names, stats, meta["vtol"])
+        return ContactTrajectory(col("t")[0], col("q"), col("v"), col("P")[:, :nP], col("act")[:, :nP] > 0.5,
+                                 col("gap"), col("E")[0], col("V")[0], meta["h"], names, stats, meta["vtol"])
