@@ -351,15 +351,16 @@ class MoreauJean:
 
     def reference_run(self, q0, v0, steps: int, h: float, *, method: str = "lemke", **kw):
         """``steps`` steps of :meth:`reference_step` in a Python loop (numpy LCP
-        solvers); returns ``(q, v)`` with ``steps + 1`` rows.  A slow,
-        independent check of the compiled loop, not for production runs."""
+        solvers); returns ``(q, v)``, each ``(n, steps + 1)`` with time along
+        the last axis like :attr:`ContactTrajectory.q`.  A slow, independent
+        check of the compiled loop, not for production runs."""
         x = self.initial_state(q0, v0, kw.pop("t0", 0.0), h=h, **kw)
         lay = self._lay
-        Q, Vv = np.empty((steps + 1, self.model.n)), np.empty((steps + 1, self.model.n))
-        Q[0], Vv[0] = x[lay["q"]], x[lay["v"]]
+        Q, Vv = np.empty((self.model.n, steps + 1)), np.empty((self.model.n, steps + 1))
+        Q[:, 0], Vv[:, 0] = x[lay["q"]], x[lay["v"]]
         for k in range(steps):
             x, _ = self.reference_step(x, method=method)
-            Q[k + 1], Vv[k + 1] = x[lay["q"]], x[lay["v"]]
+            Q[:, k + 1], Vv[:, k + 1] = x[lay["q"]], x[lay["v"]]
         return Q, Vv
 
     def _state_at(self, x_in, Xacc, use: int, size: int, S: int) -> np.ndarray:
