@@ -351,6 +351,9 @@ class RowLayout:
 class ChunkRecorder:
     """Keeps the recorded rows of a run that streams out of the compiled loop.
 
+    Internally one row per recorded step; the :class:`ContactTrajectory` built from them
+    (``MoreauJean._package``) holds their transposes, time along the last axis.
+
     Parameters
     ----------
     layout : RowLayout
