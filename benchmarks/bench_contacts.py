@@ -109,7 +109,7 @@ def contacts_rows(counts, steps, ref_steps, h=1e-3):
             ref_sps, Q = _reference(mj, q0, v0, ref_steps, h)
             short = mj.run(q0, v0, ref_steps * h, h)
             dq = float(np.max(np.abs(short.q - Q)))
-            multi = int(np.max(np.sum(short.P > 0, axis=1)))
+            multi = int(np.max(np.sum(short.P > 0, axis=0)))  # P: (contacts, steps)
             row = {"contacts": c, "lcp": meth, "instructions": mj.step.n_instructions(), "build_s": build,
                    "steps_per_s": sps, "numpy_lemke_steps_per_s": ref_sps, "ratio": sps / ref_sps, "dq_numpy": dq,
                    "impacts": tr.stats["n_impacts"], "recomputed": tr.stats["lcp_recomputed"],

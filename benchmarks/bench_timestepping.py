@@ -90,7 +90,7 @@ def main(argv=None):
                      p["Kp"], p["Kv"], p["qd"])
     results["numpy"] = args.numpy_steps / (time.perf_counter() - tic)
     tr = results["vm_traj"]
-    dev = np.max(np.abs(tr.q[1:args.numpy_steps + 1] - ref[:, :2]))
+    dev = np.max(np.abs(tr.q[:, 1:args.numpy_steps + 1] - ref[:, :2].T))  # tr.q: (n, len(t)), ref: rows per step
     print(f"2-DoF clearance, PD on body 1, h = {h}, {N} steps")
     print(f"  numpy loop          {results['numpy']:12.4g} steps/s   (1x)")
     for b in ("vm", "c"):

@@ -17,17 +17,19 @@ import numpy as np
 
 from .errors import InvctlError, OutputPathError, ResultFileError
 
-__all__ = ["FORMAT_VERSION", "save_npz", "load_npz", "check_output_path", "check_output_dir", "read_meta",
+__all__ = ["FORMAT_VERSION", "save_npz", "load_npz", "load_npz_versioned", "check_output_path", "check_output_dir", "read_meta",
            "require_finite", "file_loader", "read_json"]
 
-#: version of the files written by this invctl (raise when the layout changes incompatibly)
+#: version of the files written by this invctl (raise when the layout changes incompatibly); a result
+#: type whose layout changed on its own writes its own version (``save_npz(..., version=...)``) and
+#: reads the older ones it can convert (``load_npz_versioned(..., older=...)``)
 FORMAT_VERSION = 2
 _TAG = "__invctl__"
 
 
-def save_npz(path, kind: str, arrays: dict, info: dict | None = None) -> Path:
+def save_npz(path, kind: str, arrays: dict, info: dict | None = None, *, version: int = FORMAT_VERSION) -> Path:
     """Write ``arrays`` (name -> array-like) and ``info`` (JSON-able) to ``path`` (``.npz`` added
-    when missing); returns the path written."""
+    when missing) with format ``version``; returns the path written."""
     from .scenes import jsonable
 
     path = Path(path)
@@ -37,7 +39,7 @@ def save_npz(path, kind: str, arrays: dict, info: dict | None = None) -> Path:
     for k, v in data.items():
         if v.dtype == object:
             raise ResultFileError(f"save_npz: entry {k!r} is not a plain array")
-    meta = {"kind": kind, "version": FORMAT_VERSION, "info": jsonable(info or {})}
+    meta = {"kind": kind, "version": int(version), "info": jsonable(info or {})}
     data[_TAG] = np.asarray(json.dumps(meta))
     np.savez(path, **data)
     return path
@@ -68,32 +70,49 @@ def read_meta(path) -> dict:
     return meta
 
 
-def load_npz(path, kind: str | tuple) -> tuple[dict, dict]:
-    """Arrays and info of a file written by :func:`save_npz`, after checking tag, kind and version.
+def load_npz(path, kind: str | tuple, *, version: int = FORMAT_VERSION) -> tuple[dict, dict]:
+    """Arrays and info of a file written by :func:`save_npz`, after checking tag, kind and version
+    (exactly ``version``).
 
     Raises
     ------
     ResultFileError
-        Missing, truncated or foreign file, another result kind, a newer format version, or
+        Missing, truncated or foreign file, another result kind, a newer or older format version, or
         non-finite values in a float array.
+    """
+    arrays, info, _ = load_npz_versioned(path, kind, version=version)
+    return arrays, info
+
+
+def load_npz_versioned(path, kind: str | tuple, *, version: int = FORMAT_VERSION,
+                       older: tuple = ()) -> tuple[dict, dict, int]:
+    """``(arrays, info, file_version)`` of a file written by :func:`save_npz` whose format version is
+    ``version`` or one of the ``older`` versions the caller converts itself.
+
+    Raises
+    ------
+    ResultFileError
+        Missing, truncated or foreign file, another result kind, a version newer than ``version``
+        or older and not in ``older``.
     """
     path = Path(path)
     meta = read_meta(path)
     kinds = (kind,) if isinstance(kind, str) else tuple(kind)
     if meta["kind"] not in kinds:
         raise ResultFileError(f"{path}: holds a {meta['kind']}, expected {' or '.join(kinds)}")
-    if int(meta["version"]) > FORMAT_VERSION:
-        raise ResultFileError(f"{path}: format version {meta['version']} is newer than this invctl's "
-                              f"({FORMAT_VERSION}); upgrade invctl")
-    if int(meta["version"]) < FORMAT_VERSION:
-        raise ResultFileError(f"{path}: format version {meta['version']} is older than this invctl's "
-                              f"({FORMAT_VERSION}); recompute the result")
+    found = int(meta["version"])
+    if found > version:
+        raise ResultFileError(f"{path}: format version {found} is newer than this invctl's "
+                              f"({version}); upgrade invctl")
+    if found < version and found not in tuple(older):
+        raise ResultFileError(f"{path}: format version {found} is older than this invctl's "
+                              f"({version}); recompute the result")
     try:
         with np.load(path, allow_pickle=False) as d:
             arrays = {k: np.array(d[k]) for k in d.files if k != _TAG}
     except (zipfile.BadZipFile, EOFError, OSError, ValueError) as exc:
         raise ResultFileError(f"{path}: cannot read ({type(exc).__name__}: {exc}); the file is truncated") from None
-    return arrays, dict(meta.get("info", {}))
+    return arrays, dict(meta.get("info", {})), found
 
 
 def file_loader(load):

@@ -101,17 +101,17 @@ def equilibrium_report(ctx) -> dict:
     law = _pd(model, s)
     u, _, kap = law.symbolic(model, ca.SX.sym("t"))
     F = ca.substitute(static_force(model, u), kap, ca.DM(law.kappa_values))
-    e = static_equilibrium(model, F, tr.q[-1])
-    flanks = np.where(tr.gaps[:, 0] <= 1e-9, 1, np.where(tr.gaps[:, 1] <= 1e-9, 2, 0))
+    e = static_equilibrium(model, F, tr.q[:, -1])
+    flanks = np.where(tr.gaps[0] <= 1e-9, 1, np.where(tr.gaps[1] <= 1e-9, 2, 0))
     seq = flanks[flanks > 0]
     return {"closed form: flank, theta_m*, theta_l*, lam": f"{cf.get('flank')}, {cf.get('theta_m', float('nan')):.10f}, "
                                                            f"{cf.get('theta_l', float('nan')):.10f}, "
                                                            f"{cf.get('lam', float('nan')):.8f}",
             "|q* (Newton on (40)) - closed form|": float(np.abs(e.q - [cf["theta_m"], cf["theta_l"]]).max()) if cf
             else float("nan"),
-            "|q(t_end) - q* (closed form)|": float(np.abs(tr.q[-1] - [cf["theta_m"], cf["theta_l"]]).max()) if cf
+            "|q(t_end) - q* (closed form)|": float(np.abs(tr.q[:, -1] - [cf["theta_m"], cf["theta_l"]]).max()) if cf
             else float("nan"),
-            "both flanks closed at some step": bool(np.any((tr.gaps[:, 0] <= 1e-9) & (tr.gaps[:, 1] <= 1e-9))),
+            "both flanks closed at some step": bool(np.any((tr.gaps[0] <= 1e-9) & (tr.gaps[1] <= 1e-9))),
             "changes of the flank in contact": int(np.count_nonzero(np.diff(seq))) if seq.size else 0}
 
 

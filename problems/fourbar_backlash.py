@@ -105,11 +105,11 @@ def rest_report(ctx) -> dict:
     """The rest point: flank, multiplier against the gravity torque (virtual work), shaft deflection."""
     tr, model, s = ctx.result, ctx.model, ctx.settings
     v = model.values
-    th_ms, th1 = tr.q[-1]
-    lam = tr.P[-1] / tr.h
+    th_ms, th1 = tr.q[:, -1]  # q, P, gaps: time along the last axis
+    lam = tr.P[:, -1] / tr.h
     k = int(np.argmax(lam))
     tq = gravity_torque(v, th1)
-    flanks = np.where(tr.gaps[:, 0] <= 1e-9, 1, np.where(tr.gaps[:, 1] <= 1e-9, 2, 0))
+    flanks = np.where(tr.gaps[0] <= 1e-9, 1, np.where(tr.gaps[1] <= 1e-9, 2, 0))
     seq = flanks[flanks > 0]
     sign = 1.0 if k == 0 else -1.0
     return {"flank at rest": model.gaps[k].name,
@@ -119,7 +119,7 @@ def rest_report(ctx) -> dict:
             "shaft: K_p (theta_ms - theta_msd) + lam_1/N - lam_2/N": float(
                 s["Kp"] * (th_ms - v["N"] * s["crank_d"]) + (lam[0] - lam[1]) / v["N"]),
             "changes of the flank in contact": int(np.count_nonzero(np.diff(seq))) if seq.size else 0,
-            "both flanks closed at some step": bool(np.any((tr.gaps[:, 0] <= 1e-9) & (tr.gaps[:, 1] <= 1e-9)))}
+            "both flanks closed at some step": bool(np.any((tr.gaps[0] <= 1e-9) & (tr.gaps[1] <= 1e-9)))}
 
 
 def _check(values):

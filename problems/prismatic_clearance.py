@@ -203,7 +203,7 @@ def _initial(model, s, controller):
 def modes_report(ctx) -> dict:
     """Remark 4: which wall carries body 2 (1: f1 closed, 2: f2 closed, 0: crossing) and how often it changes."""
     tr = ctx.result
-    modes = np.where(tr.gaps[:, 0] <= 1e-9, 1, np.where(tr.gaps[:, 1] <= 1e-9, 2, 0))
+    modes = np.where(tr.gaps[0] <= 1e-9, 1, np.where(tr.gaps[1] <= 1e-9, 2, 0))
     return {"mode switches": int(np.count_nonzero(np.diff(modes))),
             "time in contact with f1, f2": [float(np.mean(modes == 1)), float(np.mean(modes == 2))]}
 

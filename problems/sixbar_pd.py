@@ -80,9 +80,9 @@ def equilibria_report(ctx) -> dict:
     rng = np.random.default_rng(0)
     c = model.values["c"]
     starts = [model.linkage.nominal + np.r_[np.zeros(3), rng.uniform(-3 * c, 3 * c, 6)] for _ in range(20)]
-    eqs = equilibrium_points(model, F, [tr.q[-1]] + starts, active_tol=np.inf)
+    eqs = equilibrium_points(model, F, [tr.q[:, -1]] + starts, active_tol=np.inf)
     q1d = _targets(model, s)
-    near = int(np.argmin([np.linalg.norm(tr.q[-1] - e.q) for e in eqs])) if eqs else -1
+    near = int(np.argmin([np.linalg.norm(tr.q[:, -1] - e.q) for e in eqs])) if eqs else -1
     isolated = [e for e in eqs if e.dimension == 0]
     out = {"equilibria found (21 starts)": len(eqs), "isolated ones": len(isolated)}
     if len(isolated) < len(eqs):
@@ -94,7 +94,7 @@ def equilibria_report(ctx) -> dict:
     if near >= 0:
         e = eqs[near]
         out["run ends next to"] = (f"{'an isolated' if e.dimension == 0 else 'a continuum'} equilibrium, "
-                                   f"|q - q*| = {np.linalg.norm(tr.q[-1] - e.q):.3g}, q_1* - q_1d = "
+                                   f"|q - q*| = {np.linalg.norm(tr.q[:, -1] - e.q):.3g}, q_1* - q_1d = "
                                    f"{np.round(e.q[:3] - q1d, 8).tolist()}")
     return out
 

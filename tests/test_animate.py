@@ -114,7 +114,7 @@ def test_gif_frames_size_and_orientation(cartpole, tmp_path):
                    figsize=(4, 3), dpi=50)
     with Image.open(fast) as im:
         assert im.n_frames == 11
-    # time along the first axis (ContactTrajectory.q) gives the same file
+    # a raw array with time along the first axis (unambiguous: n = 2 != 81 samples) gives the same file
     again = animate(cartpole, cartpole_drawing(cartpole), t, q.T, tmp_path / "t.gif", fps=10, trail="tip",
                     title="cart-pole", figsize=(4, 3), dpi=50)
     assert again.read_bytes() == path.read_bytes()
@@ -136,6 +136,14 @@ def test_callable_q_and_interpolation(cartpole, tmp_path):
                    figsize=(3, 2), dpi=40)
     with Image.open(path) as im:
         assert (im.n_frames, im.size) == (21, (120, 80))
+
+
+def test_square_history_is_read_time_last(cartpole):
+    """Every result stores q as (n, N); a square q (n == N) is never transposed: it is (n, N)."""
+    t = np.array([0.0, 1.0])
+    q = np.array([[0.1, 0.2], [0.3, 0.4]])  # q1 = (0.1, 0.2), q2 = (0.3, 0.4) over the two times
+    np.testing.assert_array_equal(_sample(cartpole, t, q, t), q)
+    np.testing.assert_allclose(_sample(cartpole, t, q, np.array([0.5])), [[0.15], [0.35]], atol=1e-15)
 
 
 def test_snapshot_png(cartpole, tmp_path):

@@ -50,12 +50,12 @@ def test_pd_regulation_converges_to_equilibrium_set(crank):
     assert rep.max_increase_impacts <= 1e-12 * rep.V0
     assert rep.max_increase <= 1e-7 * rep.V0  # O(h^2) drift of the linearized step with q-dependent M
     assert rep.V_end < 1e-5 * rep.V0
-    assert abs(tr.q[-1, 0] - p["theta_d"]) < 1e-4
-    assert np.max(np.abs(tr.v[-1])) < 2e-2
+    assert abs(tr.q[0, -1] - p["theta_d"]) < 1e-4
+    assert np.max(np.abs(tr.v[:, -1])) < 2e-2
     assert tr.max_gap_violation <= 1e-10
     # the limit lies in the set of equilibria E (Lemma 2 with G_S2 = 0): crank at theta_d, any
     # journal position inside the bearing (the final one is not the initial centred one)
-    assert cs_gap(crank, tr.q[-1]) >= -1e-10
+    assert cs_gap(crank, tr.q[:, -1]) >= -1e-10
 
 
 def cs_gap(model, q):
@@ -71,12 +71,12 @@ def test_pdplus_tracking_and_V_jump_51(crank):
     mj = MoreauJean(crank, law, backend="vm", projection=True)
     q0 = sc.centered_configuration(crank, th0)
     tr = mj.run(q0, np.zeros(3), 3.0, 1e-3)
-    err = tr.q[:, 0] - (th0 + amp * np.sin(2 * np.pi * tr.t / per))
+    err = tr.q[0] - (th0 + amp * np.sin(2 * np.pi * tr.t / per))
     assert np.max(np.abs(err)) < 0.2 and tr.max_gap_violation <= 1e-10
     # exact impact at a contact configuration
     cs = ContactSystem(crank)
-    k = int(np.flatnonzero(np.any(tr.impact_mask(), axis=1))[-1])
-    q, vminus, t = tr.q[k + 1], tr.v[k], tr.t[k]
+    k = int(np.flatnonzero(np.any(tr.impact_mask(), axis=0))[-1])
+    q, vminus, t = tr.q[:, k + 1], tr.v[:, k], tr.t[k]
     W = cs.gradients(q)[:, 0]
     vminus = vminus - W * (W @ vminus) / (W @ W) - 0.05 * W / np.linalg.norm(W)  # approaching
     res = cs.impact(q, vminus, involved=[0])
@@ -112,11 +112,11 @@ def test_remark4_switching_strategy():
     p = prism.PARAMS
     law = prism.switching_law(model, Kp=p["Kp"], Kv=p["Kv"], amp=p["amp"], period=p["period"])
     tr = MoreauJean(model, law, backend="vm").run([0.0, p["l"]], [0.0, 0.0], 4.0, 1e-4)
-    on1 = tr.active[:, 0] & (tr.P[:, 0] > 0)
-    on2 = tr.active[:, 1] & (tr.P[:, 1] > 0)
+    on1 = tr.active[0] & (tr.P[0] > 0)
+    on2 = tr.active[1] & (tr.P[1] > 0)
     assert on1.mean() > 0.2 and on2.mean() > 0.2
     xd = p["l"] + p["amp"] * np.sin(2 * np.pi * tr.t / p["period"])
-    assert np.max(np.abs(tr.q[tr.t > 2, 1] - xd[tr.t > 2])) < 0.02
+    assert np.max(np.abs(tr.q[1, tr.t > 2] - xd[tr.t > 2])) < 0.02
     assert tr.max_gap_violation < 1e-5
 
 
@@ -176,7 +176,7 @@ def test_juggling_law_linear_gap_dynamics():
     r = np.roots([1.0, Dy, Ky])  # distinct real roots (Dy^2 > 4 Ky)
     c = np.linalg.solve([[1.0, 1.0], [r[0], r[1]]], [y0 - yd, 0.0])
     y_exact = yd + (c[0] * np.exp(r[0] * tr.t) + c[1] * np.exp(r[1] * tr.t)).real
-    np.testing.assert_allclose(tr.gaps[:, 0], y_exact, atol=1e-8)  # theta = 1/2: O(h^2)
+    np.testing.assert_allclose(tr.gaps[0], y_exact, atol=1e-8)  # theta = 1/2: O(h^2)
 
 
 def test_prismatic_juggling_controller_cli(capsys):
@@ -201,7 +201,7 @@ def test_lemma2_equilibria_and_projector_form():
     law = pd_gravity(model, Kp=p["Kp"], Kv=p["Kv"], q_d=p["qd"], idx=[0])
     tr = MoreauJean(model, law, backend="vm", projection=True).run([0.0, 0.055], [0.0, 0.3], 4.0, 1e-4)
     cs = ContactSystem(model)
-    qf = tr.q[-1]
+    qf = tr.q[:, -1]
     chk = equilibrium_check(cs, qf, [p["Kp"] * (qf[0] - p["qd"]), 0.0], gap_tol=1e-9, rtol=1e-6)
     assert chk.is_equilibrium  # interior (Lemma 2 (i)) or against f1 (ii), depending on the last bounce
     bad = equilibrium_check(cs, [0.1, 0.15], [p["Kp"] * (0.1 - p["qd"]), 0.0])

@@ -216,7 +216,7 @@ def test_compiled_step_matches_numpy_lcp_step(chain6, lcp):
     q0, v0 = _piled_up()
     tr = mj.run(q0, v0, 0.5, 1e-3)
     Q, V = mj.reference_run(q0, v0, 500, 1e-3, method="lemke")
-    assert tr.stats["n_impacts"] >= 10 and np.any(np.sum(tr.P > 0, axis=1) >= 4)  # simultaneous contacts
+    assert tr.stats["n_impacts"] >= 10 and np.any(np.sum(tr.P > 0, axis=0) >= 4)  # simultaneous contacts
     assert tr.stats["lcp_recomputed"] == 0
     np.testing.assert_allclose(tr.q, Q, atol=1e-12)
     np.testing.assert_allclose(tr.v, V, atol=1e-10)
@@ -233,12 +233,12 @@ def test_unconverged_steps_are_recomputed_or_stop_the_run(chain6):
     tr = mj.run(q0, v0, 0.5, 1e-3, record_every=5)
     Q, _ = mj.reference_run(q0, v0, 500, 1e-3, method="lemke")
     assert tr.stats["lcp_recomputed"] >= 5
-    np.testing.assert_allclose(tr.q, Q[tr.stats["step_index"]], atol=1e-12)
+    np.testing.assert_allclose(tr.q, Q[:, tr.stats["step_index"]], atol=1e-12)
     with pytest.raises(ContactError, match="did not converge") as ei:
         mj.run(q0, v0, 0.5, 1e-3, on_lcp_failure="raise")
     part, k = ei.value.partial, ei.value.diagnostics["step"]
-    assert part.stats["steps"] == k and part.q.shape[0] == k + 1
-    np.testing.assert_allclose(part.q, Q[:k + 1], atol=1e-12)
+    assert part.stats["steps"] == k and part.q.shape[1] == k + 1
+    np.testing.assert_allclose(part.q, Q[:, :k + 1], atol=1e-12)
 
 
 def test_position_projection_with_many_contacts(chain6):

@@ -37,18 +37,18 @@ def test_backlash_pivot_converges_to_the_closed_form_rest_point():
     run = _run("backlash_pivot", {})
     tr, model, s = run.trajectory, run.model, run.settings
     assert tr.max_V_increase <= 1e-12 * abs(tr.V[0])
-    assert not np.any((tr.gaps[:, 0] <= 1e-9) & (tr.gaps[:, 1] <= 1e-9))
-    np.testing.assert_allclose(tr.gaps.sum(axis=1), 2 * model.values["alpha"], atol=1e-12)
+    assert not np.any((tr.gaps[0] <= 1e-9) & (tr.gaps[1] <= 1e-9))
+    np.testing.assert_allclose(tr.gaps.sum(axis=0), 2 * model.values["alpha"], atol=1e-12)
     cf = bp.closed_form_equilibrium(model.values, s["Kp"], model.values["N"] * s["link_d"])
     assert cf["flank"] == "f1" and cf["lam"] > 0
     from invctl.contact.equilibria import static_force
     import casadi as ca
 
     u, _, kap = run.law.symbolic(model, ca.SX.sym("t"))
-    e = static_equilibrium(model, ca.substitute(static_force(model, u), kap, ca.DM(run.law.kappa_values)), tr.q[-1])
+    e = static_equilibrium(model, ca.substitute(static_force(model, u), kap, ca.DM(run.law.kappa_values)), tr.q[:, -1])
     np.testing.assert_allclose(e.q, [cf["theta_m"], cf["theta_l"]], atol=1e-12)
     np.testing.assert_allclose(e.lam, [cf["lam"], 0.0], atol=1e-12)
-    assert np.abs(tr.q[-1] - e.q).max() < 2e-6 and np.abs(tr.v[-1]).max() < 1e-9
+    assert np.abs(tr.q[:, -1] - e.q).max() < 2e-6 and np.abs(tr.v[:, -1]).max() < 1e-9
 
 
 def test_backlash_pivot_time_stepping_against_event_driven():
@@ -89,7 +89,7 @@ def test_fourbar_rests_on_a_flank_with_the_gravity_torque():
     assert rep["changes of the flank in contact"] >= 1 and not rep["both flanks closed at some step"]
     assert rep["|lam - sign dU/dtheta_1|"] < 1e-8
     assert abs(rep["shaft: K_p (theta_ms - theta_msd) + lam_1/N - lam_2/N"]) < 1e-10
-    assert np.abs(tr.v[-1]).max() < 1e-8
+    assert np.abs(tr.v[:, -1]).max() < 1e-8
 
 
 def test_fourbar_rejects_a_non_grashof_linkage():

@@ -87,9 +87,9 @@ def test_prop2_V_never_increases_and_run_ends_in_E(pd_scene, values):
     from problems.sixbar_pd import _targets, closed_loop_force
 
     F = closed_loop_force(model, run.settings)
-    e = static_equilibrium(model, F, tr.q[-1])
+    e = static_equilibrium(model, F, tr.q[:, -1])
     assert np.all(e.lam > 0) and e.gap_min >= -1e-12 and e.residual < 1e-9
-    assert np.linalg.norm(tr.q[-1] - e.q) < 2e-3
+    assert np.linalg.norm(tr.q[:, -1] - e.q) < 2e-3
     V_star = float(law.function(model)(e.q, np.zeros(model.n), 0.0, model.theta_values, law.values())[1])
     assert abs(tr.V[-1] - V_star) <= 2e-3 * (tr.V[0] - V_star)
     G = -np.array(ca.Function("F", [model.q, model.theta], [F])(e.q, model.theta_values)).ravel()
@@ -107,7 +107,7 @@ def test_prop2_horizontal_plane_equilibria_form_a_continuum(pd_scene):
     tr = run.trajectory
     from problems.sixbar_pd import closed_loop_force, _targets
 
-    e = static_equilibrium(run.model, closed_loop_force(run.model, run.settings), tr.q[-1])
+    e = static_equilibrium(run.model, closed_loop_force(run.model, run.settings), tr.q[:, -1])
     assert e.dimension > 0 and np.all(e.lam <= 1e-9)
     np.testing.assert_allclose(e.q[:3], _targets(run.model, run.settings), atol=1e-10)
     assert tr.max_V_increase <= 1e-12 * tr.V[0]
@@ -118,8 +118,8 @@ def test_impact_loss_39_at_the_first_impact(pd_scene):
     kinetic energy (000 (39)), to round-off."""
     run = _run(pd_scene, {"t_end": 0.02})
     tr, model = run.trajectory, run.model
-    k = int(np.flatnonzero(np.any(tr.impact_mask(), axis=1))[0])
-    res = ContactSystem(model, gap_tol=1e-6).impact(tr.q[k + 1], tr.v[k])   # the step closes the gap to O(h)
+    k = int(np.flatnonzero(np.any(tr.impact_mask(), axis=0))[0])
+    res = ContactSystem(model, gap_tol=1e-6).impact(tr.q[:, k + 1], tr.v[:, k])   # the step closes the gap to O(h)
     assert res.predicted_jump is not None and res.kinetic_jump < 0
     assert abs(res.kinetic_jump - res.predicted_jump) <= 1e-12 * abs(res.kinetic_jump)
 
@@ -160,8 +160,8 @@ def test_V_jump_51_at_an_exact_impact(tracking_runs):
     (50) equals (51): -1/2 (1-e)/(1+e) sigma^T M sigma - qd_dot^T M sigma, to round-off."""
     run = tracking_runs["pdplus_violating"]
     tr, model, law = run.trajectory, run.model, run.law
-    k = int(np.flatnonzero(np.any(tr.impact_mask(), axis=1))[-1])
-    q, vminus, t = tr.q[k + 1], tr.v[k], tr.t[k]
+    k = int(np.flatnonzero(np.any(tr.impact_mask(), axis=0))[-1])
+    q, vminus, t = tr.q[:, k + 1], tr.v[:, k], tr.t[k]
     res = ContactSystem(model, gap_tol=1e-6).impact(q, vminus)
     fn = law.function(model)
     V = lambda vv: float(fn(q, vv, t, model.theta_values, law.values())[1])  # noqa: E731

@@ -54,8 +54,8 @@ def test_compiled_loop_matches_numpy_loop(prism_pd):
     ref = bench.numpy_loop(np.array(q0), np.array(v0), 5000, 1e-4, p["m1"], p["m2"], p["l"], p["L"], p["e"],
                            p["Kp"], p["Kv"], p["qd"])
     assert tr.impact_times.size >= 3
-    np.testing.assert_allclose(tr.q[1:], ref[:, :2], atol=1e-13)
-    np.testing.assert_allclose(tr.v[1:], ref[:, 2:], atol=1e-11)
+    np.testing.assert_allclose(tr.q[:, 1:], ref[:, :2].T, atol=1e-13)
+    np.testing.assert_allclose(tr.v[:, 1:], ref[:, 2:].T, atol=1e-11)
 
 
 @pytest.mark.skipif(c_compiler() is None, reason="no C compiler on this machine")
@@ -163,10 +163,10 @@ def test_impulse_energy_balance_at_impact_steps(ball):
     """theta = 1/2: the energy change of an impact step is (1-e)/2 P U_k <= 0, the
     discrete counterpart of (39); checked to 1e-12."""
     tr = ball.run([1.0], [0.0], 2.0, 1e-3)
-    Un = tr.stats["Un"][:, 0]
-    k = np.flatnonzero((tr.P[:, 0] > 0) & (Un[:-1] < -1e-8))
+    Un = tr.stats["Un"][0]
+    k = np.flatnonzero((tr.P[0] > 0) & (Un[:-1] < -1e-8))
     dE = tr.energy[k + 1] - tr.energy[k]
-    pred = 0.5 * (1 - 0.8) * tr.P[k, 0] * Un[k]
+    pred = 0.5 * (1 - 0.8) * tr.P[0, k] * Un[k]
     np.testing.assert_allclose(dE, pred, rtol=1e-10, atol=1e-12 * tr.energy[0])
     assert np.all(dE < 0)
 
@@ -187,10 +187,10 @@ def test_penetration_order_h_and_projection(ball, ball_proj):
     assert np.all(pens <= 2 * np.sqrt(2 * 9.81 * 1.5) * hs)
     assert 0.7 <= _slope(hs, pens) <= 1.3
     rest = ball.run([1.0], [0.0], 6.0, 1e-3)
-    tail = rest.gaps[rest.t > 5.0, 0]
+    tail = rest.gaps[0, rest.t > 5.0]
     assert tail.min() < 0 and np.ptp(tail) == 0.0  # resting inside the ground, never corrected
     restp = ball_proj.run([1.0], [0.0], 6.0, 1e-3)
-    assert restp.gaps[restp.t > 5.0, 0].min() >= -1e-10
+    assert restp.gaps[0, restp.t > 5.0].min() >= -1e-10
 
 
 def test_activation_tolerance_keeps_preloaded_contact():
@@ -203,10 +203,10 @@ def test_activation_tolerance_keeps_preloaded_contact():
     mj = MoreauJean(model, law, backend="vm")
     strict = mj.run([0.0, 0.05], [0.0, 0.0], 0.5, 1e-4, activation_tol=0.0)
     tol = mj.run([0.0, 0.05], [0.0, 0.0], 0.5, 1e-4)
-    assert np.max(np.abs(strict.gaps[:, 0])) > 1e-9 and not np.all(strict.active[:, 0])
-    assert np.max(np.abs(tol.gaps[:, 0])) < 1e-14
-    assert np.all(tol.active[:, 0])
-    assert np.max(np.abs(tol.P[:, 0] / 1e-4 - 1.0)) < 1e-9
+    assert np.max(np.abs(strict.gaps[0])) > 1e-9 and not np.all(strict.active[0])
+    assert np.max(np.abs(tol.gaps[0])) < 1e-14
+    assert np.all(tol.active[0])
+    assert np.max(np.abs(tol.P[0] / 1e-4 - 1.0)) < 1e-9
 
 
 def test_bilateral_constraint_in_stepper():
@@ -221,7 +221,7 @@ def test_bilateral_constraint_in_stepper():
     ti, _, pre, post, vp = tr.impacts()
     assert abs(ti[0] - t1) < 2e-5
     assert abs(post[0] + 0.5 * pre[0]) < 1e-3
-    np.testing.assert_allclose(tr.v[:, 0], tr.v[:, 1], atol=1e-12)
+    np.testing.assert_allclose(tr.v[0], tr.v[1], atol=1e-12)
     from invctl.contact.mechanics import ContactSystem
 
     cs = ContactSystem(model)
@@ -240,8 +240,8 @@ def test_restitution_extremes_and_zeno(e):
     tr = mj.run([1.0], [0.0], 6.0, h)
     assert np.all(np.isfinite(tr.q)) and np.all(np.isfinite(tr.v))
     assert tr.max_gap_violation <= 2 * np.sqrt(2 * 9.81) * h
-    Un = tr.stats["Un"][:, 0]
-    k = np.flatnonzero((tr.P[:, 0] > 0) & (Un[:-1] < -1e-8))
+    Un = tr.stats["Un"][0]
+    k = np.flatnonzero((tr.P[0] > 0) & (Un[:-1] < -1e-8))
     assert np.all(tr.energy[k + 1] - tr.energy[k] <= 1e-12 * tr.energy[0])
     t1 = np.sqrt(2 / 9.81)
     if e == 0.0:
@@ -257,8 +257,8 @@ def test_energy_never_created_by_an_impact(e, H, h):
     model = bb.build()
     mj = _ball_stepper()
     tr = mj.run([H], [0.0], 2.0, h, params=[1.0, 9.81, e])
-    Un = tr.stats["Un"][:, 0]
-    k = np.flatnonzero((tr.P[:, 0] > 0) & (Un[:-1] < -1e-8))
+    Un = tr.stats["Un"][0]
+    k = np.flatnonzero((tr.P[0] > 0) & (Un[:-1] < -1e-8))
     assert np.all(tr.energy[k + 1] - tr.energy[k] <= 1e-12 * tr.energy[0])
     assert tr.max_gap_violation <= 2 * np.sqrt(2 * 9.81 * H) * h + 1e-15
     assert model.n == 1
@@ -293,7 +293,7 @@ def test_tiny_clearance(projection):
     mj = MoreauJean(model, law, backend="vm", projection=projection)
     tr = mj.run([0.0, l + 0.5e-9], [0.0, 0.0], 1.0, 1e-4)
     assert np.all(np.isfinite(tr.q))
-    assert abs(tr.q[-1, 0] - 0.2) < 1e-3
+    assert abs(tr.q[0, -1] - 0.2) < 1e-3
     if projection:
         assert tr.max_gap_violation <= 1e-10
     else:
@@ -310,7 +310,7 @@ def test_simultaneous_impacts_in_time_stepping():
     tr = MoreauJean(model, backend="vm").run([0.1, 0.2], [-1.0, -2.0], 0.2, 1e-3)
     ti, ii, pre, post, vp = tr.impacts()
     assert set(ii.tolist()) == {0, 1} and np.ptp(ti) == 0
-    np.testing.assert_allclose(tr.v[-1], [0.5, 1.0], atol=1e-14)
+    np.testing.assert_allclose(tr.v[:, -1], [0.5, 1.0], atol=1e-14)
 
 
 def test_save_load_and_plot(tmp_path, ball):
@@ -353,8 +353,8 @@ def test_persistent_contact_phase_vs_event_driven():
     model = prism.build(actuators=2)
     law = preload_law(model, [0], beta=1.0, Kp=100.0, Kv=20.0, y_d=[0.2, 0.25])
     ref = simulate_event_driven(model, [0.0, 0.05], [0.0, 0.0], 1.0, law=law)
-    assert not ref.stats["events"] and np.max(np.abs(ref.gaps[:, 0])) < 1e-12
+    assert not ref.stats["events"] and np.max(np.abs(ref.gaps[0])) < 1e-12
     mj = MoreauJean(model, law, backend="vm")
-    errs = [np.max(np.abs(mj.run([0.0, 0.05], [0.0, 0.0], 1.0, h).q[-1] - ref.q[-1])) for h in (2e-4, 1e-4, 5e-5)]
+    errs = [np.max(np.abs(mj.run([0.0, 0.05], [0.0, 0.0], 1.0, h).q[:, -1] - ref.q[:, -1])) for h in (2e-4, 1e-4, 5e-5)]
     assert errs[2] < errs[1] < errs[0] < 1e-3
     assert 0.8 <= _slope(np.array([2e-4, 1e-4, 5e-5]), np.array(errs)) <= 2.2

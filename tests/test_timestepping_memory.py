@@ -53,12 +53,12 @@ def test_decimated_rows_and_exact_statistics(ball, every):
     N = full.stats["steps"]
     idx = np.r_[np.arange(0, N, every), N]
     np.testing.assert_array_equal(part.stats["step_index"], idx)
-    np.testing.assert_array_equal(part.q, full.q[idx])
-    np.testing.assert_array_equal(part.v, full.v[idx])
+    np.testing.assert_array_equal(part.q, full.q[:, idx])
+    np.testing.assert_array_equal(part.v, full.v[:, idx])
     np.testing.assert_array_equal(part.t, full.t[idx])
     np.testing.assert_array_equal(part.energy, full.energy[idx])
-    np.testing.assert_array_equal(part.P, full.P[idx[:-1]])
-    assert part.P.shape[0] == part.t.size - 1 and not part.complete and full.complete
+    np.testing.assert_array_equal(part.P, full.P[:, idx[:-1]])
+    assert part.P.shape[1] == part.t.size - 1 and not part.complete and full.complete
     _same_stats(full, part)
     assert abs(part.rest_time() - bb.exact_impacts(1.0, 9.81, 0.8, 10.0)[3]) < 0.01
 
@@ -70,16 +70,16 @@ def test_event_record_two_contacts(prism_pd):
     ev = prism_pd.run([0.0, 0.055], [0.0, 0.3], 1.0, 1e-4, record="events")
     N = full.stats["steps"]
     loaded = full.P > 0
-    change = np.r_[True, np.any(loaded[1:] != loaded[:-1], axis=1)
-                   | np.any(full.active[1:] != full.active[:-1], axis=1)]  # step 0 is always recorded
-    expect = np.union1d(np.flatnonzero(change | np.any(full.impact_mask(), axis=1)), [0])
+    change = np.r_[True, np.any(loaded[:, 1:] != loaded[:, :-1], axis=0)
+                   | np.any(full.active[:, 1:] != full.active[:, :-1], axis=0)]  # step 0 is always recorded
+    expect = np.union1d(np.flatnonzero(change | np.any(full.impact_mask(), axis=0)), [0])
     np.testing.assert_array_equal(ev.stats["step_index"], np.r_[expect, N])
-    np.testing.assert_array_equal(ev.q, full.q[np.r_[expect, N]])
-    np.testing.assert_array_equal(ev.P, full.P[expect])
+    np.testing.assert_array_equal(ev.q, full.q[:, np.r_[expect, N]])
+    np.testing.assert_array_equal(ev.P, full.P[:, expect])
     assert ev.t.size < full.t.size / 50
     _same_stats(full, ev)
-    k = np.flatnonzero(np.any(full.impact_mask(), axis=1))
-    dV = np.repeat(full.V[k + 1] - full.V[k], full.impact_mask()[k].sum(axis=1))
+    k = np.flatnonzero(np.any(full.impact_mask(), axis=0))
+    dV = np.repeat(full.V[k + 1] - full.V[k], full.impact_mask()[:, k].sum(axis=0))
     np.testing.assert_array_equal(ev.stats["impact_dV"], dV)
     assert ev.stats["dV_max_impact"] == max(0.0, dV.max())
 

@@ -363,7 +363,7 @@ def plan_vs_run(plan: JugglingPlan, tr, *, body2: int = 1, walls=(0, 1)) -> dict
         if sel.size == 0:
             return {"planned impacts": len(plan.impact_table()), "missing impact on wall": wall, "at": t}
         k = sel[np.argmin(np.abs(times[sel] - t))]
-        q2_run = float(np.interp(times[k], tr.t, tr.q[:, body2]))
+        q2_run = float(np.interp(times[k], tr.t, tr.q[body2]))  # q: (n, len(t))
         dt, dq = max(dt, abs(times[k] - t)), max(dq, abs(q2_run - q2))
         dv = max(dv, abs(v_plus[k, body2] - v2))
     return {"planned impacts": len(plan.impact_table()), "realized impacts": int(times.size),

@@ -159,13 +159,15 @@ def _times(t) -> np.ndarray:
 
 
 def _history(model, t: np.ndarray, q) -> np.ndarray:
-    """``q`` as ``(n, len(t))``; accepts ``(n, N)`` (time last, e.g. ClosedLoopResult) and
-    ``(N, n)`` (time first, e.g. ContactTrajectory); ``(n, N)`` when both fit."""
+    """``q`` as ``(n, len(t))``.  Every result type stores ``q`` as ``(n, N)`` (time along the last
+    axis: ClosedLoopResult, ContactTrajectory, Inverse.q(t)); a raw ``(N, n)`` array (time first) is
+    transposed only when that reading is unambiguous (``n != N``): a square array is always read as
+    ``(n, N)``."""
     n, N = model.n, t.size
     Q = np.asarray(q, float)
     if Q.ndim == 2 and Q.shape == (n, N):
         pass
-    elif Q.ndim == 2 and Q.shape == (N, n):
+    elif Q.ndim == 2 and Q.shape == (N, n):  # n != N here: the square case was taken as time last
         Q = Q.T
     else:
         raise DimensionError(f"q has shape {Q.shape}; for model {model.name!r} (n = {n}) and {N} times it must be "
@@ -309,9 +311,11 @@ def animate(model, drawing: Drawing, t, q, path, *, fps: float = 25, speed: floa
         Points and links (a scene's ``drawing(model)``).
     t : array_like (N,)
         Times of the samples (non-decreasing; repeated times at events are fine).
-    q : array_like (n, N) or (N, n), or callable
-        Configurations at ``t`` (``ClosedLoopResult.q`` or ``ContactTrajectory.q``), or a
-        function ``times -> (n, len(times))`` such as ``Inverse.q``.
+    q : array_like (n, N), or callable
+        Configurations at ``t``, time along the last axis (``ClosedLoopResult.q`` or
+        ``ContactTrajectory.q``), or a function ``times -> (n, len(times))`` such as ``Inverse.q``.
+        A time-first ``(N, n)`` array is accepted when ``n != N`` (unambiguous); a square array
+        is read as ``(n, N)``.
     path : str or Path
         Output file; ``.gif`` (Pillow) or ``.mp4`` (needs ffmpeg).
     fps : float
@@ -415,8 +419,12 @@ def animate_result(result, path, *, scene=None, params=None, fps: float = 25, sp
     if hasattr(result, "X_mesh"):  # an inverse: its state trajectory over the horizon
         t = np.linspace(result.T0, result.Tf, 600)
         q = result.q(t)
-    else:
+    else:  # every result type stores q with time along the last axis: (n, len(t))
         t, q = np.asarray(result.t, float), np.asarray(result.q, float)
+        if q.shape != (model.n, t.size):
+            raise DimensionError(f"{type(result).__name__}.q has shape {q.shape}; for model {model.name!r} "
+                                 f"(n = {model.n}) and {t.size} times it must be ({model.n}, {t.size}) "
+                                 "(time along the last axis)")
     label = getattr(result, "controller", "") or meta.get("controller", "")
     return animate(model, scene.drawing(model), t, q, path, fps=fps, speed=speed,
                    title=title or (scene.name + (f" ({label})" if label else "")), **options)

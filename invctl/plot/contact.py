@@ -11,23 +11,23 @@ def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = N
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(2, 2, figsize=(10, 7))
-    coords = range(tr.q.shape[1]) if coords is None else coords
-    qn = tr.names.get("q", [f"q{i + 1}" for i in range(tr.q.shape[1])])
+    coords = range(tr.q.shape[0]) if coords is None else coords  # q, v, gaps, P: time along the last axis
+    qn = tr.names.get("q", [f"q{i + 1}" for i in range(tr.q.shape[0])])
     for i in coords:
-        ax[0, 0].plot(tr.q[:, i], tr.v[:, i], lw=0.8, label=qn[i])
+        ax[0, 0].plot(tr.q[i], tr.v[i], lw=0.8, label=qn[i])
     ax[0, 0].set_xlabel("q")
     ax[0, 0].set_ylabel("v")
     ax[0, 0].set_title("phase portrait")
     ax[0, 0].legend(fontsize=8)
-    gn = tr.names.get("gaps", [f"f{i + 1}" for i in range(tr.gaps.shape[1])])
-    for i in range(tr.gaps.shape[1]):
-        ax[0, 1].plot(tr.t, tr.gaps[:, i], lw=0.8, label=gn[i])
+    gn = tr.names.get("gaps", [f"f{i + 1}" for i in range(tr.gaps.shape[0])])
+    for i in range(tr.gaps.shape[0]):
+        ax[0, 1].plot(tr.t, tr.gaps[i], lw=0.8, label=gn[i])
     ax[0, 1].axhline(0, color="k", lw=0.5)
     ax[0, 1].set_title(f"gaps (max violation {tr.max_gap_violation:.2e})")
     ax[0, 1].set_xlabel("t [s]")
     ax[0, 1].legend(fontsize=8)
-    for i in range(tr.P.shape[1]):
-        ax[1, 0].plot(tr.t[:-1], tr.P[:, i], lw=0.8, label=f"P {gn[i]}")
+    for i in range(tr.P.shape[0]):
+        ax[1, 0].plot(tr.t[:tr.P.shape[1]], tr.P[i], lw=0.8, label=f"P {gn[i]}")
     ax[1, 0].set_title("impulses per step")
     ax[1, 0].set_xlabel("t [s]")
     ax[1, 0].legend(fontsize=8)

@@ -18,10 +18,17 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError, RecordingError, ResourceLimitError, ResultFileError, SimulationFailed
-from ..io import file_loader, load_npz, require_finite, save_npz
+from ..io import file_loader, load_npz_versioned, require_finite, save_npz
 
 __all__ = ["ContactTrajectory", "ChunkRecorder", "available_memory", "resolve_memory_budget",
-           "DEFAULT_MEMORY_FRACTION"]
+           "DEFAULT_MEMORY_FRACTION", "CONTACT_FORMAT_VERSION"]
+
+#: format version of the ContactTrajectory files written now (3: time along the last axis); files
+#: of version 2 (time along the first axis) are read and transposed
+CONTACT_FORMAT_VERSION = 3
+_TIME_FIRST_VERSIONS = (2,)
+#: the stats entries with time along one axis (transposed with the arrays)
+_TIMED_STATS = ("Un", "u")
 
 #: default memory budget of a run: this fraction of the memory available when it starts
 DEFAULT_MEMORY_FRACTION = 0.5
@@ -76,16 +83,23 @@ def _fmt_bytes(b: float) -> str:
 class ContactTrajectory:
     """Result of a time-stepping (or event-driven) contact simulation.
 
-    Arrays have time along the first axis; ``q``, ``v`` include ``t[0]``.
-    ``P`` are the impulses of each step (``P/h`` estimates the contact
-    force), ``active`` the active-set flags, ``energy`` the mechanical
-    energy and ``V`` the Lyapunov function of the law (at ``t[k]``).
+    Arrays have time along the last axis, like :class:`~invctl.simulate.closed_loop.ClosedLoopResult`
+    and :class:`~invctl.inversion.result.Inverse`: ``q``, ``v`` are
+    ``(n, len(t))`` and include ``t[0]``; ``gaps`` is ``(m_u, len(t))``;
+    ``P`` (the impulses of each step, ``P/h`` estimates the contact force)
+    and ``active`` (the active-set flags) are ``(m_u, len(t) - 1)`` for a
+    finished run (one column per step); ``energy`` (the mechanical energy)
+    and ``V`` (the Lyapunov function of the law) are ``(len(t),)``.
+    ``stats["Un"]`` (normal velocities, ``(m_u, len(t))``) and
+    ``stats["u"]`` (inputs, ``(m, len(t))``) are time-last too; the impact
+    table (``stats["impact_v_plus"]``, ``(n_impacts, n)``) has one row per
+    impact.
 
     A decimated or event record (``run(..., record_every=k)`` or
-    ``record="events"``) holds the recorded steps only: row ``j`` is the
-    state at step ``stats["step_index"][j]`` and ``P[j]``, ``active[j]`` are
-    the impulse and active set of that step; the last row is the final
-    state.  Its statistics (:attr:`max_gap_violation`,
+    ``record="events"``) holds the recorded steps only: column ``j`` is the
+    state at step ``stats["step_index"][j]`` and ``P[:, j]``,
+    ``active[:, j]`` are the impulse and active set of that step; the last
+    column is the final state.  Its statistics (:attr:`max_gap_violation`,
     :attr:`max_V_increase`, :attr:`max_energy_increase`, :meth:`impacts`,
     :meth:`rest_time`) come from the exact accumulators of the run, which
     see every step; :meth:`impact_mask` needs every step and raises
@@ -118,7 +132,7 @@ class ContactTrajectory:
     def sample(self, t) -> dict:
         """``q, v`` at times ``t`` (linear interpolation between the recorded steps)."""
         t = np.atleast_1d(np.asarray(t, float))
-        return {k: np.array([np.interp(t, self.t, col) for col in getattr(self, k).T]) for k in ("q", "v")}
+        return {k: np.array([np.interp(t, self.t, row) for row in getattr(self, k)]) for k in ("q", "v")}
 
     @property
     def complete(self) -> bool:
@@ -136,7 +150,9 @@ class ContactTrajectory:
     def impacts(self, contact: int | None = None):
         """Impact steps (see :meth:`impact_mask`); returns arrays
         ``(times, contact index, pre-impact normal velocity, post-impact
-        normal velocity, post-impact v)``.  The impact time is reported as
+        normal velocity, post-impact v)``, one entry per impact (the
+        post-impact velocities are ``(n_impacts, n)``, one row per impact,
+        like ``stats["impact_v_plus"]``).  The impact time is reported as
         the mid-point of the step (first-order accurate).  Exact for
         decimated and event records too (accumulated during the run)."""
         if not self.complete:
@@ -144,16 +160,17 @@ class ContactTrajectory:
             sel = slice(None) if contact is None else (np.asarray(s["impact_contact"]) == contact)
             return (np.asarray(s["impact_t"])[sel], np.asarray(s["impact_contact"])[sel],
                     np.asarray(s["impact_pre"])[sel], np.asarray(s["impact_post"])[sel],
-                    np.asarray(s["impact_v_plus"]).reshape(-1, self.q.shape[1])[sel])
-        pre, post = self.stats["Un"][:-1], self.stats["Un"][1:]
+                    np.asarray(s["impact_v_plus"]).reshape(-1, self.q.shape[0])[sel])
+        Un = self.stats["Un"]
+        pre, post = Un[:, :-1], Un[:, 1:]
         hit = self.impact_mask()
         if contact is not None:
-            hit[:, [i for i in range(hit.shape[1]) if i != contact]] = False
-        k, i = np.nonzero(hit)
-        return self.t[k] + 0.5 * self.h, i, pre[k, i], post[k, i], self.v[k + 1]
+            hit[[i for i in range(hit.shape[0]) if i != contact], :] = False
+        k, i = np.nonzero(hit.T)  # ordered by step, then contact
+        return self.t[k] + 0.5 * self.h, i, pre[i, k], post[i, k], self.v[:, k + 1].T
 
     def impact_mask(self) -> np.ndarray:
-        """``(steps, m_u)`` flags of impacts: the contact carries an impulse, was
+        """``(m_u, steps)`` flags of impacts (time last, like ``P``): the contact carries an impulse, was
         approaching (``W_i^T v_k < -impact_vel_tol``) and carried none in the
         previous step (so persistent contact along a curved boundary, whose
         normal velocity is O(h) each step, is not counted as impacts)."""
@@ -162,8 +179,8 @@ class ContactTrajectory:
         if Un is None:
             raise SimulationFailed("trajectory has no normal velocities (stats['Un'])")
         loaded = self.P > 0
-        prev = np.vstack([np.zeros((1, loaded.shape[1]), bool), loaded[:-1]])
-        return loaded & ~prev & (Un[:-1] < -self.impact_vel_tol)
+        prev = np.hstack([np.zeros((loaded.shape[0], 1), bool), loaded[:, :-1]])
+        return loaded & ~prev & (Un[:, :-1] < -self.impact_vel_tol)
 
     @property
     def impact_times(self) -> np.ndarray:
@@ -213,9 +230,9 @@ class ContactTrajectory:
             if last < 0:
                 return t0
             return float("nan") if last >= steps else t0 + (last + 1) * self.h
-        Un = self.stats["Un"][:, contact]
+        Un = self.stats["Un"][contact]
         tol = vel_tol if vel_tol is not None else 10 * self.impact_vel_tol
-        still = (np.abs(Un) <= tol) & (self.gaps[:, contact] <= max(1e-9, 10 * self.h * tol))
+        still = (np.abs(Un) <= tol) & (self.gaps[contact] <= max(1e-9, 10 * self.h * tol))
         bad = np.flatnonzero(~still)
         if bad.size == 0:
             return float(self.t[0])
@@ -236,16 +253,23 @@ class ContactTrajectory:
                 stats[k] = v
         info = {"h": self.h, "impact_vel_tol": self.impact_vel_tol, "names": self.names, "stats": stats,
                 "status": self.status, "message": self.message, **self.meta, **(meta or {})}
-        return save_npz(path, "ContactTrajectory", arrays, info)
+        return save_npz(path, "ContactTrajectory", arrays, info, version=CONTACT_FORMAT_VERSION)
 
     @classmethod
     @file_loader
     def load(cls, path) -> "ContactTrajectory":
-        """Read a file written by :meth:`to_npz` (format and version checked)."""
-        d, info = load_npz(path, "ContactTrajectory")
+        """Read a file written by :meth:`to_npz` (format and version checked; files of format
+        version 2, with time along the first axis, are transposed to the time-last layout)."""
+        d, info, version = load_npz_versioned(path, "ContactTrajectory", version=CONTACT_FORMAT_VERSION,
+                                              older=_TIME_FIRST_VERSIONS)
         missing = [k for k in cls._ARRAYS if k not in d] + [k for k in ("h", "stats") if k not in info]
         if missing:
             raise ResultFileError(f"{path}: incomplete contact trajectory (missing {missing})")
+        if version in _TIME_FIRST_VERSIONS:
+            for k in ("q", "v", "P", "active", "gaps", *(f"stats:{s}" for s in _TIMED_STATS)):
+                if k in d and d[k].ndim == 2:
+                    d[k] = np.ascontiguousarray(d[k].T)
+        cls._check_shapes(path, d)
         require_finite(path, d, ("t", "q", "v"))
         stats = dict(info["stats"])
         stats.update({k[6:]: v for k, v in d.items() if k.startswith("stats:")})
@@ -254,6 +278,28 @@ class ContactTrajectory:
         return cls(*(d[k] for k in cls._ARRAYS), float(info["h"]), dict(info.get("names", {})), stats,
                    float(info.get("impact_vel_tol", 1e-8)), meta, str(info.get("status", "ok")),
                    str(info.get("message", "")))
+
+    @staticmethod
+    def _check_shapes(path, d: dict) -> None:
+        """Raise :class:`ResultFileError` unless the arrays have the time-last shapes."""
+        t = d["t"]
+        if t.ndim != 1:
+            raise ResultFileError(f"{path}: malformed ContactTrajectory file (t has shape {t.shape}, expected 1-D)")
+        N = t.size
+        for k in ("q", "v", "gaps", "P", "active"):
+            a = d[k]
+            ok = a.ndim == 2 and (a.shape[1] == N if k in ("q", "v", "gaps") else a.shape[1] in (N - 1, N))
+            if ok and k == "v":
+                ok = a.shape == d["q"].shape
+            if ok and k in ("P", "active"):
+                ok = a.shape[0] == d["gaps"].shape[0] and d["P"].shape == d["active"].shape
+            if not ok:
+                raise ResultFileError(f"{path}: malformed ContactTrajectory file ({k} has shape {a.shape} for "
+                                      f"{N} times; expected time along the last axis)")
+        for k in ("energy", "V"):
+            if d[k].shape != (N,):
+                raise ResultFileError(f"{path}: malformed ContactTrajectory file ({k} has shape {d[k].shape}, "
+                                      f"expected ({N},))")
 
     def animate(self, path, **options):
         """Draw the mechanism along the run (GIF/MP4) from the scene's drawing; see
@@ -304,6 +350,9 @@ class RowLayout:
 
 class ChunkRecorder:
     """Keeps the recorded rows of a run that streams out of the compiled loop.
+
+    Internally one row per recorded step; the :class:`ContactTrajectory` built from them
+    (``MoreauJean._package``) holds their transposes, time along the last axis.
 
     Parameters
     ----------

@@ -39,7 +39,7 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
                           potential=None, max_impacts: int | None = None) -> ContactTrajectory:
     """Simulate exactly (up to integrator tolerance) from ``(q0, v0)`` to ``t_end``.
 
-    Returns a :class:`ContactTrajectory` with ``stats["events"]`` (list of
+    Returns a :class:`ContactTrajectory` (time along the last axis) with ``stats["events"]`` (list of
     ``(t, kind, contact, U_minus, U_plus)``), ``stats["impact_t"]``,
     ``stats["impact_contact"]``, ``stats["impact_pre"]``,
     ``stats["impact_post"]``, ``stats["impact_v_plus"]``. With ``max_impacts`` the run ends at that
@@ -172,11 +172,11 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
             break
     else:
         raise SimulationFailed(f"event-driven: more than {max_events} events before t_end = {t_end}",
-                               partial=(np.array(ts), np.array(qs), np.array(vs)))
+                               partial=(np.array(ts), np.array(qs).T, np.array(vs).T))
     T, Q, Vv = np.array(ts), np.array(qs), np.array(vs)
-    Pz = np.zeros((T.size - 1, mu))
-    gaps = np.array([cs.gaps(qq, th) for qq in Q])
-    Un = np.array([cs.gradients(qq, th).T @ vv for qq, vv in zip(Q, Vv)])
+    Pz = np.zeros((mu, T.size - 1))
+    gaps = np.array([cs.gaps(qq, th) for qq in Q]).reshape(T.size, mu).T
+    Un = np.array([cs.gradients(qq, th).T @ vv for qq, vv in zip(Q, Vv)]).reshape(T.size, mu).T
     En, Vl = [], []
     for tt, qq, vv in zip(T, Q, Vv):
         M, _, Vk = forces(tt, qq, vv)
@@ -185,5 +185,6 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
     stats = {"events": events, "impact_t": np.array(imp["t"]), "impact_contact": np.array(imp["i"], int),
              "impact_pre": np.array(imp["pre"]), "impact_post": np.array(imp["post"]),
              "impact_v_plus": np.array(imp["vplus"]).reshape(-1, n), "Un": Un, "backend": "event-driven"}
-    return ContactTrajectory(T, Q, Vv, Pz, np.zeros((T.size - 1, mu), bool), gaps, np.array(En), np.array(Vl),
+    # time along the last axis, as every result type
+    return ContactTrajectory(T, Q.T, Vv.T, Pz, np.zeros((mu, T.size - 1), bool), gaps, np.array(En), np.array(Vl),
                              float("nan"), {"q": list(model.q_names), "gaps": list(cs.names)}, stats)

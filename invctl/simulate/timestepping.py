@@ -351,15 +351,16 @@ class MoreauJean:
 
     def reference_run(self, q0, v0, steps: int, h: float, *, method: str = "lemke", **kw):
         """``steps`` steps of :meth:`reference_step` in a Python loop (numpy LCP
-        solvers); returns ``(q, v)`` with ``steps + 1`` rows.  A slow,
-        independent check of the compiled loop, not for production runs."""
+        solvers); returns ``(q, v)``, each ``(n, steps + 1)`` with time along
+        the last axis like :attr:`ContactTrajectory.q`.  A slow, independent
+        check of the compiled loop, not for production runs."""
         x = self.initial_state(q0, v0, kw.pop("t0", 0.0), h=h, **kw)
         lay = self._lay
-        Q, Vv = np.empty((steps + 1, self.model.n)), np.empty((steps + 1, self.model.n))
-        Q[0], Vv[0] = x[lay["q"]], x[lay["v"]]
+        Q, Vv = np.empty((self.model.n, steps + 1)), np.empty((self.model.n, steps + 1))
+        Q[:, 0], Vv[:, 0] = x[lay["q"]], x[lay["v"]]
         for k in range(steps):
             x, _ = self.reference_step(x, method=method)
-            Q[k + 1], Vv[k + 1] = x[lay["q"]], x[lay["v"]]
+            Q[:, k + 1], Vv[:, k + 1] = x[lay["q"]], x[lay["v"]]
         return Q, Vv
 
     def _state_at(self, x_in, Xacc, use: int, size: int, S: int) -> np.ndarray:
@@ -559,7 +560,7 @@ class MoreauJean:
         if x_final is not None:
             rec.finish(self._final_row(x_final), N)
         R, Sx = rec.rows()
-        col = lambda name: R[:, L.sl(name)]  # noqa: E731
+        col = lambda name: R[:, L.sl(name)].T  # noqa: E731  (views, time along the last axis)
         nP = R.shape[0] - 1 if x_final is not None else R.shape[0]
         x0 = meta["x_init"]
         stats = {"wall_s": wall, "steps": N, "steps_per_s": N / wall if wall > 0 else float("inf"),
@@ -582,5 +583,5 @@ class MoreauJean:
         if not rec.complete:
             stats.update(rec.impact_table())
         names = {"q": list(self.model.q_names), "gaps": list(self.cs.names), "u": list(self.model.u_names)}
-        return ContactTrajectory(col("t")[:, 0], col("q"), col("v"), col("P")[:nP], col("act")[:nP] > 0.5,
-                                 col("gap"), col("E")[:, 0], col("V")[:, 0], meta["h"], names, stats, meta["vtol"])
+        return ContactTrajectory(col("t")[0], col("q"), col("v"), col("P")[:, :nP], col("act")[:, :nP] > 0.5,
+                                 col("gap"), col("E")[0], col("V")[0], meta["h"], names, stats, meta["vtol"])

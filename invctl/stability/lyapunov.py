@@ -55,7 +55,7 @@ def lyapunov_report(tr) -> LyapunovReport:
                               max(0.0, float(st["dV_max_smooth"])), jumps, int(st.get("n_impacts", jumps.size)),
                               float(tr.V[0]), float(tr.V[-1]))
     dV = np.diff(tr.V)
-    imp = np.any(tr.impact_mask(), axis=1)
+    imp = np.any(tr.impact_mask(), axis=0)  # (contacts, steps) -> steps
     jumps = dV[imp]
     smooth = dV[~imp]
     return LyapunovReport(float(np.max(dV, initial=0.0)), float(np.max(jumps, initial=0.0)),

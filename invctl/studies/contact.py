@@ -150,10 +150,10 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
     if "active" in info:
         act = list(info["active"])
         beta = np.array([kap[f"beta{i + 1}"] for i in range(len(act))])
-        lam = tr.P[:, act] / h
-        err = float(np.max(np.abs(lam - beta)))
-        kept = bool(np.all(tr.active[:, act]))
-        gap = float(np.max(np.abs(tr.gaps[:, act])))
+        lam = tr.P[act] / h  # (contacts, steps): time along the last axis
+        err = float(np.max(np.abs(lam - beta[:, None])))
+        kept = bool(np.all(tr.active[act]))
+        gap = float(np.max(np.abs(tr.gaps[act])))
         from ..control.preload import preload_check
 
         chk = preload_check(run.model, run.q0, run.v0, act)
@@ -165,15 +165,15 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
     if "outputs" in info:
         outs = list(info["outputs"])
         yd = np.array([kap[f"yd{i + 1}"] for i in range(len(outs))])
-        err = (tr.gaps[-1, outs] - yd).tolist()
+        err = (tr.gaps[outs, -1] - yd).tolist()
         data.update({"juggled_gaps": outs, "gap_target": yd.tolist(), "gap_error_final": err})
-        lines.append(f"gaps {outs} -> {np.round(tr.gaps[-1, outs], 8).tolist()} (target "
+        lines.append(f"gaps {outs} -> {np.round(tr.gaps[outs, -1], 8).tolist()} (target "
                      f"{np.round(yd, 12).tolist()})")
     tracked = info.get("tracked") or ((info["idx"], info["q_d"]) if "q_d" in info and "idx" in info else None)
     if tracked is not None:
         idx, q_d = list(tracked[0]), tracked[1]
         qd, dqd = (np.array(a) for a in _qd_function(q_d, len(idx)).map(tr.t.size)(tr.t[None, :]))
-        err = tr.q[:, idx].T - qd
+        err = tr.q[idx] - qd
         half = tr.t >= 0.5 * tr.t[-1]
         data.update({"tracking_error_max": float(np.max(np.abs(err))),
                      "tracking_error_last_half": float(np.max(np.abs(err[:, half])))})
@@ -188,8 +188,8 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
     elif "idx" in info:
         idx = list(info["idx"])
         qd = np.array([kap[f"qd{j + 1}"] for j in range(len(idx))])
-        err = (tr.q[-1, idx] - qd).tolist()
-        speed = float(np.max(np.abs(tr.v[-1])))
+        err = (tr.q[idx, -1] - qd).tolist()
+        speed = float(np.max(np.abs(tr.v[:, -1])))
         data.update({"regulation_error_final": err, "speed_final": speed})
         lines.append(f"regulation of {[run.model.q_names[i] for i in idx]} to {qd.tolist()}: final error "
                      f"{np.round(err, 10).tolist()}, final max |v| {speed:.2e} (000 Prop. 2)")
@@ -216,11 +216,11 @@ def _equilibrium_report(run: ContactRun) -> tuple[list, dict]:
     u = ca.substitute(ca.substitute(u, kappa, ca.DM(law.kappa_values)), model.theta, ca.DM(model.theta_values))
     F = static_force(model, u)
     th = run.plant.theta_values
-    q_end = tr.q[-1]
+    q_end = tr.q[:, -1]
     Fn = ca.Function("F", [model.q, model.theta], [F, ca.jacobian(ca.vertcat(*[g.expr for g in model.gaps]),
                                                                     model.q).T])
     F_end, W_end = (np.array(a) for a in Fn(q_end, th))
-    lam_end = tr.P[-1] / tr.h if tr.P.shape[0] else np.zeros(len(model.gaps))
+    lam_end = tr.P[:, -1] / tr.h if tr.P.shape[1] else np.zeros(len(model.gaps))
     res_end = float(np.max(np.abs(F_end.ravel() + W_end @ lam_end)))
     data = {"equilibrium_residual_final": res_end, "static_force_scale": float(np.max(np.abs(F_end)))}
     try:
@@ -243,35 +243,36 @@ def _prop3_conditions(run: ContactRun, idx, q_d) -> dict:
     from ..contact.mechanics import ContactSystem
 
     tr, model = run.trajectory, run.model
-    imp = tr.impact_mask()
-    k, i = np.nonzero(imp)
+    imp = tr.impact_mask()  # (contacts, steps)
+    k, i = np.nonzero(imp.T)  # ordered by step, then contact
     out = {"impacts_checked": int(k.size), "impacts_violating_52": 0, "max_V_jump_where_52_holds": 0.0,
            "max_V_jump_where_52_violated": 0.0, "persistent_steps": 0, "persistent_steps_violating_54": 0}
     fn = _qd_function(q_d, len(idx))
     cs = ContactSystem(model)
     th = model.theta_values
 
-    def margins(steps, contacts, q_rows, times):
-        """``grad f_i(q_k)^T qd_dot(t_k)`` for the (step, contact) pairs, through mapped Functions."""
+    def margins(steps, contacts, q_cols, times):
+        """``grad f_i(q_k)^T qd_dot(t_k)`` for the (step, contact) pairs (``q_cols``: ``(n, pairs)``),
+        through mapped Functions."""
         if not steps.size:
             return np.zeros(0)
-        W = np.array(cs.f_W.map(steps.size)(q_rows.T, th)).reshape(model.n, cs.m_u, steps.size, order="F")
+        W = np.array(cs.f_W.map(steps.size)(q_cols, th)).reshape(model.n, cs.m_u, steps.size, order="F")
         dqd = np.zeros((model.n, steps.size))
         dqd[idx] = np.array(fn.map(steps.size)(times[None, :])[1]).reshape(len(idx), steps.size)
         return np.einsum("nk,nk->k", W[:, contacts, np.arange(steps.size)], dqd)
 
     if k.size:
-        ok = margins(k, i, tr.q[k + 1], tr.t[k] + 0.5 * tr.h) >= 0
+        ok = margins(k, i, tr.q[:, k + 1], tr.t[k] + 0.5 * tr.h) >= 0
         dV = tr.V[k + 1] - tr.V[k]
         out.update({"impacts_violating_52": int(np.count_nonzero(~ok)),
                     "max_V_jump_where_52_holds": float(np.max(dV[ok])) if ok.any() else 0.0,
                     "max_V_jump_where_52_violated": float(np.max(dV[~ok])) if (~ok).any() else 0.0})
     loaded = tr.P > 0
-    pers = loaded[1:] & loaded[:-1]
-    kp, ip = np.nonzero(pers)
+    pers = loaded[:, 1:] & loaded[:, :-1]
+    kp, ip = np.nonzero(pers.T)  # ordered by step, then contact
     kp = kp + 1
     if kp.size:
-        m54 = margins(kp, ip, tr.q[kp], tr.t[kp])
+        m54 = margins(kp, ip, tr.q[:, kp], tr.t[kp])
         out.update({"persistent_steps": int(kp.size), "persistent_steps_violating_54": int(np.count_nonzero(m54 < 0))})
     return out
 
@@ -284,12 +285,12 @@ def _summary(run: ContactRun) -> tuple[list, dict]:
              + f", max gap violation {tr.max_gap_violation:.2e}, steps/s {tr.stats['steps_per_s']:.3g} "
              f"({tr.stats['backend']})"]
     data = {"controller": run.controller, "h": tr.h, "n_impacts": int(ti.size), "impact_times": ti[:200].tolist(),
-            "max_gap_violation": tr.max_gap_violation, "initial_gaps": tr.gaps[0].tolist(),
+            "max_gap_violation": tr.max_gap_violation, "initial_gaps": tr.gaps[:, 0].tolist(),
             "clearance": (float(run.scene.contact.clearance(run.model, run.settings))
                           if run.scene.contact.clearance is not None else None),
             "steps_per_s": tr.stats["steps_per_s"],
-            "backend": tr.stats["backend"], "steps": tr.stats["steps"], "q_final": tr.q[-1].tolist(),
-            "v_final": tr.v[-1].tolist(), "settings": dict(run.settings)}
+            "backend": tr.stats["backend"], "steps": tr.stats["steps"], "q_final": tr.q[:, -1].tolist(),
+            "v_final": tr.v[:, -1].tolist(), "settings": dict(run.settings)}
     law_lines, law_data = law_report(run)
     return lines + law_lines, {**data, **law_data}
 

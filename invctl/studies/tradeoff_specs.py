@@ -139,11 +139,11 @@ def contact_fine_step(scene, params: dict, settings: dict, smoke: bool = False) 
     grid = np.linspace(0.0, t_end, 501)
     # the coordinates the controller acts on (all when it names none)
     idx = list(law.info.get("idx", range(model.n)))
-    q_ref = np.array([np.interp(grid, ref.t, ref.q[:, i]) for i in idx])
+    q_ref = np.array([np.interp(grid, ref.t, ref.q[i]) for i in idx])  # q: (n, len(t))
 
     def run(h):
         tr = mj.run(q0, v0, t_end, float(h))
-        q = np.array([np.interp(grid, tr.t, tr.q[:, i]) for i in idx])
+        q = np.array([np.interp(grid, tr.t, tr.q[i]) for i in idx])
         return {"error": float(np.max(np.abs(q - q_ref))), "time_s": float(tr.stats["wall_s"]),
                 "steps_per_s": float(tr.stats["steps_per_s"]), "max_gap_violation": float(tr.max_gap_violation)}
 
