@@ -8,7 +8,7 @@ import pytest
 
 import problems.cartpole as cp
 import problems.manipulator as mn
-from invctl.errors import BoundsError, InfeasibleBoundsError, OptionError
+from invctl.errors import BoundsError, InfeasibleBoundsError, InversionFailed, OptionError
 from invctl.inversion import (Bounds, Discretization, Horizon, Objective, SolverOptions, forward_check, invert,
                               resolve_selection, servo_model)
 from invctl.inversion.bounded import _limits, constraint_points
@@ -487,3 +487,20 @@ def test_a_local_infeasibility_verdict_is_retried_from_the_elastic_point(dint, m
     tt = np.linspace(0.0, T, 41)
     u_exact = np.clip(U * (1 - (tt - t1) / a), -U, U)
     assert np.max(np.abs(inv.u(tt)[0] - u_exact)) < 1e-6
+
+
+def test_minimum_time_with_loose_bounds_stops_where_the_exact_inverse_ceases_to_exist(manip):
+    # |u| <= 1000 N is far above what the manipulator's moves need: the shortest move of the shape is
+    # limited by the model -- the exact inverse of the retimed reference exists 2 % above the optimal
+    # duration (and stays below the bound) and is not found 2 % below it (a fold in the duration)
+    md, ref, q0 = manip
+    inv = minimum_time(md, ref, bounds=Bounds(u=1000.0), N=100, q_guess=q0)
+    ft = inv.diagnostics["free_time"]
+    assert ft["limited_by"] == "model" and ft["active"] == [] and 0.2 < ft["duration"] < 1.0
+    t = np.linspace(inv.T0, inv.Tf, 3000)
+    assert 100.0 < np.max(np.abs(inv.u(t))) < 1000.0
+    assert forward_check(md, inv, retime(ref, ft["duration"]))["error"] < 1e-5
+    above = invert(md, retime(ref, 1.02 * ft["duration"]), q_guess=q0, N=100, progress=False)
+    assert np.max(np.abs(above.u(np.linspace(above.T0, above.Tf, 3000)))) < 1000.0
+    with pytest.raises(InversionFailed):
+        invert(md, retime(ref, 0.98 * ft["duration"]), q_guess=q0, N=100, progress=False)

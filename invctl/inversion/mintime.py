@@ -130,21 +130,38 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
                            rated=rb.rated, compiled=disc.compiled)
     tc = tr.collocation_times(t_mesh)
     tau0 = float(np.clip(tau_ref if warm_start is None else warm_start.tf - warm_start.t0, lo, hi))
+    no_inverse = None  # a shorter duration at which the exact inverse of the shape was not found
     if guess is not None and warm_start is None and not relaxed:
-        # start where the exact inverse nearly respects the input and rate bounds (they scale like
+        # start where the exact inverse nearly meets the input and rate bounds (they scale like
         # tau^-2 and tau^-3 for a fixed shape): from a duration the bounds cut deeply into, IPOPT's
-        # first steps can leave towards very short moves, where the non-minimum-phase inverse explodes
-        tau_s = _feasible_duration(guess, servo, reference, theta, rb, tau_ref)
-        tau_s = float(np.clip(tau_s, lo, hi))
-        if tau_s > tau0 * (1 + 1e-9):
-            mesh_s = tr.retimed_mesh(t_mesh, mask, tau_ref, tau_s)
-            try:
-                guess = solve_square(model, retime(reference, tau_s), replace(
-                    opts, horizon=replace(hz, T0=float(mesh_s[0]), Tf=float(mesh_s[-1]), plan=None),
-                    discretization=replace(disc, mesh=mesh_s), bounds=None, objective=None))
-                warm_start, tau0 = guess, tau_s
-            except InversionFailed:
-                pass  # keep the reference's duration as the start
+        # first steps can leave towards very short moves, where the non-minimum-phase inverse explodes.
+        # Bounds far from what the reference needs (either way) put the optimum far from tau_ref: the
+        # estimate is refined on exact inverses of the retimed shape (a fixed-point iteration, as the
+        # parts of the inputs that do not scale, e.g. gravity, make the power laws approximate)
+        cur, tau_cur, mesh_cur = guess, tau_ref, t_mesh
+        for _round in range(8):
+            target = float(np.clip(_feasible_duration(cur, servo, retime(reference, tau_cur), theta, rb, tau_cur),
+                                   lo, hi))
+            if abs(target / tau_cur - 1.0) < (0.02 if _round else 1e-9):
+                break
+            tau_s = float(np.clip(target, tau_cur / 2, tau_cur * 2))  # continuation: at most a factor 2 a step
+            for _halving in range(3):
+                mesh_s = tr.retimed_mesh(t_mesh, mask, tau_ref, tau_s)
+                try:
+                    cur = solve_square(model, retime(reference, tau_s), replace(
+                        opts, horizon=replace(hz, T0=float(mesh_s[0]), Tf=float(mesh_s[-1]), plan=None),
+                        discretization=replace(disc, mesh=mesh_s), bounds=None, objective=None),
+                        warm_start=_Retimed(cur, mesh_cur, mesh_s))
+                    break
+                except InversionFailed:
+                    if tau_s < tau_cur:
+                        no_inverse = tau_s  # the tightest failure so far (the halvings approach tau_cur)
+                    tau_s = float(np.sqrt(tau_s * tau_cur))
+            else:
+                break  # keep the last duration whose exact inverse exists
+            tau_cur, mesh_cur = tau_s, mesh_s
+        if cur is not guess:
+            warm_start, tau0 = cur, tau_cur
     if warm_start is not None:  # a solution for another duration: sample it at the same shape positions
         ws_mesh = tr.retimed_mesh(t_mesh, mask, tau_ref, tau0)
         x0 = tr.pack(warm_start.X(ws_mesh), warm_start.X(tr.collocation_times(ws_mesh)) if tc.size else None,
@@ -204,17 +221,28 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
                       "bound_violation": max([0.0] + [v for v in rb.violations(Xs, Us).values()])},
         "wall_s": time.perf_counter() - t_all,
     })
+    ft = inv.diagnostics["free_time"]
+    ft["limited_by"] = ("bounds" if active else "duration range" if at_limit else "energy weight" if energy > 0
+                        else "model")
+    model_limit = ""
+    if no_inverse is not None and no_inverse < tau0:
+        inv.diagnostics["free_time"]["no_exact_inverse_at"] = no_inverse
+        model_limit = (f"; the exact inverse of this shape was not found at a duration of {no_inverse:.4g} s "
+                       f"(it exists at {tau0:.4g} s, where the bounds are not yet active): the shortest move may "
+                       "be limited by the model (the inverse ceasing to exist), not by the bounds; search above it "
+                       f"(duration=({tau0:.4g}, ...), --duration {tau0:.4g}:HI)")
     key = "holonomic_mesh" if relaxed else "position_mesh"
     if ok and res[key] > slv.residual_tol:
         raise InversionFailed(
             f"minimum_time: the solution violates the position-level constraints by {res[key]:.3g} > residual_tol "
-            f"= {slv.residual_tol:.3g} at the mesh ({sch.name} N={N}); refine the mesh", partial=inv,
+            f"= {slv.residual_tol:.3g} at the mesh ({sch.name} N={N}); refine the mesh{model_limit}", partial=inv,
             diagnostics=inv.diagnostics)
     if not ok and status in _TIME_LIMIT:
         raise WallTimeLimitError(
             f"minimum_time stopped at the wall-time limit of {slv.max_wall_time:g} s after "
             f"{inv.diagnostics['iterations']} iterations ({sch.name} N={N}); raise max_wall_time or use fewer "
-            "intervals (N); the last iterate is in exc.partial", partial=inv, diagnostics=inv.diagnostics)
+            f"intervals (N); the last iterate is in exc.partial{model_limit}", partial=inv,
+            diagnostics=inv.diagnostics)
     if not ok:
         if status in ("Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeasibility"):
             raise InfeasibleBoundsError(
@@ -225,24 +253,38 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         raise InversionFailed(
             f"minimum_time failed (IPOPT: {status} after {inv.diagnostics['iterations']} iterations, constraint "
             f"violation {viol:.3g}); try more iterations (max_iter), another initial duration (a reference of a "
-            "feasible duration) or hessian='exact'; the last iterate is in exc.partial", partial=inv,
+            f"feasible duration) or hessian='exact'; the last iterate is in exc.partial{model_limit}", partial=inv,
             diagnostics=inv.diagnostics)
     return inv
 
 
+class _Retimed:
+    """An inverse of one duration read at the same shape positions of another (the mesh ``src`` of
+    the first corresponds node by node to ``dst``; within intervals the map is affine)."""
+
+    def __init__(self, inverse, src, dst):
+        self.inverse, self.src, self.dst = inverse, np.asarray(src, float), np.asarray(dst, float)
+
+    def X(self, t):
+        return self.inverse.X(np.interp(np.atleast_1d(np.asarray(t, float)), self.dst, self.src))
+
+
 def _feasible_duration(inv, servo, reference, theta, rb, tau_ref) -> float:
     """A duration at which the exact inverse of the shape about meets the input (``tau^-2``) and rate
-    (``tau^-3``) bounds, estimated from the inverse ``inv`` of duration ``tau_ref``, 5 % longer."""
+    (``tau^-3``) bounds, estimated from the inverse ``inv`` of duration ``tau_ref``, 5 % longer
+    (``tau_ref`` itself when no input or rate is bounded)."""
     _ts, X, _tr, U = constraint_points(inv, servo, reference, theta)
     ub = servo.layout.blocks["u"]
-    factor = 1.0
+    factor = None
     for i in rb.bounded:
         if ub.start <= i < ub.stop:
             need = max(np.max(X[i]) / rb.hi[i] if rb.hi[i] > 0 else 0.0,
                        np.min(X[i]) / rb.lo[i] if rb.lo[i] < 0 else 0.0)
-            factor = max(factor, need ** 0.5)
+            factor = max(factor or 0.0, need ** 0.5)
     for j in rb.rated:
         need = max(np.max(U[j]) / rb.rate_hi[j] if rb.rate_hi[j] > 0 else 0.0,
                    np.min(U[j]) / rb.rate_lo[j] if rb.rate_lo[j] < 0 else 0.0)
-        factor = max(factor, need ** (1 / 3))
-    return tau_ref * factor * (1.05 if factor > 1 else 1.0)
+        factor = max(factor or 0.0, need ** (1 / 3))
+    if not factor or not np.isfinite(factor):
+        return tau_ref
+    return tau_ref * factor * 1.05

@@ -256,7 +256,9 @@ def _limit_lines(d: dict) -> list[str]:
                         if isinstance(a, dict) else str(a) for a in ft.get("active", [])) or "none"
         lines.append(f"  minimum time: duration {ft['duration']:.6g} s (the reference's {ft['reference_duration']:.6g} s"
                      f"), energy {ft['energy']:.4g} (weight {ft['energy_weight']:g}); active bounds: {act}"
-                     + ("; AT THE LIMIT of the duration range searched" if ft.get("at_duration_limit") else ""))
+                     + ("; AT THE LIMIT of the duration range searched" if ft.get("at_duration_limit") else "")
+                     + ("; no bound is active: the duration is limited by the model (shorter moves of this shape "
+                        "have no exact inverse nearby), not by the bounds" if ft.get("limited_by") == "model" else ""))
     if tr is not None:
         if tr.get("exact"):
             lines.append("  bounds: the exact inverse meets them (it is the answer)")
