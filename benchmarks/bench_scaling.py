@@ -26,6 +26,7 @@ and 3 SCOTCH when MUMPS was built with them; 6 QAMD; 7 automatic).
 
     python benchmarks/bench_scaling.py [--n 2 4 8] [--repeat 2] [--timeout 600]
                                        [--coordinates angles|cartesian|both] [--pivot-order K]
+                                       [--max-memory-gb 8]
 """
 from __future__ import annotations
 
@@ -83,14 +84,25 @@ def worker(n: int, coordinates: str = "angles", pivot_order: int | None = None) 
     return out
 
 
-def run_worker(n: int, timeout: float, coordinates: str = "angles", pivot_order: int | None = None) -> dict:
+def _limit_memory(gb: float):
+    """A ``preexec_fn`` capping the worker's address space (a MemoryError in the worker instead of the
+    kernel's OOM killer acting on the whole machine: the cartesian n = 16 run reached 22 GB)."""
+    def apply():
+        limit = int(gb * 2**30)
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    return apply
+
+
+def run_worker(n: int, timeout: float, coordinates: str = "angles", pivot_order: int | None = None,
+               max_memory_gb: float = 8.0) -> dict:
     """One fresh process for ``n``; its result dict, or ``{"n", "error"}``."""
     t = time.perf_counter()
     cmd = [sys.executable, __file__, "--worker", str(n), "--coordinates", coordinates]
     if pivot_order is not None:
         cmd += ["--pivot-order", str(pivot_order)]
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=dict(os.environ))
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=dict(os.environ),
+                              preexec_fn=_limit_memory(max_memory_gb) if max_memory_gb > 0 else None)
         line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
         if not line:
             why = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no output"
@@ -149,6 +161,9 @@ def main() -> None:
                     help="formulation of the arm (both: each n in both, ratio of inversion times)")
     ap.add_argument("--pivot-order", type=int, default=None,
                     help="ipopt.mumps_pivot_order of the inversion (default: the project's, 0 = AMD)")
+    ap.add_argument("--max-memory-gb", type=float, default=8.0,
+                    help="address-space limit of each worker process (0: none); a formulation that exceeds it "
+                         "skips its larger n")
     ap.add_argument("--worker", type=int, default=None)
     args = ap.parse_args()
     if args.worker is not None:
@@ -173,7 +188,8 @@ def main() -> None:
                 print(f"{c:>11s} {n:3d}  {rows[c][-1]['error']}", flush=True)
                 continue
             t_run = time.perf_counter()
-            runs = [run_worker(n, args.timeout, c, args.pivot_order) for _ in range(max(1, args.repeat))]
+            runs = [run_worker(n, args.timeout, c, args.pivot_order, args.max_memory_gb)
+                    for _ in range(max(1, args.repeat))]
             if all("error" in r for r in runs):
                 stopped[c] = n
             good = [r for r in runs if "error" not in r]

@@ -14,9 +14,9 @@ from scipy.integrate import solve_ivp
 import problems.flexible_arm as fa
 from invctl.analysis import internal_dynamics, linearize_internal
 from invctl.cli import main
-from invctl.errors import ParameterError
+from invctl.errors import ParameterError, SceneError
 from invctl.inversion import forward_check, invert
-from invctl.scenes import load_scene
+from invctl.scenes import Scene, load_scene
 
 
 def internal_eigenvalues(model, q0):
@@ -160,3 +160,12 @@ def test_cli_coordinates(capsys):
     assert main(["analyze", "flexible_arm", "--set", "coordinates=cartesian", "--set", "n=2", "--json"]) == 0
     out = capsys.readouterr().out
     assert "n = 6, l = 4" in out
+
+
+def test_scene_choices_declaration_is_checked():
+    """A choice needs identifier-like words and may not shadow a parameter."""
+    build = fa.build
+    for bad in ({"coordinates": ()}, {"coordinates": ("angles", "angles")}, {"coordinates": ("a b",)},
+                {"n": ("x",)}):
+        with pytest.raises(SceneError):
+            Scene("arm", build, params={"n": 3}, choices=bad)
