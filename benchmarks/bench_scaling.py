@@ -16,7 +16,17 @@ growth exponents fitted in n (least squares of log time over log n, all n and n 
 wall time on a shared machine (single runs vary by up to 70 % at n = 32 under load): each n runs
 ``--repeat`` times and the fastest run is kept.
 
+Both formulations of the arm are measured (``--coordinates angles|cartesian|both``, default both):
+absolute link angles (dense M(q), O(n^2) Jacobian entries per node) and Cartesian coordinates with
+pin constraints (``--set coordinates=cartesian``: constant diagonal M, 2n constraints, O(n) entries
+per node); with ``both`` every n runs both in turn, and a last table gives the ratio of their
+inversion times in the same run.  ``--pivot-order K`` passes ``ipopt.mumps_pivot_order = K`` to the
+inversion (MUMPS ordering: 0 AMD, the project default for square systems; 2 AMF; 4 PORD; 5 METIS
+and 3 SCOTCH when MUMPS was built with them; 6 QAMD; 7 automatic).
+
     python benchmarks/bench_scaling.py [--n 2 4 8] [--repeat 2] [--timeout 600]
+                                       [--coordinates angles|cartesian|both] [--pivot-order K]
+                                       [--max-memory-gb 8]
 """
 from __future__ import annotations
 
@@ -33,20 +43,22 @@ import numpy as np
 NS = (2, 4, 8, 16, 32)
 
 
-def worker(n: int) -> dict:
+def worker(n: int, coordinates: str = "angles", pivot_order: int | None = None) -> dict:
     from invctl.inversion import forward_check
     from invctl.inversion.solve import servo_model
     from invctl.scenes import load_scene
     from invctl.studies.tracking import invert_tracking, run_controller, setup_tracking
 
     scene = load_scene("flexible_arm")
-    out = {"n": n}
+    out = {"n": n, "coordinates": coordinates}
+    params = {"n": n} if coordinates == "angles" else {"n": n, "coordinates": coordinates}
+    options = {} if pivot_order is None else {"ipopt_options": {"ipopt.mumps_pivot_order": pivot_order}}
     t = time.perf_counter()
-    setup = setup_tracking(scene, {"n": n}, invert=False)
+    setup = setup_tracking(scene, params, invert=False)
     out["analysis_s"] = time.perf_counter() - t
     out["analysis_parts"] = {k: setup.timings[k] for k in ("analysis", "controller")}
     t = time.perf_counter()
-    inv = invert_tracking(scene, setup.model, setup.reference)
+    inv = invert_tracking(scene, setup.model, setup.reference, **options)
     setup.inverse = inv
     out["inversion_s"] = time.perf_counter() - t
     d = inv.diagnostics
@@ -72,12 +84,25 @@ def worker(n: int) -> dict:
     return out
 
 
-def run_worker(n: int, timeout: float) -> dict:
+def _limit_memory(gb: float):
+    """A ``preexec_fn`` capping the worker's address space (a MemoryError in the worker instead of the
+    kernel's OOM killer acting on the whole machine: the cartesian n = 16 run reached 22 GB)."""
+    def apply():
+        limit = int(gb * 2**30)
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    return apply
+
+
+def run_worker(n: int, timeout: float, coordinates: str = "angles", pivot_order: int | None = None,
+               max_memory_gb: float = 8.0) -> dict:
     """One fresh process for ``n``; its result dict, or ``{"n", "error"}``."""
     t = time.perf_counter()
+    cmd = [sys.executable, __file__, "--worker", str(n), "--coordinates", coordinates]
+    if pivot_order is not None:
+        cmd += ["--pivot-order", str(pivot_order)]
     try:
-        proc = subprocess.run([sys.executable, __file__, "--worker", str(n)], capture_output=True, text=True,
-                              timeout=timeout, env=dict(os.environ))
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=dict(os.environ),
+                              preexec_fn=_limit_memory(max_memory_gb) if max_memory_gb > 0 else None)
         line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
         if not line:
             why = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no output"
@@ -97,40 +122,13 @@ def fit(ns, ts) -> float:
     return float(np.polyfit(np.log(ns[ok]), np.log(ts[ok]), 1)[0])
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--n", type=int, nargs="*", default=list(NS))
-    ap.add_argument("--timeout", type=float, default=600.0)
-    ap.add_argument("--repeat", type=int, default=2, help="runs per n; the fastest (total) is kept")
-    ap.add_argument("--worker", type=int, default=None)
-    args = ap.parse_args()
-    if args.worker is not None:
-        print("RESULT " + json.dumps(worker(args.worker)))
-        return
-    rows = []
-    print("n-link flexible arm (problems/flexible_arm.py): analysis, inversion, 2 s closed loop (C1); "
-          f"one fresh process per run, fastest of {args.repeat} per n")
-    head = (f"{'n':>3s} {'analysis':>9s} {'inversion':>10s} {'closed loop':>12s} {'total':>8s} {'peak MB':>8s} "
-            f"{'fwd err':>9s} {'C1 phi|e|':>9s} {'iter':>4s} {'jac SX instr':>12s}")
-    print(head)
-    print("-" * len(head))
-    for n in args.n:
-        runs = [run_worker(n, args.timeout) for _ in range(max(1, args.repeat))]
-        good = [r for r in runs if "error" not in r]
-        r = min(good, key=lambda x: x["analysis_s"] + x["inversion_s"] + x["closed_loop_s"]) if good else runs[0]
-        rows.append(r)
-        if "error" in r:
-            print(f"{n:3d}  {r['error']}")
-            continue
-        total = r["analysis_s"] + r["inversion_s"] + r["closed_loop_s"]
-        print(f"{n:3d} {r['analysis_s']:9.2f} {r['inversion_s']:10.2f} {r['closed_loop_s']:12.2f} {total:8.2f} "
-              f"{r['peak_rss_mb']:8.0f} {r['forward_error']:9.1e} {r['funnel_ratio']:9.3f} "
-              f"{r['inversion_parts']['iterations']:4d} {r['rhs_jac_instructions']:12d}", flush=True)
+def report(rows: list[dict], coordinates: str) -> None:
+    """Breakdown and fitted exponents of one formulation's rows."""
     done = [r for r in rows if "error" not in r]
     if not done:
         return
-    print("\nwhere the time goes (s): analysis = [model, plant, internal dynamics, linearization | funnel "
-          "design]; inversion = [plan and equilibria | build | guess | IPOPT solve]; closed loop = [build | run]")
+    print(f"\n[{coordinates}] where the time goes (s): analysis = [model, plant, internal dynamics, linearization | "
+          "funnel design]; inversion = [plan and equilibria | build | guess | IPOPT solve]; closed loop = [build | run]")
     for r in done:
         a, i, c = r["analysis_parts"], r["inversion_parts"], r["closed_loop_parts"]
         print(f"{r['n']:3d}  analysis [{a['analysis']:.2f} | {a['controller']:.2f}]  inversion "
@@ -138,7 +136,7 @@ def main() -> None:
               f"{i['iterations']} it, horizon [{i['T0']:.2f}, {i['Tf']:.2f}]]  closed loop [{c['build_s']:.2f} | "
               f"{c['run_s']:.2f}]  (forward check {r['forward_check_s']:.2f})")
     ns = [r["n"] for r in done]
-    print("\nfitted growth exponents (time ~ n^p), least squares of log t over log n:")
+    print(f"\n[{coordinates}] fitted growth exponents (time ~ n^p), least squares of log t over log n:")
     for r in done:
         r["solve_per_iteration_s"] = r["inversion_parts"]["solve_s"] / max(1, r["inversion_parts"]["iterations"])
     for key, label in (("analysis_s", "analysis"), ("inversion_s", "inversion"),
@@ -150,7 +148,72 @@ def main() -> None:
         print(f"  {label:20s} p = {fit(ns, vals):5.2f} (all n), {tail:5.2f} (n >= 8)")
     totals = {r["n"]: r["analysis_s"] + r["inversion_s"] + r["closed_loop_s"] for r in done}
     if 32 in totals:
-        print(f"\nn = 32: analysis + inversion + closed loop = {totals[32]:.1f} s (target < 60 s)")
+        print(f"\n[{coordinates}] n = 32: analysis + inversion + closed loop = {totals[32]:.1f} s (target < 60 s)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n", type=int, nargs="*", default=list(NS))
+    ap.add_argument("--timeout", type=float, default=600.0,
+                    help="seconds per process; a formulation that does not finish skips its larger n")
+    ap.add_argument("--repeat", type=int, default=2, help="runs per n; the fastest (total) is kept")
+    ap.add_argument("--coordinates", choices=("angles", "cartesian", "both"), default="both",
+                    help="formulation of the arm (both: each n in both, ratio of inversion times)")
+    ap.add_argument("--pivot-order", type=int, default=None,
+                    help="ipopt.mumps_pivot_order of the inversion (default: the project's, 0 = AMD)")
+    ap.add_argument("--max-memory-gb", type=float, default=8.0,
+                    help="address-space limit of each worker process (0: none); a formulation that exceeds it "
+                         "skips its larger n")
+    ap.add_argument("--worker", type=int, default=None)
+    args = ap.parse_args()
+    if args.worker is not None:
+        coords = "angles" if args.coordinates == "both" else args.coordinates
+        print("RESULT " + json.dumps(worker(args.worker, coords, args.pivot_order)))
+        return
+    forms = ("angles", "cartesian") if args.coordinates == "both" else (args.coordinates,)
+    rows = {c: [] for c in forms}
+    order = "project default (AMD)" if args.pivot_order is None else f"mumps_pivot_order = {args.pivot_order}"
+    print("n-link flexible arm (problems/flexible_arm.py): analysis, inversion, 2 s closed loop (C1); "
+          f"one fresh process per run, fastest of {args.repeat} per n; formulations: {', '.join(forms)}; "
+          f"IPOPT/MUMPS ordering: {order}")
+    head = (f"{'coordinates':>11s} {'n':>3s} {'analysis':>9s} {'inversion':>10s} {'closed loop':>12s} {'total':>8s} "
+            f"{'peak MB':>8s} {'fwd err':>9s} {'C1 phi|e|':>9s} {'iter':>4s} {'jac SX instr':>12s}")
+    print(head)
+    print("-" * len(head))
+    stopped = {}  # formulation -> the n that did not finish (larger n are skipped)
+    for n in args.n:
+        for c in forms:
+            if c in stopped:
+                rows[c].append({"n": n, "error": f"skipped (n = {stopped[c]} did not finish)"})
+                print(f"{c:>11s} {n:3d}  {rows[c][-1]['error']}", flush=True)
+                continue
+            t_run = time.perf_counter()
+            runs = [run_worker(n, args.timeout, c, args.pivot_order, args.max_memory_gb)
+                    for _ in range(max(1, args.repeat))]
+            if all("error" in r for r in runs):
+                stopped[c] = n
+            good = [r for r in runs if "error" not in r]
+            r = min(good, key=lambda x: x["analysis_s"] + x["inversion_s"] + x["closed_loop_s"]) if good else runs[0]
+            rows[c].append(r)
+            if "error" in r:
+                print(f"{c:>11s} {n:3d}  {r['error']}", flush=True)
+                continue
+            total = r["analysis_s"] + r["inversion_s"] + r["closed_loop_s"]
+            print(f"{c:>11s} {n:3d} {r['analysis_s']:9.2f} {r['inversion_s']:10.2f} {r['closed_loop_s']:12.2f} "
+                  f"{total:8.2f} {r['peak_rss_mb']:8.0f} {r['forward_error']:9.1e} {r['funnel_ratio']:9.3f} "
+                  f"{r['inversion_parts']['iterations']:4d} {r['rhs_jac_instructions']:12d}   "
+                  f"(wall {time.perf_counter() - t_run:.0f} s for {len(runs)} process(es))", flush=True)
+    for c in forms:
+        report(rows[c], c)
+    if len(forms) == 2:
+        print("\ninversion time, angles / cartesian (same run):")
+        for ra, rc in zip(rows["angles"], rows["cartesian"]):
+            if "error" in ra or "error" in rc:
+                print(f"  n = {ra['n']:3d}: -")
+                continue
+            print(f"  n = {ra['n']:3d}: {ra['inversion_s']:7.2f} s / {rc['inversion_s']:7.2f} s = "
+                  f"{ra['inversion_s'] / rc['inversion_s']:6.2f}   (IPOPT solve {ra['inversion_parts']['solve_s']:.2f} / "
+                  f"{rc['inversion_parts']['solve_s']:.2f} s)")
 
 
 if __name__ == "__main__":

@@ -262,6 +262,11 @@ class Scene:
     settings : dict
         Defaults of run settings (time step, horizon, gains of declared controllers, ...), also set
         with ``--set``; never part of the model.
+    choices : dict
+        Named text options of ``build``, ``name -> (allowed values, ...)``, the first being the
+        default (e.g. ``{"coordinates": ("angles", "cartesian")}``): ``--set name=value`` takes one
+        of the listed words (anything else is a :class:`~invctl.errors.ParameterError`; nothing is
+        evaluated), and ``build`` receives it as a string like the other overrides.
     integer : tuple of str
         Names in ``params``/``settings`` that must be integers (e.g. a number of actuators).
     positive : tuple of str
@@ -289,6 +294,7 @@ class Scene:
     build: Callable
     params: Mapping[str, float] = field(default_factory=dict)
     settings: Mapping[str, float] = field(default_factory=dict)
+    choices: Mapping[str, tuple] = field(default_factory=dict)
     integer: tuple = ()
     positive: tuple = ()
     validate: Callable | None = None
@@ -319,6 +325,19 @@ class Scene:
         both = sorted(set(self.params) & set(self.settings))
         if both:
             raise SceneError(f"scene {name!r}: {both} are both parameters and settings; pick one")
+        choices = {}
+        for cname, allowed in _frozen(self.choices, "choices", name).items():
+            allowed = tuple(allowed) if isinstance(allowed, (tuple, list)) else ()
+            if (not isinstance(cname, str) or not cname.isidentifier() or not allowed
+                    or not all(isinstance(a, str) and a.isidentifier() for a in allowed)
+                    or len(set(allowed)) != len(allowed)):
+                raise SceneError(f"scene {name!r}: choices must map identifier-like names to non-empty tuples of "
+                                 f"distinct identifier-like words (the first is the default), got "
+                                 f"{cname!r}: {self.choices[cname]!r}")
+            if cname in self.params or cname in self.settings:
+                raise SceneError(f"scene {name!r}: {cname!r} is both a choice and a parameter or setting")
+            choices[cname] = allowed
+        object.__setattr__(self, "choices", MappingProxyType(choices))
         for what in ("integer", "positive"):
             names = tuple(getattr(self, what))
             unknown = sorted(set(names) - set(self.params) - set(self.settings))
@@ -421,24 +440,42 @@ class Scene:
                                      f"{', '.join(sorted(self.presets)) or 'none'}")
             values = {**self.presets[preset], **dict(values or {})}
         values = dict(values or {})
-        unknown = sorted(set(values) - set(self.params) - set(self.settings))
+        unknown = sorted(set(values) - set(self.params) - set(self.settings) - set(self.choices))
         if unknown:
             raise ParameterError(
                 f"{self.name}: unknown parameter(s) {unknown}; parameters: {sorted(self.params) or 'none'}; "
-                f"settings: {sorted(self.settings) or 'none'}")
+                f"settings: {sorted(self.settings) or 'none'}"
+                + (f"; choices: {sorted(self.choices)}" if self.choices else ""))
+        chosen = {k: self.check_choice(k, values.pop(k)) for k in list(values) if k in self.choices}
         for k, v in values.items():
+            if isinstance(v, str):
+                raise ParameterError(f"{self.name}: {k} = {v!r} is not a number")
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(float(v)):
                 raise ParameterError(f"{self.name}: {k} = {v!r} is not a finite number")
 
-        full = {**self.params, **self.settings, **{k: float(v) for k, v in values.items()}}
+        full = {**self.params, **self.settings, **{k: float(v) for k, v in values.items()}, **chosen}
         self.check_values(full)
-        params = {k: float(v) for k, v in values.items() if k in self.params}
+        params = {**{k: float(v) for k, v in values.items() if k in self.params}, **chosen}
         settings = {k: float(full[k]) for k in self.settings}
         return params, settings
 
+    def check_choice(self, name: str, value) -> str:
+        """``value`` if it is one of the words allowed for the choice ``name``, else a ParameterError."""
+        allowed = self.choices[name]
+        if not isinstance(value, str) or value.strip() not in allowed:
+            raise ParameterError(f"{self.name}: {name} must be one of {', '.join(allowed)} "
+                                 f"(default {allowed[0]}), got {value!r}")
+        return value.strip()
+
     def check_values(self, full: Mapping[str, float]) -> None:
-        """Apply the magnitude range, ``integer``, ``positive`` and ``validate`` to a full set of values."""
+        """Apply the magnitude range, ``integer``, ``positive`` and ``validate`` to a full set of values
+        (choices not in ``full`` take their defaults)."""
+        full = {**{k: a[0] for k, a in self.choices.items()}, **full}
+        for k in self.choices:
+            full[k] = self.check_choice(k, full[k])
         for k, v in full.items():
+            if k in self.choices:
+                continue
             if v != 0 and not MAGNITUDE[0] <= abs(float(v)) <= MAGNITUDE[1]:
                 raise ParameterError(f"{self.name}: {k} = {v!r} is outside [{MAGNITUDE[0]:g}, {MAGNITUDE[1]:g}] in "
                                      "magnitude: products of a few such values leave double precision (overflow or "
@@ -455,9 +492,13 @@ class Scene:
     def model(self, params: Mapping[str, float] | None = None):
         """``build(**params)`` (parameter overrides only), with its return type checked."""
         params = dict(params or {})
-        unknown = sorted(set(params) - set(self.params))
+        unknown = sorted(set(params) - set(self.params) - set(self.choices))
         if unknown:
-            raise ParameterError(f"{self.name}: unknown model parameter(s) {unknown}; known: {sorted(self.params)}")
+            raise ParameterError(f"{self.name}: unknown model parameter(s) {unknown}; known: {sorted(self.params)}"
+                                 + (f"; choices: {sorted(self.choices)}" if self.choices else ""))
+        for k in params:
+            if k in self.choices:
+                params[k] = self.check_choice(k, params[k])
         try:
             obj = self.build(**params)
         except (ParameterError, SceneError):

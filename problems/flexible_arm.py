@@ -31,6 +31,26 @@ lie left of ``-alpha / 2``.
 
 For n = 2 this is ``problems/passive_arm.py`` in absolute coordinates (same physics,
 independent construction: checked in ``tests/test_gallery.py``).
+
+Cartesian (natural) coordinates, ``--set coordinates=cartesian``.  The same arm with the
+redundant coordinates ``q = (x_1, y_1, theta_1, ..., x_n, y_n, theta_n)`` (centre of mass and
+angle of every link, 3n coordinates, ``y`` upwards) and l = 2n holonomic pin constraints
+
+    x_1 - lc sin theta_1 = 0,                  y_1 + lc cos theta_1 = 0            (shoulder),
+    x_i + lc sin theta_i - x_{i+1} + lc sin theta_{i+1} = 0,
+    y_i - lc cos theta_i - y_{i+1} - lc cos theta_{i+1} = 0                       (joint i, i + 1),
+
+so that ``M = diag(m, m, I, ..., m, m, I)`` is constant and
+
+    M v' = f + e_theta1 u - G(q)^T lam,
+    f = (0, -m g, 0, ...) - (joint spring and damper torques on theta_i, theta_{i+1}) - alpha M v,
+
+with the same output ``y = theta_1 + w (theta_2 - theta_1)``.  Projected on the angles
+(``v = J(theta) theta'``, ``J^T M J = M_theta`` of the first formulation), the Rayleigh term
+``-alpha M v`` is ``-alpha M_theta theta'``: the two formulations are the same physics
+(``tests/test_flexible_arm_cartesian.py``).  Every row of ``g``, ``f`` and ``h`` touches at most
+two neighbouring links, so the Jacobians of the inversion have O(n) nonzeros per collocation
+node (the angle formulation: O(n^2)); ``benchmarks/bench_scaling.py`` compares the two.
 """
 from __future__ import annotations
 
@@ -43,6 +63,8 @@ from invctl.scenes import Scene, Tracking
 
 PARAMS = {"l": 0.25, "m": 0.25, "k": 5.0, "d": 0.05, "alpha": 2.0, "g": 9.81, "w": 1.0}
 DEFAULT_N = 3
+#: the coordinates of ``build`` (``--set coordinates=...``; the first is the default)
+COORDINATES = ("angles", "cartesian")
 
 
 def _check_n(n) -> int:
@@ -67,9 +89,20 @@ def inertia_coefficients(n: int, l, m):
     return mu, grav
 
 
-def build(n: float = DEFAULT_N, **overrides: float) -> Model:
-    """The n-link arm in absolute angles (closed-form M and f, module doc)."""
+def _check_coordinates(coordinates) -> str:
+    from invctl.errors import ParameterError
+
+    if not isinstance(coordinates, str) or coordinates not in COORDINATES:
+        raise ParameterError(f"flexible_arm: coordinates must be one of {', '.join(COORDINATES)}, got {coordinates!r}")
+    return coordinates
+
+
+def build(n: float = DEFAULT_N, coordinates: str = COORDINATES[0], **overrides: float) -> Model:
+    """The n-link arm in absolute angles (closed-form M and f, module doc), or in Cartesian
+    coordinates with pin constraints (``coordinates="cartesian"``, :func:`build_cartesian`)."""
     n = _check_n(n)
+    if _check_coordinates(coordinates) == "cartesian":
+        return build_cartesian(n, **overrides)
     P = ParamSet(list(PARAMS))
     l, m, k, d, alpha, g, w = (P[name] for name in PARAMS)
     th, v = ca.SX.sym("theta", n), ca.SX.sym("v", n)
@@ -92,6 +125,59 @@ def build(n: float = DEFAULT_N, **overrides: float) -> Model:
     return Model("flexible_arm", th, v, P, PARAMS, M=M, f=f, B=B, h=th[0] + w * (th[1] - th[0]),
                  overrides=overrides, q_names=[f"theta{i + 1}" for i in range(n)], u_names=["u"],
                  y_names=["link2_angle"])
+
+
+def build_cartesian(n: int, **overrides: float) -> Model:
+    """The n-link arm in Cartesian coordinates: link i has (x_i, y_i, theta_i), its centre of mass and
+    angle; pin joints are the 2n holonomic constraints of the module doc (G derived by Model)."""
+    n = _check_n(n)
+    P = ParamSet(list(PARAMS))
+    l, m, k, d, alpha, g, w = (P[name] for name in PARAMS)
+    lc, inertia = 0.5 * l, m * l * l / 12
+    q, v = ca.SX.sym("q", 3 * n), ca.SX.sym("v", 3 * n)
+    x, y, th = ([q[3 * i + c] for i in range(n)] for c in range(3))
+    vth = [v[3 * i + 2] for i in range(n)]
+    mass = ca.vertcat(*[e for _ in range(n) for e in (m, m, inertia)])
+    M = ca.diag(mass)
+    cons = [x[0] - lc * ca.sin(th[0]), y[0] + lc * ca.cos(th[0])]
+    for i in range(n - 1):  # the lower end of link i on the upper end of link i + 1
+        cons += [x[i] + lc * ca.sin(th[i]) - x[i + 1] + lc * ca.sin(th[i + 1]),
+                 y[i] - lc * ca.cos(th[i]) - y[i + 1] - lc * ca.cos(th[i + 1])]
+    f = ca.SX.zeros(3 * n)
+    for i in range(n):
+        f[3 * i + 1] = -m * g
+    for i in range(1, n):  # joint between links i - 1 and i (0-based)
+        tau = k * (th[i] - th[i - 1]) + d * (vth[i] - vth[i - 1])
+        f[3 * i + 2] -= tau
+        f[3 * i - 1] += tau
+    f = f - alpha * mass * v
+    B = ca.DM.zeros(3 * n, 1)
+    B[2] = 1
+    names = [f"{c}{i + 1}" for i in range(n) for c in ("x", "y", "theta")]
+    return Model("flexible_arm", q, v, P, PARAMS, M=M, f=f, B=B, g=ca.vertcat(*cons),
+                 h=th[0] + w * (th[1] - th[0]), overrides=overrides, q_names=names, u_names=["u"],
+                 y_names=["link2_angle"])
+
+
+def is_cartesian(model: Model) -> bool:
+    """Whether ``model`` is the Cartesian formulation (it has the pin constraints)."""
+    return model.ell > 0
+
+
+def angles_of(model: Model, q):
+    """The link angles ``theta_1..theta_n`` of a configuration (either formulation; rows of ``q``)."""
+    return q[2::3] if is_cartesian(model) else q
+
+
+def cartesian_configuration(n: int, theta, l: float) -> np.ndarray:
+    """The Cartesian coordinates (x_i, y_i, theta_i) of the arm with link angles ``theta``."""
+    theta = np.asarray(theta, float).ravel()
+    q, top = np.zeros(3 * n), np.zeros(2)
+    for i in range(n):
+        e = np.array([np.sin(theta[i]), -np.cos(theta[i])])
+        q[3 * i:3 * i + 2], q[3 * i + 2] = top + 0.5 * l * e, theta[i]
+        top = top + l * e
+    return q
 
 
 def linear_matrices(n: int, values: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -118,6 +204,10 @@ def reference(model: Model, *, y0: float = 0.0, yf: float = 0.05, t0: float = 0.
 
 
 def initial_configuration(model: Model) -> np.ndarray:
+    """The hanging arm (all link angles 0)."""
+    if is_cartesian(model):
+        n = model.n // 3
+        return cartesian_configuration(n, np.zeros(n), model.values["l"])
     return np.zeros(model.n)
 
 
@@ -128,8 +218,9 @@ def drawing(model: Model):
     l = model.params["l"]
     pts = {"shoulder": ca.vertcat(0, 0)}
     pos = ca.vertcat(0, 0)
-    for i in range(model.n):
-        pos = pos + l * ca.vertcat(ca.sin(model.q[i]), -ca.cos(model.q[i]))
+    theta = angles_of(model, model.q)
+    for i in range(theta.shape[0]):
+        pos = pos + l * ca.vertcat(ca.sin(theta[i]), -ca.cos(theta[i]))
         pts[f"j{i + 1}"] = pos
     names = list(pts)
     return Drawing(points=pts, links=list(zip(names[:-1], names[1:])))
@@ -139,6 +230,7 @@ def _check(values: dict) -> None:
     from invctl.errors import ParameterError
 
     _check_n(values["n"])
+    _check_coordinates(values.get("coordinates", COORDINATES[0]))
     bad = {k: values[k] for k in ("k", "d", "alpha", "g") if values[k] < 0}
     if bad:
         raise ParameterError(f"flexible_arm: springs, dampers, alpha and g must be >= 0, got {bad}")
@@ -148,10 +240,12 @@ def _check(values: dict) -> None:
 
 
 SCENE = Scene(
-    "flexible_arm", build, params={"n": DEFAULT_N, **PARAMS}, integer=("n",), positive=("n", "l", "m"),
+    "flexible_arm", build, params={"n": DEFAULT_N, **PARAMS}, choices={"coordinates": COORDINATES},
+    integer=("n",), positive=("n", "l", "m"),
     validate=_check,
     tracking=Tracking(reference=reference, plant={"m": 1.2}, initial_configuration=initial_configuration),
     drawing=drawing,
     description="n-link arm with elastic passive joints (Rayleigh damped), motor at the shoulder, output = angle of "
-                "link 2: non-minimum phase (one real unstable zero); the simulated plant's links are 20 % heavier",
+                "link 2: non-minimum phase (one real unstable zero); the simulated plant's links are 20 % heavier; "
+                "--set coordinates=cartesian: the same arm in Cartesian coordinates with pin constraints",
 )

@@ -106,7 +106,7 @@ def _run(args, target: str, t0: float) -> int:
             from ..studies.commands import run_command
 
             options = {k: v for k, v in vars(args).items() if k not in ("command", "scene", "set", "json")}
-            values = parse_assignments(args.set)
+            values = parse_assignments(args.set, words=True)
             if args.command == "generate":
                 from ..studies.commands import generate
 

@@ -45,9 +45,13 @@ def resolve_params(
     return values
 
 
-def parse_assignments(items: list[str] | None, *, option: str = "--set") -> dict[str, float]:
-    """Parse ``name=value`` strings from a command line (never ``eval``-ed)."""
-    out: dict[str, float] = {}
+def parse_assignments(items: list[str] | None, *, option: str = "--set",
+                      words: bool = False) -> dict[str, float | str]:
+    """Parse ``name=value`` strings from a command line (never ``eval``-ed).
+
+    With ``words``, a value that is an identifier-like word (``coordinates=cartesian``) is kept as
+    that string, for the scene's ``choices`` to check; anything else must be a number."""
+    out: dict[str, float | str] = {}
     for item in items or []:
         if "=" not in item:
             raise ParameterError(f"{option} expects name=value, got {item!r}")
@@ -56,6 +60,9 @@ def parse_assignments(items: list[str] | None, *, option: str = "--set") -> dict
         try:
             out[name] = float(text)
         except ValueError:
+            if words and text.strip().isidentifier():
+                out[name] = text.strip()
+                continue
             raise ParameterError(
                 f"{option} {item!r}: value {text!r} is not a number"
             ) from None
