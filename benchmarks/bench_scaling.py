@@ -19,7 +19,8 @@ wall time on a shared machine (single runs vary by up to 70 % at n = 32 under lo
 Both formulations of the arm are measured (``--coordinates angles|cartesian|both``, default both):
 absolute link angles (dense M(q), O(n^2) Jacobian entries per node) and Cartesian coordinates with
 pin constraints (``--set coordinates=cartesian``: constant diagonal M, 2n constraints, O(n) entries
-per node); with ``both`` every n runs both in turn, and a last table gives the ratio of their
+in the model's Jacobians, but dense (8n + 1)^2 blocks per node in the index-reduced inverse model that
+the inversion collocates; the scene limits it to n <= 10, so larger n are reported as rejected); with ``both`` every n runs both in turn, and a last table gives the ratio of their
 inversion times in the same run.  ``--pivot-order K`` passes ``ipopt.mumps_pivot_order = K`` to the
 inversion (MUMPS ordering: 0 AMD, the project default for square systems; 2 AMF; 4 PORD; 5 METIS
 and 3 SCOTCH when MUMPS was built with them; 6 QAMD; 7 automatic).

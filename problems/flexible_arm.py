@@ -49,8 +49,11 @@ with the same output ``y = theta_1 + w (theta_2 - theta_1)``.  Projected on the 
 (``v = J(theta) theta'``, ``J^T M J = M_theta`` of the first formulation), the Rayleigh term
 ``-alpha M v`` is ``-alpha M_theta theta'``: the two formulations are the same physics
 (``tests/test_flexible_arm_cartesian.py``).  Every row of ``g``, ``f`` and ``h`` touches at most
-two neighbouring links, so the Jacobians of the inversion have O(n) nonzeros per collocation
-node (the angle formulation: O(n^2)); ``benchmarks/bench_scaling.py`` compares the two.
+two neighbouring links, but the index-reduced inverse model of the inversion solves for the
+multipliers and the input through a dense system, so its Jacobian blocks are dense, (8n + 1)^2 per
+collocation node against (2n + 1)^2 for angles: this formulation is the slower one
+(``benchmarks/bench_scaling.py`` compares the two: 14 s against 1 s at n = 8, peak 1.8 GB; n = 16 needed
+more than 22 GB).  It is therefore limited to n <= MAX_N_CARTESIAN.
 """
 from __future__ import annotations
 
@@ -65,6 +68,7 @@ PARAMS = {"l": 0.25, "m": 0.25, "k": 5.0, "d": 0.05, "alpha": 2.0, "g": 9.81, "w
 DEFAULT_N = 3
 #: the coordinates of ``build`` (``--set coordinates=...``; the first is the default)
 COORDINATES = ("angles", "cartesian")
+MAX_N_CARTESIAN = 10  # memory: measured 1.8 GB at n = 8, more than 22 GB at n = 16
 
 
 def _check_n(n) -> int:
@@ -229,8 +233,11 @@ def drawing(model: Model):
 def _check(values: dict) -> None:
     from invctl.errors import ParameterError
 
-    _check_n(values["n"])
-    _check_coordinates(values.get("coordinates", COORDINATES[0]))
+    n = _check_n(values["n"])
+    if _check_coordinates(values.get("coordinates", COORDINATES[0])) == "cartesian" and n > MAX_N_CARTESIAN:
+        raise ParameterError(f"flexible_arm: coordinates=cartesian is limited to n <= {MAX_N_CARTESIAN} (its "
+                             "inverse model has dense (8n + 1)^2 blocks per node: n = 16 needed more than 22 GB); "
+                             f"use coordinates=angles (the default) for n = {n}")
     bad = {k: values[k] for k in ("k", "d", "alpha", "g") if values[k] < 0}
     if bad:
         raise ParameterError(f"flexible_arm: springs, dampers, alpha and g must be >= 0, got {bad}")

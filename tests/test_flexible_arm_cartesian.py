@@ -169,3 +169,14 @@ def test_scene_choices_declaration_is_checked():
                 {"n": ("x",)}):
         with pytest.raises(SceneError):
             Scene("arm", build, params={"n": 3}, choices=bad)
+
+
+def test_cartesian_coordinates_beyond_the_memory_limit_are_rejected_before_any_work():
+    from invctl.errors import ParameterError
+    from invctl.scenes import load_scene
+
+    scene = load_scene("flexible_arm")
+    scene.split({"n": 10, "coordinates": "cartesian"})  # accepted
+    with pytest.raises(ParameterError, match="limited to n <= 10.*coordinates=angles"):
+        scene.split({"n": 16, "coordinates": "cartesian"})
+    scene.split({"n": 32})  # angles: no limit
