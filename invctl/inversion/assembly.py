@@ -1,4 +1,5 @@
-"""Sparse assembly of dense per-interval blocks (mapped SX outputs) into global CSC matrices."""
+"""Shared pieces of the collocation NLPs: sparse assembly of dense per-interval blocks (mapped SX outputs)
+into global CSC matrices, quadrature weights of the collocation points, compiled-function helpers."""
 from __future__ import annotations
 
 import casadi as ca
@@ -30,3 +31,29 @@ def _block_triplets(nrow: int, index: np.ndarray, row0: int):
     j = np.tile(np.repeat(np.arange(nz), nrow), count)
     i = np.tile(np.arange(nrow), count * nz)
     return row0 + k * nrow + i, index[k, j]
+
+
+def quadrature_weights(scheme) -> np.ndarray:
+    """Weights of the collocation points alone: ``int_0^1 l_r(s) ds`` for the Lagrange basis on
+    ``tau`` (Gauss-Legendre: exact to degree ``2d - 1``; Radau IIA: ``2d - 2``)."""
+    tau = scheme.tau
+    w = np.zeros(tau.size)
+    for r in range(tau.size):
+        c = np.poly1d([1.0])
+        for j in range(tau.size):
+            if j != r:
+                c *= np.poly1d([1.0, -tau[j]]) / (tau[r] - tau[j])
+        w[r] = np.polyint(c)(1.0)
+    return w
+
+
+def _all_cached(functions) -> bool:
+    from .compiled import is_cached
+
+    return all(is_cached(f) for f in functions)
+
+
+def _compile(fn):
+    from .compiled import compile_cached
+
+    return compile_cached(fn)

@@ -288,7 +288,7 @@ def _equilibrium_check(setup, rb):
 
 def invert_bounded(model, reference, opts: Options, *, warm_start=None):
     """The bounded inversion (module doc); called by :func:`invctl.inversion.invert` with ``bounds``."""
-    from .solve import make_inverse, residuals, solve_square
+    from .square import make_inverse, residuals, solve_square
 
     t_all = time.perf_counter()
     disc, slv, hz = opts.discretization, opts.solver, opts.horizon

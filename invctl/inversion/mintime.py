@@ -108,7 +108,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     plan_result = resolve_plan(model, reference, disc, opts.horizon)
     relaxed = objective is not None
     setup = prepare(model, reference, disc, opts.horizon, plan_result=plan_result, any_count=relaxed)
-    from .solve import make_inverse, solve_square
+    from .square import make_inverse, solve_square
 
     t_mesh = setup.t_mesh
     inside = (t_mesh[:-1] >= reference.t0 - 1e-12) & (t_mesh[1:] <= reference.tf + 1e-12)
@@ -204,7 +204,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
                            np.array(sol["lam_g"]).ravel() / scale, g)
     at_limit = [name for name, val, b in (("duration lower", tau, lo), ("duration upper", tau, hi))
                 if abs(val - b) <= 1e-6 * b]
-    from .solve import residuals
+    from .square import residuals
 
     res = residuals(inv, servo, ref_opt, theta)
     _ts, Xs, _tr, Us = constraint_points(inv, servo, ref_opt, theta)

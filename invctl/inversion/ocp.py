@@ -43,22 +43,8 @@ from types import SimpleNamespace
 import casadi as ca
 import numpy as np
 
-from .assembly import _assembly, _block_triplets
+from .assembly import _all_cached, _assembly, _block_triplets, _compile, quadrature_weights  # noqa: F401
 from .collocation import Scheme
-
-
-def quadrature_weights(scheme: Scheme) -> np.ndarray:
-    """Weights of the collocation points alone: ``int_0^1 l_r(s) ds`` for the Lagrange basis on
-    ``tau`` (Gauss-Legendre: exact to degree ``2d - 1``; Radau IIA: ``2d - 2``)."""
-    tau = scheme.tau
-    w = np.zeros(tau.size)
-    for r in range(tau.size):
-        c = np.poly1d([1.0])
-        for j in range(tau.size):
-            if j != r:
-                c *= np.poly1d([1.0, -tau[j]]) / (tau[r] - tau[j])
-        w[r] = np.polyint(c)(1.0)
-    return w
 
 
 def slack_scale(servo, duration: float) -> float:
@@ -110,18 +96,6 @@ def _structured_hessian(tr):
     from .ocp_hessian import structured_hessian
 
     return structured_hessian(tr)
-
-
-def _all_cached(functions) -> bool:
-    from .compiled import is_cached
-
-    return all(is_cached(f) for f in functions)
-
-
-def _compile(fn):
-    from .compiled import compile_cached
-
-    return compile_cached(fn)
 
 
 class OCPTranscription:

@@ -18,8 +18,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .assembly import _assembly, _block_triplets
-from .ocp import _all_cached, _compile, quadrature_weights
+from .assembly import _all_cached, _assembly, _block_triplets, _compile, quadrature_weights
 
 
 def structured_hessian(tr) -> ca.Function:

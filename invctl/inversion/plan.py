@@ -32,7 +32,9 @@ import scipy.linalg as sla
 from ..errors import (BoundaryConditionError, HorizonTooLongError, NoDichotomyError, ReferenceSignalError,
                       ReferenceSmoothnessError)
 from .boundary import BLOCKS, explain_no_dichotomy, neutral_tolerance, resolve_selection, tangent_dynamics
-from .solve import _equilibrium_solver, _split, quasi_static_guess, servo_model
+from .cache import equilibrium_solver as _equilibrium_solver
+from .cache import servo_model
+from .guess import _split, quasi_static_guess
 
 #: largest number of candidate selections enumerated exactly (otherwise column-pivoted QR)
 MAX_ENUMERATION = 5000

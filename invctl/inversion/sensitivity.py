@@ -34,7 +34,8 @@ from ..errors import BoundaryConditionError, InversionFailed, ParameterError
 from .boundary import EquilibriumSolver, Selection, dichotomy, explain_dichotomy
 from .collocation import get_scheme
 from .result import Inverse
-from .solve import model_key, quasi_static_guess, servo_model, transcription
+from .cache import model_key, servo_model, transcription
+from .guess import quasi_static_guess
 
 __all__ = ["ParametricInverse", "Sensitivities", "mapped_mesh", "parameter_chain"]
 
