@@ -372,13 +372,18 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
 
     t_solve = time.perf_counter()
     hessian = _hessian(slv, "gauss-newton")
-    sol, st, scale = solve_scaled(tr, slv, x0, params, (lbx, ubx, lbg, ubg), hessian=hessian)
+
+    def run(start):
+        sol, st, scale = solve_scaled(tr, slv, start, params, (lbx, ubx, lbg, ubg), hessian=hessian)
+        x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
+        viol = _violation(g, lbg, ubg, x, lbx, ubx)
+        status = st.get("return_status", "?")
+        ok = bool(st.get("success", False)) or (status == "Solved_To_Acceptable_Level" and viol < 1e-8)
+        inv = _inverse(tr, servo, reference, sch, t_mesh, x, Y, theta, c, make_inverse)
+        return sol, st, scale, x, g, viol, status, ok, inv
+
+    sol, st, scale, x, g, viol, status, ok, inv = run(x0)
     solve_s = time.perf_counter() - t_solve
-    x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
-    viol = _violation(g, lbg, ubg, x, lbx, ubx)
-    status = st.get("return_status", "?")
-    ok = bool(st.get("success", False)) or (status == "Solved_To_Acceptable_Level" and viol < 1e-8)
-    inv = _inverse(tr, servo, reference, sch, t_mesh, x, Y, theta, c, make_inverse)
     if not ok and status in _TIME_LIMIT:
         raise WallTimeLimitError(
             f"bounded inversion stopped at the wall-time limit of {slv.max_wall_time:g} s after "
@@ -394,13 +399,8 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
         # the elastic problem met every bound without relaxing one: IPOPT's verdict was local; solve the
         # bounded problem again from that feasible point
         first = status
-        sol, st, scale = solve_scaled(tr, slv, err_or_start, params, (lbx, ubx, lbg, ubg), hessian=hessian)
+        sol, st, scale, x, g, viol, status, ok, inv = run(err_or_start)
         solve_s = time.perf_counter() - t_solve
-        x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
-        viol = _violation(g, lbg, ubg, x, lbx, ubx)
-        status = st.get("return_status", "?")
-        ok = bool(st.get("success", False)) or (status == "Solved_To_Acceptable_Level" and viol < 1e-8)
-        inv = _inverse(tr, servo, reference, sch, t_mesh, x, Y, theta, c, make_inverse)
         restarted = f"IPOPT first ended with {first}; restarted from the elastic problem's feasible point"
         if not ok and (status in INFEASIBLE or viol > 1e-6):
             raise InfeasibleBoundsError(
