@@ -186,8 +186,23 @@ def _option_values(draw, name: str, scene: str, tmp: Path, case: int) -> list[st
     if name == "weight":
         return [flag, draw(st.sampled_from(["output=1", "slack=1e-2", "energy=0"])) if valid else draw(st.sampled_from(
             ["output=-1", "slack=nan", "foo=1", "output", "energy=abc", "output.nope=1"]))]
-    if name in ("minimum_time", "no_compile"):
+    if name in ("minimum_time", "no_compile", "no_continuation"):
         return [flag] if draw(st.integers(0, 3)) == 0 else []
+    if name == "grid":
+        numeric = sorted(k for k, v in INFO[scene][1].items() if float(v) > 0)
+        if valid and numeric:
+            key = draw(st.sampled_from(numeric))
+            v = float(INFO[scene][1][key])
+            return [flag, f"{key}={0.98 * v:.12g},{v:.12g}"]
+        return [flag, draw(st.sampled_from(["m3", "=1", "nope=1,2", "x=1:2", "x=1:2:1", "x=__import__('os')",
+                                            "x=nan,1", "rf[9]=1,2", ""]))]
+    if name == "workers":  # one process: a pool per case would dominate the run time
+        return [flag, "1" if valid else draw(st.sampled_from(["0", "-1", "abc", "2.5"]))]
+    if name == "dask":  # would contact a scheduler: covered by tests/test_library.py
+        return []
+    if name == "verify":
+        return [flag, draw(st.sampled_from(["all", "corners", "none"])) if valid else draw(st.sampled_from(
+            ["some", "", "ALL"]))]
     if name == "energy":
         return [flag, draw(st.sampled_from(["0.1", "1"])) if valid else draw(st.sampled_from(["-1", "nan", "abc"]))]
     if name == "duration":
@@ -311,9 +326,12 @@ def command_line(draw, tmp: Path):
         return [cmd, path, "--json", "--quiet"] if cmd in ("simulate", "invert") else [cmd, path, "--json"], None
     scene = draw(st.sampled_from(SCENES))
     offered = list(INFO[scene][0])
-    cmd = draw(st.sampled_from(offered + ["invert", "design", "analyze"]))
+    cmd = draw(st.sampled_from(offered + ["invert", "design", "analyze", "generate"]))
     argv = [cmd] + (["tradeoff"] if cmd == "study" else []) + [scene, "--json"]
     heavy = cmd in HEAVY and cmd in offered
+    if cmd == "generate":  # a base inversion and a grid: run one case in three in CI
+        heavy = "invert" in offered and draw(st.integers(0, 2)) > 0
+        argv += ["--workers", "1", "--verify", "none"]
     for _ in range(draw(st.integers(0, 3))):
         argv += ["--set", draw(assignment(scene))]
     for name in options_of(cmd):
@@ -326,7 +344,7 @@ def command_line(draw, tmp: Path):
         argv += draw(st.sampled_from([["--set", "nope=1"], ["--out-dir", str(tmp / "afile.txt")],
                                       ["--set", "t_end=nan"], ["--plant-set", "nope=2"], ["--job", "no_such_job"],
                                       ["--quiet", "--t-end", "-1"]]))
-    if cmd in ("invert", "simulate", "pipeline", "study") and "--quiet" not in argv:
+    if cmd in ("invert", "simulate", "pipeline", "study", "generate") and "--quiet" not in argv:
         argv.append("--quiet")
     return argv, scene
 
