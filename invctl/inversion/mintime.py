@@ -97,8 +97,8 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
                           "T0/Tf through horizon=Horizon(T0=..., Tf=...) instead")
     disc, slv = opts.discretization, opts.solver
     if disc.tol is not None:
-        raise OptionError("minimum_time: tol (mesh refinement) is not supported; give N (and check the result "
-                          "with forward_check on inv.y_ref)")
+        return _refined(model, reference, opts, dict(bounds=bounds, energy=energy, duration=duration,
+                                                     objective=objective, horizon=horizon), warm_start)
     tau_ref = reference.tf - reference.t0
     lo, hi = (0.02 * tau_ref, 50.0 * tau_ref) if duration is None else (float(duration[0]), float(duration[1]))
     if not 0 < lo < hi:
@@ -256,6 +256,48 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
             f"feasible duration) or hessian='exact'; the last iterate is in exc.partial{model_limit}", partial=inv,
             diagnostics=inv.diagnostics)
     return inv
+
+
+def _refined(model, reference, opts, problem, warm_start):
+    """:func:`minimum_time` on meshes of growing N (each warm-started from the last) until the forward
+    check of the retimed reference is below ``tol``; ``diagnostics["meshes"]`` lists them."""
+    import math
+    import sys
+
+    from ..errors import check_interrupt
+    from .collocation import get_scheme
+    from .verify import forward_check
+
+    disc = opts.discretization
+    if disc.mesh is not None:
+        raise OptionError("minimum_time: tol refines the default mesh by raising N; it cannot refine a given mesh")
+    if problem["objective"] is not None:
+        raise OptionError("minimum_time: tol measures exact tracking; with an objective (relaxed servo constraint) "
+                          "the output error is part of the optimum: give N instead")
+    tol, order = disc.tol, get_scheme(disc.scheme).order
+    meshes, inv, N = [], warm_start, int(disc.N)
+    for it in range(disc.max_refinements + 1):
+        check_interrupt()
+        inv = minimum_time(model, reference, discretization=replace(disc, tol=None, N=N), solver=opts.solver,
+                           warm_start=inv, **problem)
+        ft = inv.diagnostics["free_time"]
+        fc = forward_check(model, inv, retime(reference, ft["duration"]), **dict(disc.forward_options or {}))
+        meshes.append({"N": N, "error": fc["error"], "duration": ft["duration"],
+                       "iterations": inv.diagnostics["iterations"], "solve_s": inv.diagnostics["solve_s"]})
+        if opts.solver.progress:
+            print(f"  refinement {it}: N = {N}, duration {ft['duration']:.6g} s, forward-check error "
+                  f"{fc['error']:.3e} (tol {tol:.1e})", file=sys.stderr)
+        if fc["error"] <= tol:
+            inv.diagnostics.update({"meshes": meshes, "max_output_error": fc["error"], "tol": tol})
+            return inv
+        if N >= disc.max_N:
+            break
+        N = min(disc.max_N, int(math.ceil(N * min(4.0, max(1.5, 1.2 * (fc["error"] / tol) ** (1.0 / order))))))
+    tried = ", ".join(f"N={m['N']}: {m['error']:.2g} (duration {m['duration']:.6g} s)" for m in meshes)
+    raise InversionFailed(
+        f"minimum_time: mesh refinement did not reach the output error {tol:.2g}; meshes tried (forward-check "
+        f"error): {tried}; raise max_refinements/max_N or use a higher-order scheme", partial=inv,
+        diagnostics={"meshes": meshes})
 
 
 class _Retimed:

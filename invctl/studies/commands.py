@@ -538,8 +538,6 @@ def _limits(scene: Scene, o: dict) -> dict:
         if "bounds" not in out and not (o["energy"] or 0) > 0:
             raise ParameterError("--minimum-time needs bounds (--bound u=...) or an energy weight (--energy W > 0): "
                                  "without either the shortest duration is zero")
-        if o["tol"] is not None:
-            raise ParameterError("--minimum-time does not refine meshes (--tol); give --N and read the forward check")
         mt = {"energy": float(o["energy"] or 0.0)}
         if o["duration"] is not None:
             lo, sep, hi = o["duration"].partition(":")

@@ -216,7 +216,8 @@ def invert_tracking(scene, model, reference, *, progress=False, **options):
         method = inversion_method(model, design_configuration(scene, model, reference))
     if method == "servo" and free_time is not None:
         # the horizon of the reference's duration does not fit a free one: minimum_time derives its own
-        cfg = {k: v for k, v in cfg.items() if k not in ("T0", "Tf", "tol")}
+        # (a tol the scene declares is for the square inversion; one the caller gives refines this one)
+        cfg = {k: v for k, v in cfg.items() if k not in ("T0", "Tf", "tol") or (k == "tol" and options.get("tol"))}
         return minimum_time(model, reference, progress=progress, **free_time, **cfg)
     if method == "servo":
         return invert(model, reference, progress=progress, **cfg)
