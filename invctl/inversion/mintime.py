@@ -97,8 +97,8 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
                           "T0/Tf through horizon=Horizon(T0=..., Tf=...) instead")
     disc, slv = opts.discretization, opts.solver
     if disc.tol is not None:
-        return _refined(model, reference, opts, dict(bounds=bounds, energy=energy, duration=duration,
-                                                     objective=objective, horizon=horizon), warm_start)
+        return _refined(model, reference, opts, dict(bounds=opts.bounds, energy=energy, duration=duration,
+                                                     objective=opts.objective, horizon=opts.horizon), warm_start)
     tau_ref = reference.tf - reference.t0
     lo, hi = (0.02 * tau_ref, 50.0 * tau_ref) if duration is None else (float(duration[0]), float(duration[1]))
     if not 0 < lo < hi:
