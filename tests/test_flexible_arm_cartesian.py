@@ -17,15 +17,7 @@ from invctl.cli import main
 from invctl.errors import ParameterError, SceneError
 from invctl.inversion import forward_check, invert
 from invctl.scenes import Scene, load_scene
-
-
-def internal_eigenvalues(model, q0):
-    """Eigenvalues of the internal dynamics (003 Sect. 3, default coordinates) linearized at the rest state."""
-    idyn = internal_dynamics(model, "sect3", point=q0, samples=20)
-    eta0 = np.array(idyn.eta(q0, np.zeros(model.n), model.theta_values)).ravel()
-    y0 = model.evaluate("h", q0).ravel()
-    lin = linearize_internal(model, idyn, [([y0, np.zeros(model.ny)], eta0)])
-    return np.sort_complex(lin.eigenvalues)
+from test_gallery import internal_eigenvalues_at as internal_eigenvalues  # the same linearization check
 
 
 def angle_twin(n, **params):

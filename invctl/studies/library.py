@@ -501,8 +501,10 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
 
 def _compile_choice(compiled, backend):
     """``True`` (compile), or ``"auto"`` (only what the disk cache already holds)."""
-    if backend != "newton" or compiled is False:
-        return "auto" if compiled is not False else False
+    if compiled is False:
+        return False
+    if backend != "newton":  # only the Newton backend uses the base transcription's evaluators
+        return "auto"
     if compiled is None:
         from ..inversion.compiled import compiler
 

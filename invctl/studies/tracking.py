@@ -217,7 +217,8 @@ def invert_tracking(scene, model, reference, *, progress=False, **options):
     if method == "servo" and free_time is not None:
         # the horizon of the reference's duration does not fit a free one: minimum_time derives its own
         # (a tol the scene declares is for the square inversion; one the caller gives refines this one)
-        cfg = {k: v for k, v in cfg.items() if k not in ("T0", "Tf", "tol") or (k == "tol" and options.get("tol"))}
+        drop = {"T0", "Tf"} | ({"tol"} if options.get("tol") is None else set())
+        cfg = {k: v for k, v in cfg.items() if k not in drop}
         return minimum_time(model, reference, progress=progress, **free_time, **cfg)
     if method == "servo":
         return invert(model, reference, progress=progress, **cfg)
