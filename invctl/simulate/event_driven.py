@@ -4,7 +4,10 @@ An independent code path used to validate the time-stepping: smooth phases
 are integrated with a tight-tolerance Runge-Kutta method (scipy DOP853),
 with the active contacts enforced as equalities (index-1: accelerations and
 multipliers from the contact LCP (7) restricted to the active set); events
-are located to machine precision by the integrator's root finder:
+are located to machine precision by the integrator's root finder (which sees
+a sign change of an event function only between the ends of a step, so a
+gap that starts a segment at zero is first watched for opening, see
+``gap_tol``):
 
 * an open gap closes (``f_i = 0`` from above): Moreau's impact law (4)/(5)
   is applied with the exact LCP solver, then the contacts that stay closed
@@ -23,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
 
 from ..contact.mechanics import ContactSystem
 from ..contact.lcp import solve_lcp
@@ -36,7 +40,7 @@ __all__ = ["simulate_event_driven"]
 def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | None = None, t0: float = 0.0,
                           gains=None, params=None, rtol: float = 1e-12, atol: float = 1e-12,
                           v_rest: float = 1e-7, max_events: int = 10000, dt_out: float | None = None,
-                          potential=None, max_impacts: int | None = None) -> ContactTrajectory:
+                          potential=None, max_impacts: int | None = None, gap_tol: float = 1e-10) -> ContactTrajectory:
     """Simulate exactly (up to integrator tolerance) from ``(q0, v0)`` to ``t_end``.
 
     Returns a :class:`ContactTrajectory` (time along the last axis) with ``stats["events"]`` (list of
@@ -44,6 +48,9 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
     ``stats["impact_contact"]``, ``stats["impact_pre"]``,
     ``stats["impact_post"]``, ``stats["impact_v_plus"]``. With ``max_impacts`` the run ends at that
     impact (a reference for the first impacts that does not have to get through later Zeno phases).
+    ``gap_tol``: a gap that left zero (after an impact or a release) is watched for closing again once it
+    has opened by ``gap_tol``; if it falls by ``gap_tol`` first, that is an impact (located ``gap_tol``
+    late, i.e. ``gap_tol / |U|`` in time).
     """
     cs = ContactSystem(model)
     law = law or zero_input(potential)
@@ -93,6 +100,14 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
         raise SimulationFailed(f"event-driven: initial gaps {g0.tolist()} violate f >= 0")
     U0 = cs.gradients(q, th).T @ v
     active = settle(t, q, v, (g0 <= 1e-12) & (np.abs(U0) <= 1e-12))
+    # A gap is watched for closing (f_i = 0 from above) only once it is "armed", i.e. clearly open.
+    # Right after an impact or a release the gap is zero up to round-off, and its sign at the start of
+    # the next segment is noise: if the whole flight to the next impact fits in one integrator step,
+    # a start at -1e-18 shows no sign change over that step and the impact is stepped over (which
+    # machine's round-off decides). Such a leaving gap is watched instead for rising by gap_tol
+    # (then armed) or for falling by gap_tol (a closing without a flight, handled as an impact),
+    # both thresholds clearly away from its value at the segment's start.
+    armed = (g0 > gap_tol) & ~active
     ts, qs, vs = [t], [q.copy()], [v.copy()]
     events = []
     imp = {"t": [], "i": [], "pre": [], "post": [], "vplus": []}
@@ -105,49 +120,69 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
             a, _ = accel(tt, x[:n], x[n:], act)
             return np.r_[x[n:], a]
 
-        evs = []
+        g_start = cs.gaps(q, th)
+        evs, kinds = [], []
         for i in range(mu):
             if act[i]:
                 def ev(tt, x, i=i, act=act):
                     return accel(tt, x[:n], x[n:], act)[1][i]
-            else:
+                watch = [(ev, -1, "release")]
+            elif armed[i]:
                 def ev(tt, x, i=i):
                     return float(cs.gaps(x[:n], th)[i])
-            ev.terminal = True
-            ev.direction = -1
-            evs.append(ev)
+                watch = [(ev, -1, "close")]
+            else:
+                up, down = max(g_start[i], 0.0) + gap_tol, min(g_start[i], 0.0) - gap_tol
+
+                def ev_up(tt, x, i=i, c=up):
+                    return float(cs.gaps(x[:n], th)[i]) - c
+
+                def ev_down(tt, x, i=i, c=down):
+                    return float(cs.gaps(x[:n], th)[i]) - c
+                watch = [(ev_up, 1, "arm"), (ev_down, -1, "close")]
+            for fn, direction, kind in watch:
+                fn.terminal, fn.direction = True, direction
+                evs.append(fn)
+                kinds.append((kind, i))
         t_eval = None
         if dt_out:
             t_eval = np.arange(t, t_end, dt_out)[1:]
+        leaving = ~act & ~armed
         sol = solve_ivp(rhs, (t, t_end), np.r_[q, v], method="DOP853", rtol=rtol, atol=atol, events=evs,
-                        t_eval=t_eval, dense_output=False)
+                        t_eval=t_eval, dense_output=bool(leaving.any()))
         if sol.status == -1:
             raise SimulationFailed(f"event-driven: integrator failed at t = {sol.t[-1]:.6g}: {sol.message}")
-        if sol.t.size:
-            ts.extend(sol.t.tolist())
-            qs.extend(sol.y[:n].T)
-            vs.extend(sol.y[n:].T)
+        t_seg = np.asarray(sol.t, float).ravel()
+        if t_seg.size:  # (scipy returns lists when t_eval has no point in a short segment)
+            y_seg = np.asarray(sol.y, float).reshape(2 * n, t_seg.size)
+            ts.extend(t_seg.tolist())
+            qs.extend(y_seg[:n].T)
+            vs.extend(y_seg[n:].T)
         if sol.status == 0:
             t = t_end
             break
-        hit = [i for i in range(mu) if sol.t_events[i].size and
-               (sol.t_events[i][0] > t or len(sol.t_events[i]) > 1 or not np.isclose(sol.t_events[i][0], t))]
-        if not hit:
+        fired = [k for k in range(len(evs)) if sol.t_events[k].size]
+        if not fired:
             raise SimulationFailed(f"event-driven: terminated at t = {sol.t[-1]:.6g} without an event")
-        te = min(sol.t_events[i][-1] if sol.t_events[i][0] <= t else sol.t_events[i][0] for i in hit)
-        i_ev = [i for i in hit if np.isclose(min(sol.t_events[i][sol.t_events[i] > t] if np.any(sol.t_events[i] > t)
-                                                 else sol.t_events[i]), te, rtol=0, atol=1e-13)]
-        ye = sol.y_events[i_ev[0]][-1] if sol.y_events[i_ev[0]].shape[0] else sol.y[:, -1]
-        t, q, v = float(te), ye[:n].copy(), ye[n:].copy()
-        if act[i_ev[0]]:
-            active[i_ev[0]] = False
-            events.append((t, "release", i_ev[0], 0.0, 0.0))
+        k_ev = min(fired, key=lambda k: sol.t_events[k][0])
+        kind, i_ev = kinds[k_ev]
+        t, ye = float(sol.t_events[k_ev][0]), sol.y_events[k_ev][0]
+        if kind == "close" and leaving[i_ev]:
+            t, ye = _first_closing(sol, i_ev, t, lambda x, i=i_ev: float(cs.gaps(x[:n], th)[i]))
+        q, v = ye[:n].copy(), ye[n:].copy()
+        if kind == "arm":
+            armed[i_ev] = True
+            continue
+        if kind == "release":
+            active[i_ev] = False
+            events.append((t, "release", i_ev, 0.0, 0.0))
             continue
         # impact(s)
         g = cs.gaps(q, th)
         W = cs.gradients(q, th)
         U = W.T @ v
-        closed = g <= 1e-10 + 1e-9 * np.abs(U)
+        closed = g <= gap_tol + 1e-9 * np.abs(U)
+        closed[i_ev] = True
         inv = closed & (U <= 1e-14)
         ee = e.copy()
         slow = inv & (np.abs(U) < v_rest)
@@ -168,6 +203,7 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
         vs.append(v.copy())
         Up = W.T @ v
         active = settle(t, q, v, closed & (np.abs(Up) <= max(1e-12, 1e-9 * np.abs(U).max(initial=0))))
+        armed[closed | active] = False
         if max_impacts is not None and len(imp["t"]) >= max_impacts:
             break
     else:
@@ -188,3 +224,19 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
     # time along the last axis, as every result type
     return ContactTrajectory(T, Q.T, Vv.T, Pz, np.zeros((mu, T.size - 1), bool), gaps, np.array(En), np.array(Vl),
                              float("nan"), {"q": list(model.q_names), "gaps": list(cs.names)}, stats)
+
+
+def _first_closing(sol, i, te, gap, samples: int = 64):
+    """Where a leaving gap that was caught only at ``-gap_tol`` really closed: the last sign change from
+    positive to non-positive of ``gap`` on the step that ends at ``te`` (dense output, located to round-off).
+    A flight that never rose above zero (a closing without a flight) keeps ``te``."""
+    ts = sol.sol.ts
+    ta = float(ts[ts < te].max(initial=ts[0]))
+    grid = np.linspace(ta, te, samples + 1)
+    g = np.array([gap(sol.sol(tt)) for tt in grid])
+    pos = np.flatnonzero(g > 0)
+    if not pos.size:
+        return te, sol.sol(te)
+    j = pos[-1]
+    tr = brentq(lambda tt: gap(sol.sol(tt)), grid[j], grid[j + 1], xtol=1e-16, rtol=4 * np.finfo(float).eps)
+    return float(tr), sol.sol(tr)
