@@ -46,3 +46,79 @@ def test_constant_reference_component_from_the_cli(tmp_path, capsys):
         assert data["runs"][name]["status"] == "ok"
     assert data["reductions"]["output"] > 0
     assert (tmp_path / "errors.png").exists()
+
+
+def test_a_run_that_leaves_the_region_is_not_ok_anywhere(tmp_path, capsys):
+    """cartpole: C3 (feedforward only) lets the pole fall; it leaves the model's region (|theta| < pi/2) at
+    t = 1.16 s.  The table, the JSON status and the figures say so; the figures' axes are set by the runs
+    that stayed inside (and C3 up to its exit), C3 is drawn clipped with a marker at its exit."""
+    import matplotlib.pyplot as plt
+
+    from invctl.studies.tracking import TrackingStudy
+
+    rc = cli_main(["pipeline", "cartpole", "--out-dir", str(tmp_path), "--quiet", "--json", "--no-animation"])
+    out = capsys.readouterr().out.strip().splitlines()
+    assert rc == 0
+    runs = json.loads(out[-1])["runs"]
+    assert runs["C1"]["status"] == runs["C2"]["status"] == "ok"
+    c3 = runs["C3"]
+    assert c3["status"] == "left_region" and not c3["success"]
+    assert c3["left_region"]["t"] == pytest.approx(1.16, abs=0.01) and "theta" in c3["left_region"]["coordinates"]
+    line = next(s for s in out if s.startswith("C3 "))
+    assert "left the model's region at t = 1.16 s" in line
+    assert not any("left" in s for s in out if s.startswith(("C1 ", "C2 ")))
+
+    study = TrackingStudy.load(tmp_path)      # the status and the exit survive save/load
+    assert study.runs["C3"].status == "left_region"
+    assert study.runs["C3"].departure == (pytest.approx(1.158), "left region")
+    figs = study.plot()
+    try:
+        ax = figs["errors"].axes[0]
+        labels = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert any(s.startswith("C3") and "(left region at t = 1.16 s)" in s for s in labels), labels
+        assert not any("left" in s for s in labels if not s.startswith("C3"))
+        c3r, t = study.runs["C3"], study.runs["C3"].t
+        good = np.concatenate([study.runs[n].output_error for n in ("C1", "C2")])
+        before = c3r.output_error[t <= 1.158]
+        lo, hi = ax.get_ylim()
+        assert lo <= good.min() and hi >= good.max()
+        assert hi <= 1.1 * max(good.max(), before.max())      # not stretched by the fallen pole
+        assert c3r.output_error[t > 1.158].max() > hi           # ... which is drawn clipped
+        marks = [ln for ln in ax.get_lines() if ln.get_marker() == "X"]
+        assert len(marks) == 1 and marks[0].get_xdata()[0] == pytest.approx(1.158, abs=2e-3)
+        states = figs["states"].axes[0]
+        assert "left" not in states.get_title()                 # C1 stayed inside
+    finally:
+        for f in figs.values():
+            plt.close(f)
+
+
+def test_a_run_that_leaves_its_funnel_is_marked_and_not_compared(tmp_path):
+    """A run cut at a funnel violation (constructed from a stored run): the table's comparison says it is not
+    comparable, the figures label it with the time it left."""
+    import dataclasses
+
+    import matplotlib.pyplot as plt
+
+    from invctl.simulate.closed_loop import ClosedLoopResult
+    from invctl.studies.tracking import TrackingStudy
+
+    setup = setup_tracking(load_scene("cartpole"), invert=False, t_end=1.0)
+    c2 = run_controller(setup, "C2")
+    k = int(np.searchsorted(c2.t, 0.5 - 1e-9)) + 1
+    arrays = {f.name: getattr(c2, f.name) for f in dataclasses.fields(ClosedLoopResult)}
+    cut = dataclasses.replace(c2, status="funnel_violation", message=f"left the funnel at t = {c2.t[k - 1]:.4g} s",
+                              **{n: a[..., :k] for n, a in arrays.items()
+                                 if isinstance(a, np.ndarray) and a.ndim and a.shape[-1] == c2.t.size})
+    assert cut.departure == (pytest.approx(0.5, abs=2e-3), "left its funnel")
+    study = TrackingStudy({"C1": c2, "C2": cut})
+    table = study.table()
+    assert "(funnel_violation: left the funnel at t = 0.5" in table
+    assert "not comparable: C2 left its funnel at t = 0.5 s" in table
+    figs = study.plot()
+    try:
+        labels = [t.get_text() for t in figs["funnel"].axes[0].get_legend().get_texts()]
+        assert "||e_bar|| C2 (left its funnel at t = 0.5 s)" in labels and "||e_bar|| C1" in labels
+    finally:
+        for f in figs.values():
+            plt.close(f)

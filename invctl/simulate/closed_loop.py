@@ -41,6 +41,9 @@ class ClosedLoopResult:
     funnels); ``drift_g``/``drift_Gv`` are ``max |g(q)|`` and ``max |G v|``; ``signals``/``signals_ref``
     hold the scene's extra signals of the output (e.g. the end effector) and ``cumulative_errors`` the
     integrals ``int ||s - s_ref|| dt`` of the output (key ``"output"``) and of every signal.
+    ``status`` is ``"ok"``, ``"left_region"`` (ran to the end, but the plant left the model's operating region:
+    ``stats["left_region"]``), ``"funnel_violation"`` (truncated at the violation), ``"failed"`` or
+    ``"interrupted"``; :attr:`departure` gives the time a run left its region or funnel.
     """
 
     t: np.ndarray
@@ -74,6 +77,16 @@ class ClosedLoopResult:
     @property
     def success(self) -> bool:
         return self.status == "ok"
+
+    @property
+    def departure(self):
+        """``(t, "left region")`` or ``(t, "left its funnel")`` (the earlier) if the run left the model's
+        operating region or its funnel, else ``None``."""
+        exit_ = self.stats.get("left_region")
+        found = [(float(exit_["t"]), "left region")] if exit_ else []
+        if self.status == "funnel_violation" and self.t.size:
+            found.append((float(self.t[-1]), "left its funnel"))
+        return min(found) if found else None
 
     @property
     def cumulative_output_error(self) -> float:
@@ -422,6 +435,9 @@ class ClosedLoop:
         exit_ = self._region_exit(res)
         if exit_ is not None:
             res.stats["left_region"] = exit_
+            res.status = "left_region"
+            res.message = (f"left the model's region at t = {exit_['t']:.3g} s ({exit_['coordinates']}; "
+                           f"region: {exit_['region']})")
         if fail is not None:
             res.status, res.message = "failed", str(fail).splitlines()[-1][:300]
             where = (f"; the plant left the operating region at t = {exit_['t']:.4g} s ({exit_['coordinates']}; "
