@@ -1,16 +1,19 @@
-"""Tracking scenes new users write: a reference with a constant component (tests/scenes/).
-
-The scene file is loaded by path, as ``invctl <command> path/to/scene.py`` does.
+"""Tracking scenes as new users meet them: a reference with a constant component (a scene file in
+tests/scenes/, loaded by path as ``invctl <command> path/to/scene.py`` does) and runs that leave the
+model's region or their funnel (reported as such everywhere).
 """
+import dataclasses
 import json
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
 from invctl.cli import main as cli_main
 from invctl.scenes import load_scene
-from invctl.studies.tracking import run_controller, setup_tracking
+from invctl.simulate.closed_loop import ClosedLoopResult
+from invctl.studies.tracking import TrackingStudy, run_controller, setup_tracking
 
 SLIDER = Path(__file__).parent / "scenes" / "cart_pole_and_slider.py"
 
@@ -36,7 +39,7 @@ def test_constant_reference_component_runs(slider_setup, name):
 def test_constant_reference_component_from_the_cli(tmp_path, capsys):
     assert cli_main(["design", str(SLIDER), "--json"]) == 0
     design = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert design
+    assert len(design["K"]) == 2 and design["a1_design_point"] > 0   # one eta2 row, the slider row
     rc = cli_main(["pipeline", str(SLIDER), "--out-dir", str(tmp_path), "--quiet", "--json", "--no-animation"])
     out = capsys.readouterr().out.strip().splitlines()
     assert rc == 0
@@ -52,10 +55,6 @@ def test_a_run_that_leaves_the_region_is_not_ok_anywhere(tmp_path, capsys):
     """cartpole: C3 (feedforward only) lets the pole fall; it leaves the model's region (|theta| < pi/2) at
     t = 1.16 s.  The table, the JSON status and the figures say so; the figures' axes are set by the runs
     that stayed inside (and C3 up to its exit), C3 is drawn clipped with a marker at its exit."""
-    import matplotlib.pyplot as plt
-
-    from invctl.studies.tracking import TrackingStudy
-
     rc = cli_main(["pipeline", "cartpole", "--out-dir", str(tmp_path), "--quiet", "--json", "--no-animation"])
     out = capsys.readouterr().out.strip().splitlines()
     assert rc == 0
@@ -71,6 +70,9 @@ def test_a_run_that_leaves_the_region_is_not_ok_anywhere(tmp_path, capsys):
     study = TrackingStudy.load(tmp_path)      # the status and the exit survive save/load
     assert study.runs["C3"].status == "left_region"
     assert study.runs["C3"].departure == (pytest.approx(1.158), "left region")
+    old = dataclasses.replace(study.runs["C3"], status="ok", message="")   # as written before the status existed
+    back = ClosedLoopResult.load(old.to_npz(tmp_path / "old_C3.npz"))
+    assert back.status == "left_region" and "left the model's region at t = 1.16 s" in back.message
     figs = study.plot()
     try:
         ax = figs["errors"].axes[0]
@@ -96,13 +98,6 @@ def test_a_run_that_leaves_the_region_is_not_ok_anywhere(tmp_path, capsys):
 def test_a_run_that_leaves_its_funnel_is_marked_and_not_compared(tmp_path):
     """A run cut at a funnel violation (constructed from a stored run): the table's comparison says it is not
     comparable, the figures label it with the time it left."""
-    import dataclasses
-
-    import matplotlib.pyplot as plt
-
-    from invctl.simulate.closed_loop import ClosedLoopResult
-    from invctl.studies.tracking import TrackingStudy
-
     setup = setup_tracking(load_scene("cartpole"), invert=False, t_end=1.0)
     c2 = run_controller(setup, "C2")
     k = int(np.searchsorted(c2.t, 0.5 - 1e-9)) + 1

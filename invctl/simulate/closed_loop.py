@@ -197,6 +197,9 @@ class ClosedLoopResult:
             kw[k] = str(kw[k])
         for k in ("ratio_names", "q_names", "y_names", "u_names"):
             kw[k] = [str(x) for x in np.atleast_1d(kw[k])] if np.size(kw[k]) else []
+        exit_ = kw["stats"].get("left_region")
+        if kw["status"] == "ok" and exit_:   # written before such runs had their own status
+            kw["status"], kw["message"] = "left_region", _left_region_message(exit_)
         return cls(**kw)
 
     def plot(self, path=None):
@@ -211,6 +214,10 @@ class ClosedLoopResult:
         from ..plot.animate import animate_result
 
         return animate_result(self, path, **options)
+
+
+def _left_region_message(exit_: dict) -> str:
+    return f"left the model's region at t = {exit_['t']:.3g} s ({exit_['coordinates']}; region: {exit_['region']})"
 
 
 def plant_acceleration(model, alpha: float = 20.0, beta: float = 20.0) -> ca.Function:
@@ -435,9 +442,7 @@ class ClosedLoop:
         exit_ = self._region_exit(res)
         if exit_ is not None:
             res.stats["left_region"] = exit_
-            res.status = "left_region"
-            res.message = (f"left the model's region at t = {exit_['t']:.3g} s ({exit_['coordinates']}; "
-                           f"region: {exit_['region']})")
+            res.status, res.message = "left_region", _left_region_message(exit_)
         if fail is not None:
             res.status, res.message = "failed", str(fail).splitlines()[-1][:300]
             where = (f"; the plant left the operating region at t = {exit_['t']:.4g} s ({exit_['coordinates']}; "
