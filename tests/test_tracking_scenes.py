@@ -117,3 +117,15 @@ def test_a_run_that_leaves_its_funnel_is_marked_and_not_compared(tmp_path):
     finally:
         for f in figs.values():
             plt.close(f)
+    # a feedback run that left the region (marked on a stored run): the funnel boundary stays in view
+    exit_ = {"t": 0.3, "coordinates": "theta = -1.6", "region": "|theta| < pi/2"}
+    left = dataclasses.replace(c2, status="left_region", stats={"left_region": exit_})
+    figs = TrackingStudy({"C1": c2, "C2": left}).plot()
+    try:
+        ax = figs["funnel"].axes[0]
+        lo, hi = ax.get_ylim()
+        assert lo <= np.min(1 / c2.phi_bar) and hi >= np.max(1 / c2.phi_bar)
+        assert any("||e_bar|| C2 (left region at t = 0.3 s)" == t.get_text() for t in ax.get_legend().get_texts())
+    finally:
+        for f in figs.values():
+            plt.close(f)

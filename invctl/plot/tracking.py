@@ -168,6 +168,7 @@ def plot_study(study, out_dir=None, fmt="png", captions=None):
             curves.append((r, r.t, err, _COLORS.get(name)))
             if not drawn:
                 ax.semilogy(r.t, 1.0 / r.phi_bar, "k", lw=1.2, label="funnel boundary 1/phi")
+                curves.append((None, r.t, 1.0 / r.phi_bar, "k"))
                 drawn = True
     _clip_departed(ax, curves, log=True)
     ax.set(title=_title(captions, "funnel", "error norm and funnel boundary"), xlabel="t [s]")
