@@ -393,3 +393,16 @@ def test_piecewise_expression_size_grows_linearly_and_derivatives_are_cheap():
         counts[P] = [ref.function(o).n_instructions() for o in (0, 4)]
     assert counts[50][0] <= 40 * 50 + 200
     assert counts[50][1] - counts[50][0] == counts[25][1] - counts[25][0] <= 600
+
+
+def test_derivatives_of_a_constant_component_are_dense_zeros():
+    """A component held constant has structurally zero derivatives; the Function gives them as dense
+    zeros (callers substitute the values for dense symbols, e.g. the funnel controller's jets)."""
+    ref = rest_to_rest([0.0, 0.3], [0.5, 0.3], t0=0.0, tf=2.0, smoothness=4)
+    fn = ref.function(3)
+    for k in range(4):
+        assert fn.sparsity_out(k).is_dense(), k
+    t, jets = ca.SX.sym("t"), [ca.SX.sym(f"y{k}", 2) for k in range(4)]
+    e = ca.sumsqr(ca.vertcat(*jets))
+    val = ca.Function("e", [t], [ca.substitute(e, ca.vertcat(*jets), ca.vertcat(*fn(t)))])(1.0)
+    assert float(val) == pytest.approx(float(np.sum(np.concatenate([ref([1.0], k)[:, 0] for k in range(4)]) ** 2)))

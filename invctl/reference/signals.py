@@ -91,7 +91,10 @@ class Reference:
             outs = [self.expr]
             for _ in range(order):
                 outs.append(ca.jacobian(outs[-1], self.t))
-            fn = ca.Function(f"{self.name}_d{order}", [self.t], outs, ["t"], [f"d{k}" for k in range(order + 1)])
+            # dense outputs: a constant component has structurally zero derivatives, and callers
+            # substitute these values for dense symbols
+            fn = ca.Function(f"{self.name}_d{order}", [self.t], [ca.densify(o) for o in outs], ["t"],
+                             [f"d{k}" for k in range(order + 1)])
             self._functions[order] = fn
         return fn
 

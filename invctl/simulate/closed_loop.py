@@ -41,6 +41,9 @@ class ClosedLoopResult:
     funnels); ``drift_g``/``drift_Gv`` are ``max |g(q)|`` and ``max |G v|``; ``signals``/``signals_ref``
     hold the scene's extra signals of the output (e.g. the end effector) and ``cumulative_errors`` the
     integrals ``int ||s - s_ref|| dt`` of the output (key ``"output"``) and of every signal.
+    ``status`` is ``"ok"``, ``"left_region"`` (ran to the end, but the plant left the model's operating region:
+    ``stats["left_region"]``), ``"funnel_violation"`` (truncated at the violation), ``"failed"`` or
+    ``"interrupted"``; :attr:`departure` gives the time a run left its region or funnel.
     """
 
     t: np.ndarray
@@ -74,6 +77,16 @@ class ClosedLoopResult:
     @property
     def success(self) -> bool:
         return self.status == "ok"
+
+    @property
+    def departure(self):
+        """``(t, "left region")`` or ``(t, "left its funnel")`` (the earlier) if the run left the model's
+        operating region or its funnel, else ``None``."""
+        exit_ = self.stats.get("left_region")
+        found = [(float(exit_["t"]), "left region")] if exit_ else []
+        if self.status == "funnel_violation" and self.t.size:
+            found.append((float(self.t[-1]), "left its funnel"))
+        return min(found) if found else None
 
     @property
     def cumulative_output_error(self) -> float:
@@ -184,6 +197,9 @@ class ClosedLoopResult:
             kw[k] = str(kw[k])
         for k in ("ratio_names", "q_names", "y_names", "u_names"):
             kw[k] = [str(x) for x in np.atleast_1d(kw[k])] if np.size(kw[k]) else []
+        exit_ = kw["stats"].get("left_region")
+        if kw["status"] == "ok" and exit_:   # written before such runs had their own status
+            kw["status"], kw["message"] = "left_region", _left_region_message(exit_)
         return cls(**kw)
 
     def plot(self, path=None):
@@ -198,6 +214,10 @@ class ClosedLoopResult:
         from ..plot.animate import animate_result
 
         return animate_result(self, path, **options)
+
+
+def _left_region_message(exit_: dict) -> str:
+    return f"left the model's region at t = {exit_['t']:.3g} s ({exit_['coordinates']}; region: {exit_['region']})"
 
 
 def plant_acceleration(model, alpha: float = 20.0, beta: float = 20.0) -> ca.Function:
@@ -422,6 +442,7 @@ class ClosedLoop:
         exit_ = self._region_exit(res)
         if exit_ is not None:
             res.stats["left_region"] = exit_
+            res.status, res.message = "left_region", _left_region_message(exit_)
         if fail is not None:
             res.status, res.message = "failed", str(fail).splitlines()[-1][:300]
             where = (f"; the plant left the operating region at t = {exit_['t']:.4g} s ({exit_['coordinates']}; "

@@ -461,12 +461,18 @@ class TrackingStudy:
             line = "C1 reduces C2's cumulative error by " + ", ".join(parts)
             if printed:
                 line += "; paper: " + ", ".join(f"{100 * float(v):.0f} % ({k})" for k, v in printed.items())
-            lines.append(line)
+            lines.append(line + self._departed_note("C1", "C2"))
         ext = self.extension_reductions
         if ext:
             lines.append("C1-inv (invctl's extension) reduces C2's cumulative error by "
-                         + ", ".join(f"{100 * v:.1f} % ({k})" for k, v in ext.items()))
+                         + ", ".join(f"{100 * v:.1f} % ({k})" for k, v in ext.items())
+                         + self._departed_note("C1-inv", "C2"))
         return "\n".join(lines)
+
+    def _departed_note(self, *names) -> str:
+        deps = [(n, self.runs[n].departure) for n in names]
+        parts = [f"{n} {d[1]} at t = {d[0]:.3g} s" for n, d in deps if d is not None]
+        return f" (not comparable: {', '.join(parts)})" if parts else ""
 
     def to_dict(self) -> dict:
         return {"runs": {k: r.summary() for k, r in self.runs.items()}, "reductions": self.reductions,

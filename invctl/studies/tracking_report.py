@@ -317,6 +317,8 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
     for kind, val in res.cumulative_errors.items():
         lines.append(f"  cumulative {kind} error  int ||{kind} - ref|| dt = {val:.6g}")
     lines.append(f"  final output error = {s['final_output_error']:.4g}")
+    if not res.success:
+        lines.append(f"  status {res.status}: {res.message}")
     if s["max_funnel_ratio"] is not None:
         lines.append(f"  max funnel ratio phi|e| = {s['max_funnel_ratio']:.4f} (margin {s['funnel_margin']:.4f})")
     lines += [f"  input peaks |u| = {[round(x, 4) for x in s['input_peaks']]}",
