@@ -31,7 +31,7 @@ from pathlib import Path
 from types import MappingProxyType, ModuleType
 from typing import Any, Callable, Mapping
 
-from .errors import ParameterError, SceneError
+from .errors import DimensionError, ModelError, ParameterError, SceneError
 
 __all__ = ["Scene", "Tracking", "Contact", "Switched", "Report", "ReportContext", "CommandResult", "jsonable",
            "available_scenes", "load_scene", "scene_reference", "SCENE_COMMANDS"]
@@ -503,6 +503,10 @@ class Scene:
             obj = self.build(**params)
         except (ParameterError, SceneError):
             raise
+        except ModelError as exc:
+            if params and not isinstance(exc, DimensionError):
+                self._blame(params, exc)
+            raise
         except Exception as exc:
             from .errors import InvctlError
 
@@ -512,6 +516,27 @@ class Scene:
                              f"failed: {type(exc).__name__}: {exc}{_where(exc, self.source)}") from exc
         self._check_model(obj)
         return obj
+
+    def _blame(self, params: dict, exc: ModelError) -> None:
+        """Raise a :class:`ParameterError` naming the overrides without which ``build`` gives a valid
+        model (``exc``: what the model check found); nothing when the defaults fail as well."""
+        def fails(**values) -> bool:
+            try:
+                self.build(**values)
+            except ModelError:
+                return True
+            except Exception:  # noqa: BLE001 - another failure is not this check's
+                return False
+            return False
+
+        if fails():
+            return
+        names = [k for k in params if fails(**{k: params[k]})] or sorted(params)
+        given = ", ".join(f"{k} = {params[k]!r} (default {self.params.get(k, self.choices.get(k, ('?',))[0])!r})"
+                          for k in names)
+        raise ParameterError(f"{self.name}: the model is not valid with {given}: {exc}; use a value nearer the "
+                             "default (units in which the values are moderate)",
+                             diagnostics={"parameters": {k: params[k] for k in names}}) from exc
 
     def _check_model(self, obj) -> None:
         kind = self.kind
