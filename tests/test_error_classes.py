@@ -165,3 +165,18 @@ def test_animate_loads_a_shipped_scene_by_its_recorded_name(tmp_path, capsys):
     # a name that is no shipped scene is refused without importing anything else
     rc, d = run_cli(capsys, "animate", str(run), "--fps", "5", "--scene", "no_such_scene", "--force")
     assert rc == 2 and d["error"] == "SceneError" and "no scene named" in d["message"], d
+
+
+def test_invert_dt_is_checked_again_over_the_solved_horizon(tmp_path, monkeypatch):
+    """The reference's transition fits the memory, the horizon with its pre- and post-actuation does
+    not: the error comes after the solve, names --dt, and keeps the inverse."""
+    from invctl.errors import ResourceLimitError
+    from invctl.inversion import Inverse
+    from invctl.studies import commands
+
+    rows, dt = 8, 1e-5  # cart-pole: t, q (2), v (2), u, u_causal, y_ref
+    monkeypatch.setenv("INVCTL_MAX_MEMORY", str(16 * rows * 2.5 / dt))  # room for 2.5 s; the transition takes 2
+    with pytest.raises(ResourceLimitError, match=r"invert --dt 1e-05: .* of the horizon \[.*use --dt") as info:
+        commands.invert("cartpole", out=str(tmp_path / "x.npz"), dt=dt, quiet=True)
+    assert isinstance(info.value.partial, Inverse) and info.value.partial.Tf - info.value.partial.T0 > 2.5
+    assert not (tmp_path / "x.npz").exists()

@@ -343,8 +343,9 @@ def _check_inversion(scene: Scene, params, o) -> None:
             "where needed)", diagnostics={"bytes_needed": need, "bytes_usable": limit, "N_that_fits": int(limit / per)})
 
 
-def check_saved_samples(duration: float, dt: float, rows: int, *, more: str = "") -> None:
-    """A trajectory saved at step ``dt`` over ``duration`` (``rows`` signals) must fit in memory.
+def check_saved_samples(duration: float, dt: float, rows: int, *, more: str = "", partial=None) -> None:
+    """A trajectory saved at step ``dt`` over ``duration`` (``rows`` signals) must fit in memory
+    (``partial``: the solved inverse, kept in the error).
 
     Raises
     ------
@@ -360,8 +361,8 @@ def check_saved_samples(duration: float, dt: float, rows: int, *, more: str = ""
     raise ResourceLimitError(
         f"invert --dt {dt:g}: the saved trajectory would have {samples:.3g} samples ({duration:g} s{more}): about "
         f"{_gib(need)} of memory, but {_gib(limit)} is usable; use --dt {fit:.3g} or more, or leave out --dt (1000 "
-        "samples over the horizon)", diagnostics={"samples": samples, "bytes_needed": need, "bytes_usable": limit,
-                                                  "dt_that_fits": fit})
+        "samples over the horizon)", partial=partial,
+        diagnostics={"samples": samples, "bytes_needed": need, "bytes_usable": limit, "dt_that_fits": fit})
 
 
 def _check_dt(scene: Scene, params, o) -> None:

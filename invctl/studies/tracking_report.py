@@ -241,7 +241,8 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
             from .commands import check_saved_samples
 
             rows = 1 + 2 * model.n + model.ell + model.p + 2 * model.m + model.ny
-            check_saved_samples(inv.Tf - inv.T0, dt, rows, more=f" of the horizon [{inv.T0:g}, {inv.Tf:g}]")
+            check_saved_samples(inv.Tf - inv.T0, dt, rows, more=f" of the horizon [{inv.T0:g}, {inv.Tf:g}]",
+                                partial=inv)
         written = inv.to_npz(out, dt, meta={"scene": scene_reference(scene), "params": dict(params or {})})
         data["out"] = str(written)
         lines.append(f"  trajectory written to {written}")
