@@ -180,3 +180,19 @@ def test_invert_dt_is_checked_again_over_the_solved_horizon(tmp_path, monkeypatc
         commands.invert("cartpole", out=str(tmp_path / "x.npz"), dt=dt, quiet=True)
     assert isinstance(info.value.partial, Inverse) and info.value.partial.Tf - info.value.partial.T0 > 2.5
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_a_scene_may_declare_ranges():
+    import problems.cartpole as cp
+
+    from invctl.errors import ParameterError, SceneError
+    from invctl.scenes import Scene
+
+    scene = Scene("ranged", cp.build, params=cp.PARAMS, ranges={"l": (0.01, 100)})
+    assert scene.split({"l": 100.0})[0] == {"l": 100.0}
+    with pytest.raises(ParameterError, match=r"l = 1000.0 is outside \[0.01, 100\], the range the scene declares"):
+        scene.split({"l": 1e3})
+    with pytest.raises(SceneError, match="ranges must map"):
+        Scene("ranged", cp.build, params=cp.PARAMS, ranges={"l": (1, 0)})
+    with pytest.raises(SceneError, match="ranges must map"):
+        Scene("ranged", cp.build, params=cp.PARAMS, ranges={"nope": (0, 1)})
