@@ -84,7 +84,9 @@ def contact_setup(scene, params=None, settings=None, *, controller=None, plant_p
     if plant_params:
         scene.check_values({**scene.params, **scene.settings, **{k: v for k, v in plant.values.items()
                                                                  if k in scene.params}})
-        plant.validate()
+        from .tracking import validate_plant
+
+        validate_plant(plant, plant_params)
     c = scene.contact
     name = c.controller_for(model, settings, controller)
     potential = c.potential(model) if c.potential is not None else None

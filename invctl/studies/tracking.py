@@ -181,8 +181,20 @@ def plant_of(scene, model, plant_params=None, plant_factors=None):
     if plant_params:
         full = {k: plant.values[k] for k in scene.params if k in plant.values}
         scene.check_values({**scene.params, **scene.settings, **full})
-        plant.validate()
+        validate_plant(plant, plant_params)
     return plant
+
+
+def validate_plant(plant, plant_params: dict) -> None:
+    """``plant.validate()``; a failure is a :class:`ParameterError` naming the ``--plant-set`` values."""
+    from ..errors import ModelError
+
+    try:
+        plant.validate()
+    except ModelError as exc:
+        given = " ".join(f"{k}={v!r}" for k, v in plant_params.items())
+        raise ParameterError(f"--plant-set {given}: the plant model is not valid with these values: {exc}; use "
+                             "values nearer the model's", diagnostics={"plant_params": dict(plant_params)}) from exc
 
 
 #: options of :func:`invctl.inversion.invert_normal_form` (the servo route takes those of ``invert``)
