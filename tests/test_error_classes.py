@@ -199,3 +199,32 @@ def test_a_scene_may_declare_ranges():
         Scene("ranged", cp.build, params=cp.PARAMS, ranges={"l": (1, 0)})
     with pytest.raises(SceneError, match="ranges must map"):
         Scene("ranged", cp.build, params=cp.PARAMS, ranges={"nope": (0, 1)})
+
+
+def _bad_values():
+    """(command, option, value) for every checked option of the option table: a non-number for numbers,
+    an unknown word for choices, a value its check rejects."""
+    from invctl.studies.commands import OPTIONS as TABLE
+
+    for name, opt in sorted(TABLE.items()):
+        if opt.flag or opt.repeat:
+            continue
+        values = (["abc"] if opt.type in (int, float) else []) + (["nope"] if opt.choices else []) \
+            + (["0", "-1"] if opt.check and opt.type in (int, float) else [])
+        for command in opt.commands:
+            for v in values:
+                yield command, name, v
+
+
+@pytest.mark.parametrize("command, name, value", list(_bad_values()))
+def test_every_option_value_error_names_options_of_its_command(capsys, solve_forbidden, command, name, value):
+    from invctl.studies.commands import OPTIONS as TABLE
+
+    flag = "--" + name.replace("_", "-")
+    argv = [command] + (["tradeoff"] if command == "study" else []) + ["cartpole", flag, value]
+    rc, d = run_cli(capsys, *argv)
+    if rc == 0 or (value in ("0", "-1") and d["error"] != "OptionError"):
+        assert TABLE[name].check(float(value)) is None  # a value its check accepts (e.g. --energy 0)
+        return
+    assert rc == 2 and d["error"] == "OptionError" and flag in d["message"], d
+    assert set(OPTION.findall(d["message"])) <= OPTIONS[command], d
