@@ -37,7 +37,8 @@ class DimensionError(ModelError, ValueError):
 
 
 class ParameterError(InvctlError, KeyError):
-    """Unknown parameter name or invalid parameter value."""
+    """Unknown parameter name or invalid parameter value (one the scene rejects, or with which its model
+    is not valid)."""
 
     def __str__(self) -> str:  # KeyError would quote the message
         return str(self.args[0]) if self.args else ""
@@ -305,7 +306,8 @@ class JugglingInfeasible(FeedbackDesignError):
 
 
 class OptionError(InvctlError, ValueError):
-    """An option of the inversion (:mod:`invctl.inversion.options`) has a wrong type or value."""
+    """An option of a command (``--N 3``, ``--fps 0``) or of the inversion (:mod:`invctl.inversion.options`)
+    has a wrong type or value, or does not apply."""
 
 
 class BoundsError(OptionError):

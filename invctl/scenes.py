@@ -31,7 +31,7 @@ from pathlib import Path
 from types import MappingProxyType, ModuleType
 from typing import Any, Callable, Mapping
 
-from .errors import ParameterError, SceneError
+from .errors import DimensionError, ModelError, ParameterError, SceneError
 
 __all__ = ["Scene", "Tracking", "Contact", "Switched", "Report", "ReportContext", "CommandResult", "jsonable",
            "available_scenes", "load_scene", "scene_reference", "SCENE_COMMANDS"]
@@ -274,6 +274,10 @@ class Scene:
     validate : callable, optional
         ``validate(values) -> None`` raising :class:`~invctl.errors.ParameterError` for
         further conditions (``values`` = params and settings together).
+    ranges : dict
+        ``name -> (low, high)``: the closed range a parameter or setting may take (``-inf``/``inf``
+        for an open side), e.g. the lengths the model is meant for; other values are a
+        :class:`~invctl.errors.ParameterError` naming the range.
     tracking, contact, switched : optional
         What the scene is for (:class:`Tracking`, :class:`Contact`, :class:`Switched`).
     drawing : callable, optional
@@ -307,6 +311,7 @@ class Scene:
     studies: Mapping[str, Callable] = field(default_factory=dict)
     description: str = ""
     source: str = ""
+    ranges: Mapping[str, tuple] = field(default_factory=dict)
 
     def __post_init__(self):
         name = self.name
@@ -344,6 +349,17 @@ class Scene:
             if unknown:
                 raise SceneError(f"scene {name!r}: {what} names unknown values {unknown}")
             object.__setattr__(self, what, names)
+        ranges = {}
+        for k, r in _frozen(self.ranges, "ranges", name).items():
+            try:
+                lo, hi = (float(x) for x in r)
+            except (TypeError, ValueError):
+                lo = hi = math.nan
+            if k not in self.params and k not in self.settings or not lo <= hi:
+                raise SceneError(f"scene {name!r}: ranges must map names of params or settings to (low, high) with "
+                                 f"low <= high, got {k!r}: {r!r}")
+            ranges[k] = (lo, hi)
+        object.__setattr__(self, "ranges", MappingProxyType(ranges))
         presets = {}
         for pname, pvalues in _frozen(self.presets, "presets", name).items():
             if not isinstance(pname, str) or not pname.isidentifier():
@@ -468,7 +484,7 @@ class Scene:
         return value.strip()
 
     def check_values(self, full: Mapping[str, float]) -> None:
-        """Apply the magnitude range, ``integer``, ``positive`` and ``validate`` to a full set of values
+        """Apply the magnitude range, ``integer``, ``positive``, ``ranges`` and ``validate`` to a full set of values
         (choices not in ``full`` take their defaults)."""
         full = {**{k: a[0] for k, a in self.choices.items()}, **full}
         for k in self.choices:
@@ -486,6 +502,10 @@ class Scene:
         for k in self.positive:
             if k in full and not float(full[k]) > 0:
                 raise ParameterError(f"{self.name}: {k} must be positive, got {full[k]!r}")
+        for k, (lo, hi) in self.ranges.items():
+            if k in full and not lo <= float(full[k]) <= hi:
+                raise ParameterError(f"{self.name}: {k} = {full[k]!r} is outside [{lo:g}, {hi:g}], the range the "
+                                     "scene declares for it")
         if self.validate is not None:
             self.validate(dict(full))
 
@@ -503,6 +523,10 @@ class Scene:
             obj = self.build(**params)
         except (ParameterError, SceneError):
             raise
+        except ModelError as exc:
+            if params and not isinstance(exc, DimensionError):
+                self._blame(params, exc)
+            raise
         except Exception as exc:
             from .errors import InvctlError
 
@@ -512,6 +536,27 @@ class Scene:
                              f"failed: {type(exc).__name__}: {exc}{_where(exc, self.source)}") from exc
         self._check_model(obj)
         return obj
+
+    def _blame(self, params: dict, exc: ModelError) -> None:
+        """Raise a :class:`ParameterError` naming the overrides without which ``build`` gives a valid
+        model (``exc``: what the model check found); nothing when the defaults fail as well."""
+        def fails(**values) -> bool:
+            try:
+                self.build(**values)
+            except ModelError:
+                return True
+            except Exception:  # noqa: BLE001 - another failure is not this check's
+                return False
+            return False
+
+        if fails():
+            return
+        names = [k for k in params if fails(**{k: params[k]})] or sorted(params)
+        given = ", ".join(f"{k} = {params[k]!r} (default {self.params.get(k, self.choices.get(k, ('?',))[0])!r})"
+                          for k in names)
+        raise ParameterError(f"{self.name}: the model is not valid with {given}: {exc}; use a value nearer the "
+                             "default (units in which the values are moderate)",
+                             diagnostics={"parameters": {k: params[k] for k in names}}) from exc
 
     def _check_model(self, obj) -> None:
         kind = self.kind

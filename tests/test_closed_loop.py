@@ -7,7 +7,7 @@ import pytest
 import scipy.linalg as sla
 
 import problems.manipulator as scene
-from invctl.errors import FeedbackDesignError, FunnelViolation, SceneError, SimulationFailed
+from invctl.errors import FeedbackDesignError, FunnelViolation, ParameterError, SceneError, SimulationFailed
 from invctl.simulate.closed_loop import BOUNDARY_RATIO, ClosedLoopResult, scipy_reference_run
 from invctl.studies.tracking import run_controller, setup_tracking
 
@@ -167,7 +167,7 @@ def test_shorter_transitions_fail_with_specific_errors(tf, t_max):
 def test_unknown_controller_and_plant_parameter(c2_setup):
     with pytest.raises(SceneError, match="C1"):
         c2_setup.loop("C4")
-    with pytest.raises(SceneError, match="unknown plant parameter"):
+    with pytest.raises(ParameterError, match="unknown plant parameter"):
         setup_tracking(scene.SCENE, invert=False, plant_params={"m9": 1.0})
 
 

@@ -446,9 +446,9 @@ def test_cli_minimum_time_meets_the_bound_and_no_shorter_duration_does(capsys):
 
 
 @pytest.mark.parametrize("argv, error, words", [
-    (["--energy", "1"], "ParameterError", "apply to --minimum-time only"),
-    (["--minimum-time"], "ParameterError", "needs bounds"),
-    (["--minimum-time", "--bound", "u=1", "--duration", "3:1"], "ParameterError", "0 < LO < HI"),
+    (["--energy", "1"], "OptionError", "apply to --minimum-time only"),
+    (["--minimum-time"], "OptionError", "needs bounds"),
+    (["--minimum-time", "--bound", "u=1", "--duration", "3:1"], "OptionError", "0 < LO < HI"),
     (["--bound", "u=abc"], "BoundsError", "not a number"),
     (["--bound", "w.x=1"], "BoundsError", "unknown kind"),
     (["--weight", "outpt=1", "--bound", "u=1"], "OptionError", "unknown weight"),

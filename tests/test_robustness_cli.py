@@ -473,7 +473,7 @@ def test_usage_errors_are_json_with_json(capsys):
         rc, d, _ = run_cli(capsys, *argv)
         assert rc == 2 and d["error"] == "UsageError", argv
     rc, d, _ = run_cli(capsys, "invert", "manipulator", "--N", "abc")
-    assert rc == 2 and d["error"] == "ParameterError" and "--N 'abc'" in d["message"]
+    assert rc == 2 and d["error"] == "OptionError" and "--N 'abc'" in d["message"]
 
 
 # ------------------------------------------------------ repeated solves
@@ -643,9 +643,9 @@ def test_plant_overrides_are_checked_before_any_work(capsys, monkeypatch):
 
     monkeypatch.setattr(switched_report, "pipeline", fail)
     rc, d, _ = run_cli(capsys, "pipeline", "compliant_wrist", "--plant-set", "kt=2")
-    assert rc == 2 and d["error"] == "SceneError" and "not applicable" in d["message"]
+    assert rc == 2 and d["error"] == "OptionError" and "not applicable" in d["message"]
     rc, d, _ = run_cli(capsys, "simulate", "cartpole", "--plant-set", "nope=2")
-    assert rc == 2 and d["error"] == "SceneError" and "unknown plant parameter" in d["message"]
+    assert rc == 2 and d["error"] == "ParameterError" and "unknown plant parameter" in d["message"]
 
 
 def test_plant_overrides_go_through_the_scene_checks(capsys):

@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="output file (.gif or .mp4; default: next to the run)")
     p.add_argument("--fps", default="25", help="frames per second (default 25)")
     p.add_argument("--speed", default="1", help="playback speed (default 1: real time)")
+    p.add_argument("--scene", default=None, metavar="NAME_OR_PATH",
+                   help="the scene to draw with (default: the shipped scene the run records; a scene file is "
+                        "code and is loaded only when named here)")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
     return parser
@@ -78,6 +81,19 @@ def _error(command, target, exc, as_json) -> int:
         print(json.dumps(jsonable({"error": type(exc).__name__, "message": str(exc),
                                     "diagnostics": getattr(exc, "diagnostics", {})})))
     return 2
+
+
+def _memory_advice(command: str) -> str:
+    """What to try after running out of memory, naming only options ``command`` takes."""
+    if command == "animate":
+        return "use a lower --fps or a higher --speed"
+    from ..studies.commands import options_of
+
+    opts = options_of(command)
+    hints = [h for k, h in (("t_end", "a shorter run (--t-end)"), ("dt", "a larger --dt"),
+                            ("N", "fewer intervals (--N)"), ("record_every", "a sparser record (--record-every)"))
+             if k in opts]
+    return "use " + ", ".join(hints + ["smaller sizes or horizons in the --set values"])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -100,7 +116,8 @@ def _run(args, target: str, t0: float) -> int:
         if args.command == "animate":
             from ..studies.animation import animate_run
 
-            result = animate_run(args.run, out=args.out, fps=args.fps, speed=args.speed, force=args.force)
+            result = animate_run(args.run, out=args.out, fps=args.fps, speed=args.speed, force=args.force,
+                                 scene=args.scene)
         else:
             from ..model.params import parse_assignments
             from ..studies.commands import run_command
@@ -121,8 +138,7 @@ def _run(args, target: str, t0: float) -> int:
         if os.environ.get("INVCTL_DEBUG"):
             raise
         return _error(args.command, target, ResourceLimitError(
-            f"ran out of memory ({exc or 'MemoryError'}); shorten the run (--t-end, --set t_end=...), use a larger "
-            "step (--set h=...) or fewer samples"), args.json)
+            f"ran out of memory ({exc or 'MemoryError'}); {_memory_advice(args.command)}"), args.json)
     except Exception as exc:  # a bug: say so, without a traceback unless asked for
         import os
 

@@ -49,6 +49,11 @@ def _col(x, name: str) -> ca.SX:
     return x
 
 
+#: a mass matrix whose condition number exceeds this is singular in double precision (it resolves
+#: fewer than one digit): its parameter values leave the range the model can be evaluated in
+MAX_MASS_CONDITION = 1e15
+
+
 class Model:
     """A symbolic multibody model in the form 003 (1).
 
@@ -287,6 +292,13 @@ class Model:
                 problems.append(
                     f"M(q) is not positive definite at q={np.round(qk, 4).tolist()} "
                     f"(smallest eigenvalue {ev.min():.3g}); check masses/inertias {self.values}"
+                )
+                break
+            if ev.max() > MAX_MASS_CONDITION * ev.min():
+                problems.append(
+                    f"M(q) is singular in double precision at q={np.round(qk, 4).tolist()} (condition number "
+                    f"{ev.max() / ev.min():.3g} > {MAX_MASS_CONDITION:.0e}: eigenvalues {ev.min():.3g} to "
+                    f"{ev.max():.3g}); check the scales of masses/inertias/lengths {self.values}"
                 )
                 break
             if diff is not None:

@@ -404,12 +404,18 @@ def animate_result(result, path, *, scene=None, params=None, fps: float = 25, sp
     """Draw a run of a scene (``ClosedLoopResult``, ``ContactTrajectory`` or ``Inverse``) to ``path``.
 
     The scene and its parameters default to what the result records (``result.meta``, filled by the
-    commands and kept in its file); the scene's ``drawing(model)`` says what to draw.
+    commands and kept in its file); the scene's ``drawing(model)`` says what to draw.  A recorded
+    scene file is never loaded (loading runs its code): pass it as ``scene=`` if you trust it.
     """
-    from ..scenes import Scene, load_scene
+    from ..errors import SceneError
+    from ..scenes import Scene, _is_path, load_scene
 
     meta = dict(getattr(result, "meta", None) or {})
-    scene = scene if scene is not None else meta.get("scene")
+    if scene is None:
+        scene = meta.get("scene")
+        if isinstance(scene, str) and _is_path(scene):
+            raise SceneError(f"the result was computed with the scene file {scene!r}; a scene file is code and is "
+                             "not loaded because a result names it: pass scene= (that path, if you trust it)")
     if scene is None:
         raise AnimationError("the result does not record its scene: pass scene= (a Scene, name or path)")
     scene = scene if isinstance(scene, Scene) else load_scene(scene)

@@ -26,8 +26,8 @@ from typing import Any, Callable
 
 from pathlib import Path
 
-from ..errors import (InvctlError, NumericalError, ParameterError, ResourceLimitError, RunInterrupted, SceneError,
-                      SimulationFailed, watch_sigint)
+from ..errors import (InvctlError, NumericalError, OptionError, ParameterError, ResourceLimitError, RunInterrupted,
+                      SceneError, SimulationFailed, watch_sigint)
 from ..io import check_output_dir, check_output_path
 from ..scenes import SCENE_COMMANDS, CommandResult, Scene, load_scene
 
@@ -152,8 +152,8 @@ def check_options(command: str, options: dict) -> dict:
     allowed = options_of(command)
     unknown = sorted(k for k, v in options.items() if k not in allowed and v not in (None, False, [], ()))
     if unknown:
-        raise SceneError(f"invctl {command} does not take option(s) {unknown}; it takes: "
-                         f"{', '.join(sorted(allowed)) or 'none'}")
+        raise OptionError(f"invctl {command} does not take option(s) {unknown}; it takes: "
+                          f"{', '.join(sorted(allowed)) or 'none'}")
     out = {}
     for name, opt in allowed.items():
         v = options.get(name)
@@ -166,12 +166,12 @@ def check_options(command: str, options: dict) -> dict:
             try:
                 v = opt.type(v)
             except (TypeError, ValueError):
-                raise ParameterError(f"--{name.replace('_', '-')} {v!r}: expected {opt.type.__name__}") from None
+                raise OptionError(f"--{name.replace('_', '-')} {v!r}: expected {opt.type.__name__}") from None
             if opt.choices and v not in opt.choices:
-                raise ParameterError(f"--{name.replace('_', '-')} {v!r}: choose one of {list(opt.choices)}")
+                raise OptionError(f"--{name.replace('_', '-')} {v!r}: choose one of {list(opt.choices)}")
             msg = opt.check(v) if opt.check else None
             if msg:
-                raise ParameterError(f"--{name.replace('_', '-')} {v!r}: {msg}")
+                raise OptionError(f"--{name.replace('_', '-')} {v!r}: {msg}")
         out[name] = v
     return out
 
@@ -191,18 +191,20 @@ def _plant_params(items, scene: Scene | None = None) -> dict:
     plant = dict(items) if isinstance(items, dict) else parse_assignments(items, option="--plant-set")
     if plant and scene is not None:
         if scene.kind == "switched":
-            raise SceneError(f"scene {scene.name!r}: the controller (3) uses no plant model, so plant and model "
-                             "parameters coincide; --plant-set is not applicable (use --set)")
+            raise OptionError(f"scene {scene.name!r}: the controller (3) uses no plant model, so plant and model "
+                              "parameters coincide; --plant-set is not applicable (use --set)")
         unknown = sorted(set(plant) - set(scene.params))
         if unknown:
-            raise SceneError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(scene.params)}")
+            raise ParameterError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(scene.params)}")
     return plant
 
 
 def _figure_path(path, force):
+    from ..errors import OutputPathError
+
     p = check_output_path(path, force=force, option="--plot")
     if p.suffix.lower() not in _FIGURE_SUFFIXES:
-        raise ParameterError(f"--plot {path}: use one of {', '.join(_FIGURE_SUFFIXES)}")
+        raise OutputPathError(f"--plot {path}: use one of {', '.join(_FIGURE_SUFFIXES)}")
     return p
 
 
@@ -339,6 +341,46 @@ def _check_inversion(scene: Scene, params, o) -> None:
             f"{scene.name}: invert --N {N} ({sch.name}, {nx} unknowns per node) would need about {_gib(need)} of "
             f"memory, but {_gib(limit)} is usable; use --N {int(limit / per)} or less (or --tol to refine only "
             "where needed)", diagnostics={"bytes_needed": need, "bytes_usable": limit, "N_that_fits": int(limit / per)})
+
+
+def check_saved_samples(duration: float, dt: float, rows: int, *, more: str = "", partial=None) -> None:
+    """A trajectory saved at step ``dt`` over ``duration`` (``rows`` signals) must fit in memory
+    (``partial``: the solved inverse, kept in the error).
+
+    Raises
+    ------
+    ResourceLimitError
+        It would not; the message names the ``--dt`` that fits.
+    """
+    samples = duration / dt + 1
+    per = 16.0 * rows  # the sampled signals and their interpolation temporaries
+    need, limit = samples * per, usable_memory()
+    if need <= limit:
+        return
+    fit = duration * per / limit
+    raise ResourceLimitError(
+        f"invert --dt {dt:g}: the saved trajectory would have {samples:.3g} samples ({duration:g} s{more}): about "
+        f"{_gib(need)} of memory, but {_gib(limit)} is usable; use --dt {fit:.3g} or more, or leave out --dt (1000 "
+        "samples over the horizon)", partial=partial,
+        diagnostics={"samples": samples, "bytes_needed": need, "bytes_usable": limit, "dt_that_fits": fit})
+
+
+def _check_dt(scene: Scene, params, o) -> None:
+    """``--dt`` against the memory before the solve, over the reference's transition (the horizon adds the
+    pre- and post-actuation; :func:`check_saved_samples` checks it again after the solve)."""
+    if o["dt"] is None:
+        return
+    from .tracking import tracking_model
+
+    model, ref = tracking_model(scene, params)
+    duration = ref.tf - ref.t0
+    if o["minimum_time"]:  # the transition is retimed; its shortest length is known only from --duration
+        if o["duration"] is None:
+            return
+        duration = min(duration, float(o["duration"].partition(":")[0]))
+    rows = 1 + 2 * model.n + model.ell + model.p + 2 * model.m + model.ny
+    check_saved_samples(duration, o["dt"], rows, more=" of the reference's transition alone, before the pre- and "
+                                                      "post-actuation")
 
 
 # ------------------------------------------------------------- after a run
@@ -508,11 +550,12 @@ def invert(scene, values=None, **options) -> CommandResult:
     scene.require("invert")
     o = check_options("invert", options)
     if o["dt"] is not None and not o["out"]:
-        raise ParameterError("--dt sets the sampling of the saved trajectory; give --out FILE.npz too")
+        raise OptionError("--dt sets the sampling of the saved trajectory; give --out FILE.npz too")
     out = str(check_output_path(o["out"], suffix=".npz", force=o["force"])) if o["out"] else None
     params, settings = scene.split(values, preset=o["preset"])
     limits = _limits(scene, o)
     check_resources("invert", scene, params, settings, o)
+    _check_dt(scene, params, o)
     from ..scenes import scene_reference
 
     return _interruptible(lambda: _kind(scene).invert(scene, params, settings, N=o["N"], scheme=o["scheme"],
@@ -533,23 +576,23 @@ def _limits(scene: Scene, o: dict) -> dict:
         out["objective"] = Objective.parse(o["weight"])
     free = {k: o[k] for k in ("energy", "duration") if o[k] is not None}
     if free and not o["minimum_time"]:
-        raise ParameterError(f"{', '.join('--' + k for k in free)}: apply to --minimum-time only")
+        raise OptionError(f"{', '.join('--' + k for k in free)}: apply to --minimum-time only")
     if o["minimum_time"]:
         if "bounds" not in out and not (o["energy"] or 0) > 0:
-            raise ParameterError("--minimum-time needs bounds (--bound u=...) or an energy weight (--energy W > 0): "
-                                 "without either the shortest duration is zero")
+            raise OptionError("--minimum-time needs bounds (--bound u=...) or an energy weight (--energy W > 0): "
+                              "without either the shortest duration is zero")
         mt = {"energy": float(o["energy"] or 0.0)}
         if o["duration"] is not None:
             lo, sep, hi = o["duration"].partition(":")
             try:
                 mt["duration"] = (float(lo), float(hi))
             except ValueError:
-                raise ParameterError(f"--duration {o['duration']!r}: expected LO:HI in seconds, e.g. 0.2:5") from None
+                raise OptionError(f"--duration {o['duration']!r}: expected LO:HI in seconds, e.g. 0.2:5") from None
             if not (sep and 0 < mt["duration"][0] < mt["duration"][1] and math.isfinite(mt["duration"][1])):
-                raise ParameterError(f"--duration {o['duration']!r}: expected LO:HI with 0 < LO < HI")
+                raise OptionError(f"--duration {o['duration']!r}: expected LO:HI with 0 < LO < HI")
         out["minimum_time"] = mt
     if out and scene.kind != "tracking":
-        raise ParameterError("--bound, --weight and --minimum-time apply to tracking scenes only")
+        raise OptionError("--bound, --weight and --minimum-time apply to tracking scenes only")
     return out
 
 
@@ -582,7 +625,7 @@ def simulate(scene, values=None, **options) -> CommandResult:
               plot=plot, quiet=o["quiet"], **_recording(scene, o))
     if o["inverse"]:
         if scene.kind != "tracking":
-            raise SceneError("--inverse applies to tracking scenes only")
+            raise OptionError(f"--inverse applies to tracking scenes only; {scene.name!r} is a {scene.kind} scene")
         kw["inverse"] = _load_inverse(o["inverse"], scene, params)
     check_resources("simulate", scene, params, settings, o)
     from ..scenes import scene_reference
@@ -596,8 +639,8 @@ def _recording(scene: Scene, o: dict) -> dict:
     """The recording options of a contact run (``--record-every``, ``--record``); an error for other kinds."""
     given = {k: o[k] for k in ("record_every", "record") if o.get(k) is not None}
     if given and scene.kind != "contact":
-        raise ParameterError(f"{', '.join('--' + k.replace('_', '-') for k in given)}: applies to contact scenes "
-                             f"only; {scene.name!r} is a {scene.kind} scene")
+        raise OptionError(f"{', '.join('--' + k.replace('_', '-') for k in given)}: applies to contact scenes "
+                          f"only; {scene.name!r} is a {scene.kind} scene")
     return given
 
 
@@ -665,8 +708,8 @@ def generate(scene, values=None, **options) -> CommandResult:
     scene.require("invert")
     o = check_options("generate", options)
     if not o["grid"]:
-        raise ParameterError("invctl generate needs at least one --grid NAME=START:STOP:COUNT (a scene parameter "
-                             "or a numeric argument of the scene's reference, e.g. --grid 'rf[0]=0.8:1.0:10')")
+        raise OptionError("invctl generate needs at least one --grid NAME=START:STOP:COUNT (a scene parameter "
+                          "or a numeric argument of the scene's reference, e.g. --grid 'rf[0]=0.8:1.0:10')")
     out = o["out"]
     if out is None:
         out = str(check_output_dir("invctl-out") / f"library_{scene.name}.npz")
@@ -677,7 +720,7 @@ def generate(scene, values=None, **options) -> CommandResult:
         try:
             from dask.distributed import Client
         except ImportError:
-            raise ParameterError("--dask needs dask.distributed (pip install 'dask[distributed]')") from None
+            raise OptionError("--dask needs dask.distributed (pip install 'dask[distributed]')") from None
         client = executor = Client(o["dask"])
     try:
         lib = generate_library(scene, o["grid"], params=params, out=out, executor=executor, max_workers=o["workers"],

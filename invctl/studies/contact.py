@@ -27,7 +27,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ..errors import ParameterError, SceneError
+from ..errors import DimensionError, ParameterError, SceneError
 from ..scenes import CommandResult
 from .reports import run_reports
 
@@ -79,12 +79,14 @@ def contact_setup(scene, params=None, settings=None, *, controller=None, plant_p
     plant_params = dict(plant_params or {})
     unknown = sorted(set(plant_params) - set(model.values))
     if unknown:
-        raise SceneError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(model.values)}")
+        raise ParameterError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(model.values)}")
     plant = model.with_params(**plant_params) if plant_params else model
     if plant_params:
         scene.check_values({**scene.params, **scene.settings, **{k: v for k, v in plant.values.items()
                                                                  if k in scene.params}})
-        plant.validate()
+        from .tracking import validate_plant
+
+        validate_plant(plant, plant_params)
     c = scene.contact
     name = c.controller_for(model, settings, controller)
     potential = c.potential(model) if c.potential is not None else None
@@ -92,8 +94,8 @@ def contact_setup(scene, params=None, settings=None, *, controller=None, plant_p
     q0, v0 = c.initial_state(model, settings, name)
     q0, v0 = np.asarray(q0, float).ravel(), np.asarray(v0, float).ravel()
     if q0.size != model.n or v0.size != model.n:
-        raise SceneError(f"scene {scene.name!r}: initial_state returned q0, v0 of lengths {q0.size}, {v0.size}; "
-                         f"the model has n = {model.n}")
+        raise DimensionError(f"scene {scene.name!r}: initial_state returned q0, v0 of lengths {q0.size}, {v0.size}; "
+                             f"the model has n = {model.n}")
     return ContactRun(scene, model, plant, name, law, q0, v0, settings, params)
 
 
@@ -122,7 +124,7 @@ def _qd_function(q_d, k):
     t = ca.SX.sym("t")
     qd = ca.SX(q_d(t))
     if qd.shape[0] != k:
-        raise SceneError(f"the desired trajectory q_d(t) has {qd.shape[0]} entries, expected {k}")
+        raise DimensionError(f"the desired trajectory q_d(t) has {qd.shape[0]} entries, expected {k}")
     return ca.Function("qd", [t], [qd, ca.jacobian(qd, t)])
 
 

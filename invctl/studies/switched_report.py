@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SceneError, StabilityError
+from ..errors import OptionError, SceneError, StabilityError
 from ..scenes import CommandResult
 from .switched import (design_bf_min, design_bt_min, design_bt_visible, design_kt_max, effective_wall, error_system,
                        is_wrist, lambda_map, lambda_point, lambda_sweep, reduction_check, simulate_scenario)
@@ -23,7 +23,7 @@ def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> Comma
     from ..stability.conewise import analyze as analyze_system
 
     if samples < 8:
-        raise SceneError(f"--samples {samples}: need at least 8 initial directions for the ISS constant")
+        raise OptionError(f"--samples {samples}: need at least 8 initial directions for the ISS constant")
     p = scene.model(params).params
     s = error_system(p)
     rep = analyze_system(s, with_iss=True, n_angles=min(int(samples), 720))
@@ -57,8 +57,8 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
         raise SceneError(f"scene {name!r} has one controller, the switched law 002 (3); "
                          "--controller is not applicable (change its gains with --set kp=..., bf=...)")
     if plant_params:
-        raise SceneError(f"scene {name!r}: the controller (3) uses no plant model, so plant and model "
-                         "parameters coincide; --plant-set is not applicable (use --set)")
+        raise OptionError(f"scene {name!r}: the controller (3) uses no plant model, so plant and model "
+                          "parameters coincide; --plant-set is not applicable (use --set)")
     p = scene.model(params).params
     sim = simulate_scenario(p, t_end=t_end, label=name)
     text = sim.summary()

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import (CoordinateError, FunnelViolation, ParameterError, RunInterrupted, SceneError, check_interrupt,
-                      INTERRUPT_LIKE, is_interrupt)
+from ..errors import (CoordinateError, DimensionError, FunnelViolation, ParameterError, RunInterrupted, SceneError,
+                      check_interrupt, INTERRUPT_LIKE, is_interrupt)
 from ..io import file_loader, read_json
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
@@ -91,8 +91,9 @@ def tracking_model(scene, params=None):
         raise SceneError(f"scene {scene.name!r}: tracking.reference(model) returned {type(reference).__name__}, "
                          "expected an invctl.reference.Reference")
     if reference.m != model.ny:
-        raise SceneError(f"scene {scene.name!r}: the reference has {reference.m} components, the model "
-                         f"{model.ny} outputs")
+        raise DimensionError(f"scene {scene.name!r}: tracking.reference(model) has {reference.m} components, but "
+                             f"the model has {model.ny} outputs {model.y_names}; give the reference one component "
+                             "per output")
     return model, reference
 
 
@@ -114,7 +115,7 @@ def design_configuration(scene, model, reference=None) -> np.ndarray:
     if t.point is not None:
         q = np.asarray(t.point(model) if callable(t.point) else t.point, float).ravel()
         if q.size != model.n:
-            raise SceneError(f"scene {scene.name!r}: tracking.point has {q.size} entries, the model n = {model.n}")
+            raise DimensionError(f"scene {scene.name!r}: tracking.point has {q.size} entries, the model n = {model.n}")
         return q
     if reference is None:
         if t.initial_configuration is not None:
@@ -174,14 +175,26 @@ def plant_of(scene, model, plant_params=None, plant_factors=None):
     plant_params = dict(plant_params or {})
     unknown = sorted(set(plant_params) - set(model.values)) + sorted(set(factors) - set(model.values))
     if unknown:
-        raise SceneError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(model.values)}")
+        raise ParameterError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(model.values)}")
     plant = model.scaled(**{k: v for k, v in factors.items() if k not in plant_params})
     plant = plant.with_params(**plant_params) if plant_params else plant
     if plant_params:
         full = {k: plant.values[k] for k in scene.params if k in plant.values}
         scene.check_values({**scene.params, **scene.settings, **full})
-        plant.validate()
+        validate_plant(plant, plant_params)
     return plant
+
+
+def validate_plant(plant, plant_params: dict) -> None:
+    """``plant.validate()``; a failure is a :class:`ParameterError` naming the ``--plant-set`` values."""
+    from ..errors import ModelError
+
+    try:
+        plant.validate()
+    except ModelError as exc:
+        given = " ".join(f"{k}={v!r}" for k, v in plant_params.items())
+        raise ParameterError(f"--plant-set {given}: the plant model is not valid with these values: {exc}; use "
+                             "values nearer the model's", diagnostics={"plant_params": dict(plant_params)}) from exc
 
 
 #: options of :func:`invctl.inversion.invert_normal_form` (the servo route takes those of ``invert``)

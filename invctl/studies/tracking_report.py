@@ -237,6 +237,12 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
     if out:
         from ..scenes import scene_reference
 
+        if dt is not None:
+            from .commands import check_saved_samples
+
+            rows = 1 + 2 * model.n + model.ell + model.p + 2 * model.m + model.ny
+            check_saved_samples(inv.Tf - inv.T0, dt, rows, more=f" of the horizon [{inv.T0:g}, {inv.Tf:g}]",
+                                partial=inv)
         written = inv.to_npz(out, dt, meta={"scene": scene_reference(scene), "params": dict(params or {})})
         data["out"] = str(written)
         lines.append(f"  trajectory written to {written}")
