@@ -388,6 +388,9 @@ class Transcription:
         rows = np.concatenate([a.ravel() for a in rows] + [bc_rows])
         cols = np.concatenate([a.ravel() for a in cols] + [bc_cols])
         A = sp.csc_matrix((np.arange(1, rows.size + 1, dtype=float), (rows, cols)), shape=(self.ng, self.nX))
+        A.sort_indices()  # CasADi needs sorted rows per column; scipy < 1.15 leaves them in COO order
+        if A.nnz != rows.size:
+            raise AssertionError("collocation Jacobian pattern has duplicate entries")
         perm = A.data.astype(np.int64) - 1
         self._pat = (A.indices.copy(), A.indptr.copy(), perm, s0, sf)
         return self._pat
