@@ -371,3 +371,9 @@ def test_interruption_in_python_carries_what_was_kept(tmp_path):
     kept = ei.value.diagnostics["kept"]
     assert len(kept) >= 1 and ei.value.saved == [k["file"] for k in kept]
     assert all(Path(f).is_file() and ".parts" in f for f in ei.value.saved)
+
+
+def test_an_output_whose_lock_cannot_be_created_is_refused_before_work(tmp_path):
+    out = tmp_path / ("b" * 250 + ".npz")  # a valid name; its lock ".<name>.lock" is too long for the file system
+    with pytest.raises(OutputPathError, match=r"cannot create .*\.lock .*choose another --out"):
+        generate("cartpole", {"xf": [0.4, 0.5]}, executor="serial", N=60, out=out, progress=False)

@@ -460,7 +460,8 @@ def _generate(scene, params, axes, shape, points, ref_kwargs, key, store, done, 
             st["base"].compiled = "auto"
             ctx = replace(ctx, compiled="auto")
         compile_s = time.perf_counter() - t_c
-    check_library_size(scene, params, shape, base.N, base.scheme, slots, nc=base.X_col.shape[1])  # the real mesh
+    check_library_size(scene, params, shape, base.N, base.scheme, slots, nc=base.X_col.shape[1],
+                       sizes=base.sizes)  # again with the base solve's mesh
     # where the base lies in the grid (normalized by the axis spans)
     span = np.array([max(a.values) - min(a.values) or 1.0 for a in axes])
     lo = np.array([min(a.values) for a in axes])
@@ -527,10 +528,10 @@ def _interrupted(store, axes, points, done) -> RunInterrupted:
                      "file": None if f is None else str(f)})
     saved = list(dict.fromkeys(k["file"] for k in kept if k["file"]))
     if store is not None:
-        msg = (f"interrupted: {sum(k['file'] is not None for k in kept)} of {len(points)} grid points solved and saved in {store.parts}; "
+        msg = (f"the library stopped with {sum(k['file'] is not None for k in kept)} of {len(points)} grid points solved and saved in {store.parts}; "
                "run the same command again to resume")
     else:
-        msg = f"interrupted: {len(kept)} of {len(points)} grid points solved (not saved: no output was given)"
+        msg = f"the library stopped with {len(kept)} of {len(points)} grid points solved (not saved: no output given)"
     exc = RunInterrupted(msg, diagnostics={"points": len(points), "solved": len(kept), "kept": kept,
                                            "out": None if store is None else str(store.path)})
     exc.saved = saved
@@ -560,7 +561,8 @@ _POINT_SECONDS_PER_INTERVAL = 5e-5
 _POINT_BYTES = 2048.0
 
 
-def check_library_size(scene, params, counts, N, scheme, slots: int = 1, *, nc: int | None = None) -> None:
+def check_library_size(scene, params, counts, N, scheme, slots: int = 1, *, nc: int | None = None,
+                       sizes: dict | None = None) -> None:
     """Time and memory of a library of ``prod(counts)`` points before it is set up (budgets of
     :func:`invctl.studies.commands.check_budget`): the base solve's ``N`` (``invert --N``'s estimate) and
     every point at the rates above, ``slots`` points at a time.  Without ``N`` (automatic, or ``--tol``
@@ -582,8 +584,10 @@ def check_library_size(scene, params, counts, N, scheme, slots: int = 1, *, nc: 
         _check_inversion(scene, params, {"N": N, "scheme": scheme}, "generate")
     P = math.prod(counts)
     n_int = int(N or 50)
-    model = scene.model(params)
-    nx = 2 * model.n + model.ell + model.p + model.m
+    if sizes is None:
+        model = scene.model(params)
+        sizes = {"n": model.n, "l": model.ell, "p": model.p, "m": model.m}
+    nx = 2 * sizes["n"] + sizes["l"] + sizes["p"] + sizes["m"]
     if nc is None:
         sch = get_scheme(scheme or "hermite-simpson")
         nc = 0 if sch.is_hs else n_int * sch.degree

@@ -498,9 +498,13 @@ class LibraryStore:
         import socket
         import time
 
-        if not self.file:
-            self.path.mkdir(exist_ok=True)
-        fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            if not self.file:
+                self.path.mkdir(exist_ok=True)
+            fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise OutputPathError(f"--out {self.path}: cannot create {self.lock_path} ({exc.strerror or exc}); "
+                                  "choose another --out") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
