@@ -528,7 +528,8 @@ def _interrupted(store, axes, points, done) -> RunInterrupted:
                      "file": None if f is None else str(f)})
     saved = list(dict.fromkeys(k["file"] for k in kept if k["file"]))
     if store is not None:
-        msg = (f"the library stopped with {sum(k['file'] is not None for k in kept)} of {len(points)} grid points solved and saved in {store.parts}; "
+        n_saved = sum(k["file"] is not None for k in kept)
+        msg = (f"the library stopped with {n_saved} of {len(points)} grid points solved and saved in {store.parts}; "
                "run the same command again to resume")
     else:
         msg = f"the library stopped with {len(kept)} of {len(points)} grid points solved (not saved: no output given)"

@@ -507,7 +507,7 @@ class LibraryStore:
                                   "choose another --out") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
+        except BlockingIOError:
             try:
                 owner = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
             except ValueError:
@@ -519,6 +519,10 @@ class LibraryStore:
                 + (", the same settings" if owner.get("key") == self.key else f", this run {self.key}")
                 + ") is writing this library now; wait for it to finish (the same command then resumes or reads "
                 "it back) or choose another --out", diagnostics={"out": str(self.path), "owner": owner}) from None
+        except OSError as exc:  # a file system without locks
+            os.close(fd)
+            raise OutputPathError(f"--out {self.path}: cannot lock {self.lock_path} ({exc.strerror or exc}), so "
+                                  "concurrent runs could not be kept apart; choose an --out on a local disk") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, json.dumps({"key": self.key, "pid": os.getpid(), "host": socket.gethostname(),
                                   "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}).encode(), 0)
