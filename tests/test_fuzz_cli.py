@@ -463,3 +463,100 @@ def test_property_checker_rejects_bad_outcomes():
             check_property(["x"], rc, out, err)
     assert check_property(["x"], 2, '{"error": "ParameterError", "message": "bad"}', "") == "ParameterError"
     assert math.isfinite(CASE_LIMIT_S)
+
+
+# ------------------------------------------------------------ trajectory libraries: sizes and one owner
+from invctl.studies.library_data import reference_arguments  # noqa: E402
+
+_TRACKING = [s for s in SCENES if load_scene(s).kind == "tracking" and "invert" in load_scene(s).commands]
+
+
+@st.composite
+def huge_size(draw):
+    """A size far beyond the budgets (the default INVCTL_MAX_TIME and any machine's memory): the grid of
+    ``generate`` (10^8 .. 10^15 points over 1-3 axes), ``analyze --samples`` (>= 10^7: >= 50 min),
+    ``invert``/``generate --N`` (>= 10^8 intervals: terabytes); returns (argv, option)."""
+    scene = draw(st.sampled_from(_TRACKING))
+    what = draw(st.sampled_from(["grid", "samples", "invert-N", "generate-N"]))
+    if what == "samples":
+        return ["analyze", scene, "--samples", str(draw(st.integers(10**7, 10**12)))], "--samples"
+    if what == "invert-N":
+        return ["invert", scene, "--N", str(draw(st.integers(10**8, 10**12)))], "--N"
+    refargs = sorted(k for k, v in reference_arguments(load_scene(scene)).items() if isinstance(v, float))
+    names = refargs or sorted(load_scene(scene).params)
+    k = draw(st.integers(1, min(3, len(names))))
+    axes = draw(st.permutations(names))[:k]
+    total = draw(st.integers(8, 15))
+    split = sorted(draw(st.lists(st.integers(0, total), min_size=k - 1, max_size=k - 1)))
+    exps = [b - a for a, b in zip([0] + split, split + [total])]
+    argv = ["generate", scene, "--workers", str(draw(st.integers(1, 8)))]
+    for name, e in zip(axes, exps):
+        argv += ["--grid", f"{name}=1:2:{max(2, 10 ** e)}"]
+    if what == "generate-N":
+        argv += ["--N", str(draw(st.integers(10**8, 10**12)))]
+        return argv, "--N"
+    return argv, "--grid"
+
+
+@settings(max_examples=30 if not LONG else 200, deadline=None, database=None,
+          derandomize=not (LONG or os.environ.get("INVCTL_FUZZ_RANDOM")), suppress_health_check=list(HealthCheck))
+@given(case=huge_size())
+def test_fuzz_sizes_beyond_the_budget_are_refused_at_once(fuzz_dir, case):
+    argv, option = case
+    old = os.environ.pop("INVCTL_MAX_TIME", None)
+    try:
+        t = time.perf_counter()
+        rc, out, err = run_case([*argv, "--json"], fuzz_dir / "cwd")
+        wall = time.perf_counter() - t
+    finally:
+        if old is not None:
+            os.environ["INVCTL_MAX_TIME"] = old
+    assert check_property(argv, rc, out, err) == "ResourceLimitError", (argv, out[-500:])
+    msg = json.loads(out.strip().splitlines()[-1])["message"]
+    assert option in msg and ("or less" in msg or "or fewer" in msg), (argv, msg)
+    assert wall < 10.0, (argv, wall)  # before any work: ~0.03 s after the scene is loaded
+
+
+@st.composite
+def two_libraries(draw):
+    """Two grids of the cart-pole's end point (maybe equal) and one output (folder or .npz)."""
+    def grid():
+        lo = draw(st.sampled_from([0.3, 0.35, 0.4, 0.45]))
+        return f"xf={lo}:{lo + 0.2:.2f}:{draw(st.integers(2, 4))}"
+    a = grid()
+    b = a if draw(st.booleans()) and draw(st.booleans()) else grid()
+    return a, b, draw(st.sampled_from(["lib", "lib.npz"]))
+
+
+@settings(max_examples=3 if not LONG else 20, deadline=None, database=None,
+          derandomize=not (LONG or os.environ.get("INVCTL_FUZZ_RANDOM")), suppress_health_check=list(HealthCheck))
+@given(case=two_libraries())
+def test_fuzz_concurrent_generate_into_one_output(tmp_path_factory, case):
+    """Two ``invctl generate`` started together into one output: each exits 0 or is refused
+    (``LibraryError`` while the other writes, ``OutputPathError`` for other settings after it); the
+    output then holds one run's grid, every point its own trajectory (the cart ends at its xf)."""
+    import subprocess
+    import sys
+
+    from invctl.studies.library import Library
+
+    a, b, out = case
+    cwd = tmp_path_factory.mktemp("gen")
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    procs = [subprocess.Popen([sys.executable, "-m", "invctl.cli", "generate", "cartpole", "--grid", g, "--N", "40",
+                               "--workers", "1", "--verify", "none", "--out", out, "--quiet", "--json"], cwd=cwd,
+                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for g in (a, b)]
+    res = [p.communicate(timeout=CASE_LIMIT_S * 5) + (p.returncode,) for p in procs]
+    grids = []
+    for (o, e, rc), g in zip(res, (a, b)):
+        label = check_property(["generate", g], rc, o, e)
+        assert label in ("ok", "LibraryError", "OutputPathError"), (g, label, o[-500:])
+        if label == "ok":
+            grids.append(g)
+    assert grids and (a == b or len(grids) == 1), res
+    lib = Library.load(cwd / out)
+    lo, hi, n = (float(x) for x in grids[0].partition("=")[2].split(":"))
+    assert [p["xf"] for p in lib.points] == pytest.approx(np.linspace(lo, hi, int(n)).tolist())
+    for i, pt in enumerate(lib.points):
+        inv = lib.inverse(i)
+        assert abs(inv.q(inv.Tf)[0] - pt["xf"]) < 1e-6, (i, pt)

@@ -208,3 +208,172 @@ def test_compiled_and_virtual_machine_newton_give_the_same_library(lib):
     for i in range(len(lib.points)):
         u_c, u_vm = lib.inverse(i).u(t), vm.inverse(i).u(t)
         assert np.max(np.abs(u_c - u_vm)) <= 1e-7 * max(1.0, np.max(np.abs(u_vm)))
+
+
+# ------------------------------------------------------------ one library per output, sizes, Ctrl-C
+import os  # noqa: E402
+import re  # noqa: E402
+import signal  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from invctl.errors import ResourceLimitError, RunInterrupted  # noqa: E402
+from invctl.studies.library_data import LibraryStore  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cli(args, cwd, code=None):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    cmd = [sys.executable, "-c", code, *args] if code else [sys.executable, "-m", "invctl.cli", *args]
+    return subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _ends_at_its_xf(lib):
+    """Every solved point's cart ends at the xf of its grid value (the trajectory belongs to the point)."""
+    for i, pt in enumerate(lib.points):
+        if lib.status[i] != "failed":
+            inv = lib.inverse(i)
+            assert inv.q(inv.Tf)[0] == pytest.approx(pt["xf"], abs=1e-6), (i, pt)
+
+
+def test_concurrent_runs_with_other_grids_into_one_folder_never_mix(tmp_path):
+    # two runs started together into one folder: one writes the library, the other is refused (while
+    # the first runs: LibraryError; after it: the folder's other settings, OutputPathError); never a mix
+    grids = (["--grid", "xf=0.4:0.6:4"], ["--grid", "xf=0.45:0.65:4"])
+    procs = [_cli(["generate", "cartpole", *g, "--N", "60", "--workers", "1", "--verify", "none", "--out", "lib",
+                   "--quiet", "--json"], tmp_path) for g in grids]
+    res = [(p.wait(timeout=600), *p.communicate()) for p in procs]
+    rcs = sorted(r[0] for r in res)
+    assert rcs == [0, 2], [r[2][-1500:] for r in res]
+    win = next(i for i, r in enumerate(res) if r[0] == 0)
+    lost = json.loads(res[1 - win][1].strip().splitlines()[-1])
+    assert lost["error"] in ("LibraryError", "OutputPathError") and "lib" in lost["message"]
+    assert "another --out" in lost["message"] or "another invctl generate" in lost["message"]
+    lib = Library.load(tmp_path / "lib")
+    lo = (0.4, 0.45)[win]
+    assert [p["xf"] for p in lib.points] == pytest.approx(np.linspace(lo, lo + 0.2, 4).tolist())
+    _ends_at_its_xf(lib)
+
+
+_HOLD = ("import sys, time\nfrom invctl.studies.library_data import LibraryStore\n"
+         "s = LibraryStore(sys.argv[1], 'someoneelse'); s.acquire(); print('locked', flush=True); time.sleep(600)\n")
+
+
+def test_a_running_owner_blocks_other_runs_and_a_killed_one_does_not(tmp_path):
+    d = tmp_path / "lib"
+    holder = _cli([str(d)], tmp_path, code=_HOLD)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        for grid in ({"xf": [0.4, 0.5]}, {"xf": [0.3, 0.5]}):
+            with pytest.raises(LibraryError, match=rf"--out {re.escape(str(d))}: another invctl generate \(pid "
+                                                   rf"{holder.pid} .*someoneelse.*choose another --out"):
+                generate("cartpole", grid, executor="serial", N=60, verify="none", out=d, progress=False)
+    finally:
+        holder.kill()  # SIGKILL: no clean-up runs; the system drops its lock
+        holder.wait()
+    lib = generate("cartpole", {"xf": [0.4, 0.5]}, executor="serial", N=60, verify="none", out=d, progress=False)
+    assert lib.counts()["solved"] == 2
+    again = generate("cartpole", {"xf": [0.4, 0.5]}, executor="serial", N=60, verify="none", out=d, progress=False)
+    assert again.info["resumed"] == 2 and again.info["solved_now"] == 0  # a resume of the same settings
+    # the lock is held only while a run writes: this process can take it again at once
+    s = LibraryStore(d, "k")
+    s.acquire()
+    s.release()
+
+
+def test_loading_refuses_a_point_of_another_library(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    generate("cartpole", {"xf": [0.4, 0.6]}, executor="serial", N=60, verify="none", out=a, progress=False)
+    generate("cartpole", {"xf": [0.45, 0.65]}, executor="serial", N=60, verify="none", out=b, progress=False)
+    _ends_at_its_xf(Library.load(a))
+    (a / "point_00001.npz").write_bytes((b / "point_00001.npz").read_bytes())  # what a mixed folder held
+    with pytest.raises(LibraryError, match=r"point_00001.npz: point 1 .*belongs to another library"):
+        Library.load(a)
+
+
+def test_sizes_are_refused_before_any_work(capsys, monkeypatch):
+    cases = [(["generate", "cartpole", "--grid", "xf=0.3:0.5:10000000"], r"--grid.*use --grid axes with \d+ points"),
+             (["generate", "cartpole", "--grid", "xf=0.3:0.5:4000", "--grid", "x0=0:0.1:4000"], r"4000 x 4000"),
+             (["generate", "cartpole", "--grid", "xf=0.3:0.5:3", "--N", "100000000"], r"generate --N 100000000.*"
+                                                                                        r"use --N \d+ or less"),
+             (["analyze", "cartpole", "--samples", "10000000"], r"--samples 10000000.*use --samples \d+ or less"),
+             (["invert", "cartpole", "--N", "10000000"], r"invert --N 10000000 .*would take about")]
+    for argv, pattern in cases:
+        t = time.perf_counter()
+        rc = main([*argv, "--json"])
+        wall = time.perf_counter() - t
+        d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+        assert rc == 2 and d["error"] == "ResourceLimitError" and re.search(pattern, d["message"]), d
+        assert wall < 10.0, (argv, wall)  # refused at once (measured 0.1-0.4 s; generous for a loaded machine)
+    # the time budget alone: 5000 samples take ~1.5 s, more than a budget of one second
+    monkeypatch.setenv("INVCTL_MAX_TIME", "1")
+    rc = main(["analyze", "cartpole", "--samples", "5000", "--json"])
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert rc == 2 and d["diagnostics"]["seconds_budget"] == 1.0 and "use --samples 3333 or less" in d["message"]
+    with pytest.raises(ResourceLimitError, match="--grid"):  # the Python call checks too
+        generate("cartpole", ["xf=0.3:0.5:100000"], executor="serial", progress=False)
+    monkeypatch.setenv("INVCTL_MAX_TIME", "soon")
+    rc = main(["analyze", "cartpole", "--samples", "5000", "--json"])
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert rc == 2 and d["error"] == "ParameterError" and "INVCTL_MAX_TIME" in d["message"]
+
+
+def test_ordinary_sizes_pass_the_checks(monkeypatch):
+    from invctl.scenes import load_scene
+    from invctl.studies import commands
+    from invctl.studies.library import check_library_size
+
+    sc = load_scene("cartpole")
+    commands._check_samples(sc, {}, 100000)  # 30 s
+    commands._check_inversion(sc, {}, {"N": 20000})  # measured 12 s
+    check_library_size(sc, {}, [100, 100], 200, None, 1)  # 10^4 points: 100 s, 350 MB at the least
+
+
+def test_ctrl_c_during_generate_lists_the_saved_points(tmp_path):
+    args = ["generate", "cartpole", "--grid", "xf=0.3:0.7:40", "--N", "60", "--workers", "1", "--verify", "none",
+            "--out", "lib", "--json"]
+    p = _cli(args, tmp_path)
+    lines = []
+    for line in p.stderr:  # progress lines per 10 %: interrupt after the first ones
+        lines.append(line)
+        if re.search(r"\] ([4-9]|[1-3]\d)/40", line):
+            p.send_signal(signal.SIGINT)
+            break
+    out, rest = p.communicate(timeout=300)
+    assert p.returncode == 130, "".join(lines) + rest
+    d = json.loads(out.strip().splitlines()[-1])
+    kept = d["diagnostics"]["kept"]
+    assert d["error"] == "RunInterrupted" and 4 <= len(kept) < 40 and "run the same command again" in d["message"]
+    assert d["partial"] == [k["file"] for k in kept] and all((tmp_path / f).is_file() for f in d["partial"])
+    from invctl.io import read_meta
+
+    for k in kept:
+        inv = Inverse.load(tmp_path / k["file"])
+        assert read_meta(tmp_path / k["file"])["info"]["library"]["index"] == k["index"]
+        assert inv.q(inv.Tf)[0] == pytest.approx(k["values"]["xf"], abs=1e-6)
+    q = _cli([a for a in args if a != "--json"] + ["--quiet", "--json"], tmp_path)
+    out, err = q.communicate(timeout=600)
+    again = json.loads(out.strip().splitlines()[-1])
+    assert q.returncode == 0 and again["info"]["resumed"] == len(kept) and again["counts"]["solved"] == 40, err
+
+
+def test_interruption_in_python_carries_what_was_kept(tmp_path):
+    def stop(rec):
+        if rec["index"] != 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(RunInterrupted) as ei:
+        generate("cartpole", {"xf": [0.4, 0.5, 0.6]}, executor="serial", N=60, verify="none", out=tmp_path / "l.npz",
+                 progress=False, callback=stop)
+    kept = ei.value.diagnostics["kept"]
+    assert len(kept) >= 1 and ei.value.saved == [k["file"] for k in kept]
+    assert all(Path(f).is_file() and ".parts" in f for f in ei.value.saved)
+
+
+def test_an_output_whose_lock_cannot_be_created_is_refused_before_work(tmp_path):
+    out = tmp_path / ("b" * 250 + ".npz")  # a valid name; its lock ".<name>.lock" is too long for the file system
+    with pytest.raises(OutputPathError, match=r"cannot create .*\.lock .*choose another --out"):
+        generate("cartpole", {"xf": [0.4, 0.5]}, executor="serial", N=60, out=out, progress=False)

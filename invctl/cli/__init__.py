@@ -154,7 +154,8 @@ def _run(args, target: str, t0: float) -> int:
         saved = list(getattr(exc, "saved", []) or [])
         msg = str(exc) or "interrupted by the user"
         if saved:
-            where = f"; partial results written to {', '.join(saved)}"
+            shown = saved if len(saved) <= 5 else saved[:3] + [f"... ({len(saved)} files; all in the JSON)"]
+            where = f"; partial results written to {', '.join(shown)}"
         elif getattr(exc, "partial", None) is not None:
             where = "; the partial result was not saved: no output was requested (--out)"
         else:

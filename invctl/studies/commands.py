@@ -255,6 +255,75 @@ def _gib(b: float) -> str:
     return f"{b / 2**30:.3g} GiB"
 
 
+#: seconds a run may plan to take unless ``INVCTL_MAX_TIME`` says otherwise
+MAX_TIME_S = 1800.0
+
+
+def usable_time() -> float:
+    """Seconds a run may plan to take: ``INVCTL_MAX_TIME`` (seconds), default :data:`MAX_TIME_S`."""
+    env = os.environ.get("INVCTL_MAX_TIME")
+    if not env:
+        return MAX_TIME_S
+    try:
+        t = float(env)
+    except ValueError:
+        t = math.nan
+    if not (math.isfinite(t) and t > 0):
+        raise ParameterError(f"INVCTL_MAX_TIME={env!r}: expected a positive number of seconds (e.g. 7200)")
+    return t
+
+
+def _duration(s: float) -> str:
+    return f"{s:.3g} s" if s < 120 else f"{s / 60:.3g} min" if s < 7200 else f"{s / 3600:.3g} h"
+
+
+def check_budget(what: str, count: int, seconds_each: float, bytes_each: float, fits: str, *,
+                 diagnostics: dict | None = None) -> None:
+    """Refuse ``count`` units of work before it starts when ``count * seconds_each`` exceeds
+    :func:`usable_time` or ``count * bytes_each`` exceeds :func:`usable_memory`.
+
+    ``what`` names the command and the option as typed; ``fits`` is the advice with ``{fit}``, the
+    largest count within both budgets.
+
+    Raises
+    ------
+    ResourceLimitError
+    """
+    limit_t, limit_m = usable_time(), usable_memory()
+    secs, need = count * seconds_each, count * bytes_each
+    if secs <= limit_t and need <= limit_m:
+        return
+    fit = int(min(limit_t / seconds_each if seconds_each > 0 else math.inf,
+                  limit_m / bytes_each if bytes_each > 0 else math.inf))
+    over = " and ".join(x for x, bad in ((f"{_duration(secs)} (budget {_duration(limit_t)}: INVCTL_MAX_TIME "
+                                          "seconds)", secs > limit_t),
+                                         (f"{_gib(need)} of memory (usable {_gib(limit_m)}: "
+                                          f"{int(100 * _MEMORY_SHARE)} % of the available memory or "
+                                          "INVCTL_MAX_MEMORY)", need > limit_m)) if bad)
+    raise ResourceLimitError(f"{what} would take about {over}; {fits.format(fit=fit)}",
+                             diagnostics={**(diagnostics or {}), "count": count, "seconds_estimated": secs,
+                                          "seconds_budget": limit_t, "bytes_needed": need,
+                                          "bytes_usable": limit_m, "count_that_fits": fit})
+
+
+#: ``analyze --samples``: seconds and bytes per sample point, ``(s, bytes / n^2)``.  Tracking scenes (the
+#: region checks draw and test every point in Python): measured 0.33 ms and 1.35 KB (cartpole, n = 2, 2e5
+#: samples), 0.5 ms and 6.5 KB (manipulator, n = 5, 2e4 samples); ``3e-4 s`` and ``260 n^2`` bytes stay
+#: below both.  Contact scenes (vectorized reports): gear_backlash (n = 4) 1e6 samples in less than 0.5 s
+#: and 43 MB
+_SAMPLE_COST = {"tracking": (3e-4, 260.0), "contact": (2e-7, 2.5)}
+
+
+def _check_samples(scene: Scene, params, samples: int) -> None:
+    """``analyze --samples``: time and memory of the sampled checks (switched scenes use at most 720)."""
+    if scene.kind not in _SAMPLE_COST or samples <= 1000:
+        return
+    n = scene.model(params).n
+    per_s, per_b = _SAMPLE_COST[scene.kind]
+    check_budget(f"{scene.name}: analyze --samples {samples}", samples, per_s, per_b * n * n,
+                 "use --samples {fit} or less (the default, 200, samples the region well)")
+
+
 def _run_size(command, scene: Scene, params, settings, o) -> tuple | None:
     """``(samples, runs, step, t_end, horizon option, step option)`` of the long run a command
     records, or None."""
@@ -322,9 +391,14 @@ def check_resources(command: str, scene: Scene, params, settings, o) -> None:
 #: growth per interval: manipulator (nx = 14) 108 KB (HS) and 490 KB (radau3), cartpole (nx = 5) 19 KB
 #: (HS); the formula gives 172, 561 and 30 KB
 _INVERSION_BYTES = (600.0, 1.7)
+#: seconds per byte of that estimate: cartpole HS from N = 4000 to 20000 took 0.45 ms more per interval
+#: (estimate 30 KB per interval)
+_INVERSION_SECONDS_PER_BYTE = 1.5e-8
 
 
-def _check_inversion(scene: Scene, params, o) -> None:
+def _check_inversion(scene: Scene, params, o, command: str = "invert") -> None:
+    """``--N`` of an inversion (``invert``, the base solve of ``generate``): time and memory of the
+    transcription and its solver (:data:`_INVERSION_BYTES`) within the budgets (:func:`check_budget`)."""
     N = o.get("N")
     if N is None or N <= 2000:
         return
@@ -335,12 +409,11 @@ def _check_inversion(scene: Scene, params, o) -> None:
     model = scene.model(params)
     nx = 2 * model.n + model.ell + model.p + model.m
     per = _INVERSION_BYTES[0] * (stages * nx) ** _INVERSION_BYTES[1]
-    need, limit = N * per, usable_memory()
-    if need > limit:
-        raise ResourceLimitError(
-            f"{scene.name}: invert --N {N} ({sch.name}, {nx} unknowns per node) would need about {_gib(need)} of "
-            f"memory, but {_gib(limit)} is usable; use --N {int(limit / per)} or less (or --tol to refine only "
-            "where needed)", diagnostics={"bytes_needed": need, "bytes_usable": limit, "N_that_fits": int(limit / per)})
+    check_budget(f"{scene.name}: {command} --N {N} ({sch.name}, {nx} unknowns per node)", N,
+                 per * _INVERSION_SECONDS_PER_BYTE, per,
+                 "use --N {fit} or less (or --tol to refine only where needed)",
+                 diagnostics={"N_that_fits": int(min(usable_memory() / per,
+                                                     usable_time() / (per * _INVERSION_SECONDS_PER_BYTE)))})
 
 
 def check_saved_samples(duration: float, dt: float, rows: int, *, more: str = "", partial=None) -> None:
@@ -541,6 +614,7 @@ def analyze(scene, values=None, **options) -> CommandResult:
     scene.require("analyze")
     o = check_options("analyze", options)
     params, settings = scene.split(values, preset=o["preset"])
+    _check_samples(scene, params, o["samples"])
     return _kind(scene).analyze(scene, params, settings, samples=o["samples"])
 
 

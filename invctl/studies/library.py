@@ -41,8 +41,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import INTERRUPT_LIKE, InvctlError, ParameterError, is_interrupt
-from .library_data import Axis, Library, LibraryStore, parse_grid, reference_arguments, resolve_axes
+from ..errors import INTERRUPT_LIKE, InvctlError, ParameterError, RunInterrupted, is_interrupt
+from .library_data import Axis, Library, LibraryStore, grid_counts, parse_grid, reference_arguments, resolve_axes
 
 __all__ = ["Axis", "Library", "generate", "parse_grid", "reference_arguments", "resolve_axes"]
 
@@ -403,6 +403,8 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
     if verify not in ("all", "corners", "none"):
         raise ParameterError(f"verify must be 'all', 'corners' or 'none', got {verify!r}")
     params, _ = scene.split(params)
+    slots = _slots(executor, max_workers)
+    check_library_size(scene, params, grid_counts(grid), N, scheme, slots)  # before any value is materialized
     axes = resolve_axes(scene, grid)
     shape = tuple(len(a.values) for a in axes)
     mesh = np.meshgrid(*[np.array(a.values) for a in axes], indexing="ij")
@@ -412,8 +414,24 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
                 "axes": [[a.name, a.kind, list(a.values)] for a in axes], "backend": backend, "N": N,
                 "scheme": scheme, "tol": tol}
     key = hashlib.sha1(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    kw = dict(executor=executor, max_workers=max_workers, backend=backend, N=N, scheme=scheme, tol=tol,
+              continuation=continuation, verify=verify, progress=progress, callback=callback, compiled=compiled)
     store = LibraryStore(out, key, force=force) if out is not None else None
-    done = store.existing() if store is not None else {}
+    if store is None:
+        return _generate(scene, params, axes, shape, points, ref_kwargs, key, None, {}, t_start, slots, **kw)
+    store.acquire()
+    try:
+        return _generate(scene, params, axes, shape, points, ref_kwargs, key, store, store.existing(), t_start,
+                         slots, **kw)
+    finally:
+        store.release()
+
+
+def _generate(scene, params, axes, shape, points, ref_kwargs, key, store, done, t_start, slots, *, executor,
+              max_workers, backend, N, scheme, tol, continuation, verify, progress, callback, compiled):
+    from ..scenes import scene_reference
+    from .tracking import invert_tracking, tracking_model
+
     resumed = len(done)
     # the base solve: the scene's default point
     model, ref = tracking_model(scene, params)
@@ -442,6 +460,8 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
             st["base"].compiled = "auto"
             ctx = replace(ctx, compiled="auto")
         compile_s = time.perf_counter() - t_c
+    check_library_size(scene, params, shape, base.N, base.scheme, slots, nc=base.X_col.shape[1],
+                       sizes=base.sizes)  # again with the base solve's mesh
     # where the base lies in the grid (normalized by the axis spans)
     span = np.array([max(a.values) - min(a.values) or 1.0 for a in axes])
     lo = np.array([min(a.values) for a in axes])
@@ -475,10 +495,7 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
     except INTERRUPT_LIKE as _exc:
         if not is_interrupt(_exc):
             raise
-        if store is not None:
-            print(f"\ninterrupted: {len(done)} solved point(s) are saved in {store.parts}; run the same command "
-                  "again to resume", file=sys.stderr)
-        raise
+        raise _interrupted(store, axes, points, done) from None
     solve_wall = time.perf_counter() - t_solve
     for i, rec in done.items():
         records.setdefault(i, rec)
@@ -497,6 +514,91 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
     if store is not None:
         lib.info["out"] = str(store.finish(lib))
     return lib
+
+
+def _interrupted(store, axes, points, done) -> RunInterrupted:
+    """The Ctrl-C of a library run: what is kept (the solved points, their files) in ``diagnostics`` and
+    ``saved`` (the files the command line lists as ``"partial"``)."""
+    kept = []
+    for i in sorted(done):
+        f = store.parts / f"point_{i:05d}.npz" if store is not None else None
+        if f is not None and not f.exists():  # read back from a finished .npz library, or cut off
+            f = store.path if store.file and store.path.exists() else None
+        kept.append({"index": int(i), "values": {a.name: float(v) for a, v in zip(axes, points[i])},
+                     "file": None if f is None else str(f)})
+    saved = list(dict.fromkeys(k["file"] for k in kept if k["file"]))
+    if store is not None:
+        n_saved = sum(k["file"] is not None for k in kept)
+        msg = (f"the library stopped with {n_saved} of {len(points)} grid points solved and saved in {store.parts}; "
+               "run the same command again to resume")
+    else:
+        msg = f"the library stopped with {len(kept)} of {len(points)} grid points solved (not saved: no output given)"
+    exc = RunInterrupted(msg, diagnostics={"points": len(points), "solved": len(kept), "kept": kept,
+                                           "out": None if store is None else str(store.path)})
+    exc.saved = saved
+    return exc
+
+
+def _slots(executor, max_workers) -> int:
+    """How many points run at once (as :func:`_executor` will decide), without starting workers."""
+    if executor == "serial":
+        return 1
+    if executor is None:
+        return max(1, max_workers or os.cpu_count() or 1)
+    if hasattr(executor, "nthreads"):
+        try:
+            return max(1, sum(executor.nthreads().values()))
+        except Exception:
+            return 1
+    return max(1, getattr(executor, "_max_workers", None) or 1)
+
+
+#: Lower bounds of a point's cost, per collocation interval: the Newton continuation measured 0.13 ms
+#: (manipulator, HS N = 82, compiled: 90 points/s) and 0.2 ms (cartpole, HS N = 200) per interval and
+#: point; the estimate takes half of the fastest.  Memory: the point's collocation data is held twice
+#: (its record and the assembled library; measured 35 KB per cartpole point at N = 200, as computed)
+#: plus the bookkeeping of a point (records, neighbours, progress), about 2 KB
+_POINT_SECONDS_PER_INTERVAL = 5e-5
+_POINT_BYTES = 2048.0
+
+
+def check_library_size(scene, params, counts, N, scheme, slots: int = 1, *, nc: int | None = None,
+                       sizes: dict | None = None) -> None:
+    """Time and memory of a library of ``prod(counts)`` points before it is set up (budgets of
+    :func:`invctl.studies.commands.check_budget`): the base solve's ``N`` (``invert --N``'s estimate) and
+    every point at the rates above, ``slots`` points at a time.  Without ``N`` (automatic, or ``--tol``
+    from 50) the smallest mesh the base solve starts from, 50 intervals, is assumed; ``generate`` checks
+    again with the base solve's mesh.
+
+    Raises
+    ------
+    ResourceLimitError
+        Naming ``--grid`` (and the number of points that fit) or ``--N``.
+    """
+    from ..inversion.collocation import get_scheme
+    from .commands import _check_inversion, check_budget
+
+    counts = [int(c) for c in counts]
+    if not counts:
+        return
+    if nc is None:  # before the base solve
+        _check_inversion(scene, params, {"N": N, "scheme": scheme}, "generate")
+    P = math.prod(counts)
+    n_int = int(N or 50)
+    if sizes is None:
+        model = scene.model(params)
+        sizes = {"n": model.n, "l": model.ell, "p": model.p, "m": model.m}
+    nx = 2 * sizes["n"] + sizes["l"] + sizes["p"] + sizes["m"]
+    if nc is None:
+        sch = get_scheme(scheme or "hermite-simpson")
+        nc = 0 if sch.is_hs else n_int * sch.degree
+    per_b = 16.0 * ((2 * nx + 1) * (n_int + 1) + nx * nc) + _POINT_BYTES
+    per_s = _POINT_SECONDS_PER_INTERVAL * n_int / max(1, slots)
+    shown = " x ".join(str(c) for c in counts) + f" = {P}" if len(counts) > 1 else str(P)
+    check_budget(f"{scene.name}: generate --grid ({shown} points, N = {n_int}, {slots} worker(s))", P, per_s,
+                 per_b, "use --grid axes with {fit} points or fewer in all (fewer points per axis, or a library per "
+                 "part of the range), a smaller --N, or more --workers / a --dask cluster",
+                 diagnostics={"counts": counts, "N": n_int, "workers": slots})
 
 
 def _compile_choice(compiled, backend):

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import LibraryError, OutputPathError, ParameterError, ResultFileError
 
-__all__ = ["Axis", "Library", "LibraryStore", "parse_grid", "reference_arguments", "resolve_axes"]
+__all__ = ["Axis", "Library", "LibraryStore", "grid_counts", "parse_grid", "reference_arguments", "resolve_axes"]
 
 _AXIS = re.compile(r"^(?:(param|ref):)?([A-Za-z_]\w*)(?:\[(\d+)\])?$")
 
@@ -82,6 +82,23 @@ def parse_grid(item: str) -> tuple[str, np.ndarray]:
     if np.unique(values).size != values.size:
         raise ParameterError(f"--grid {item!r}: repeated values {values.tolist()}")
     return name, values
+
+
+def grid_counts(grid) -> list[int]:
+    """The number of values of every grid axis, read without building them (``COUNT`` of a range, the
+    items of a list), so that a size check can come first; malformed items count 1 (:func:`parse_grid`
+    then says what is wrong)."""
+    if isinstance(grid, dict):
+        return [int(np.size(v)) for v in grid.values()]
+    out = []
+    for item in grid:
+        spec = str(item).partition("=")[2]
+        parts = spec.split(":")
+        try:
+            out.append(max(1, int(parts[2])) if len(parts) == 3 else spec.count(",") + 1)
+        except ValueError:
+            out.append(1)
+    return out
 
 
 def reference_arguments(scene) -> dict[str, Any]:
@@ -409,6 +426,9 @@ class Library:
         ------
         ResultFileError
             Missing, truncated or foreign files; arrays whose sizes do not match the grid.
+        LibraryError
+            A point file of a folder that another library's run wrote (its settings key is not the one in
+            ``library.json``).
         """
         from ..io import load_npz
 
@@ -416,7 +436,7 @@ class Library:
         if p.is_dir():
             store = LibraryStore(p, None)
             meta = store.index()
-            records = store.existing()
+            records = store.existing(expect=meta.get("key"))
             axes = [Axis(*a) for a in meta["axes"]]
             shape = tuple(meta["shape"])
             pts = np.array(meta["values"], float)
@@ -457,6 +477,62 @@ class LibraryStore:
         if not self.file and self.path.exists() and not self.path.is_dir():
             raise OutputPathError(f"--out {out}: is a file; give a folder or a .npz file name")
 
+    @property
+    def lock_path(self) -> Path:
+        """The lock of this output: ``<folder>/.lock``, or ``.<name>.lock`` next to a ``.npz`` file."""
+        return self.path.with_name(f".{self.path.name}.lock") if self.file else self.path / ".lock"
+
+    def acquire(self) -> None:
+        """Own this output for the run (before anything is read or written); :meth:`release` at the end.
+
+        An exclusive ``flock`` on the lock file: the system drops it when the owning process ends, killed
+        or not, so a stale lock never blocks; the file records the owner's pid, host and settings key for
+        the message of a refused run.
+
+        Raises
+        ------
+        LibraryError
+            Another run (of any settings) is writing this output now.
+        """
+        import fcntl
+        import socket
+        import time
+
+        try:
+            if not self.file:
+                self.path.mkdir(exist_ok=True)
+            fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise OutputPathError(f"--out {self.path}: cannot create {self.lock_path} ({exc.strerror or exc}); "
+                                  "choose another --out") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                owner = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
+            except ValueError:
+                owner = {}
+            os.close(fd)
+            raise LibraryError(
+                f"--out {self.path}: another invctl generate (pid {owner.get('pid', '?')} on "
+                f"{owner.get('host', '?')}, settings key {owner.get('key', '?')}"
+                + (", the same settings" if owner.get("key") == self.key else f", this run {self.key}")
+                + ") is writing this library now; wait for it to finish (the same command then resumes or reads "
+                "it back) or choose another --out", diagnostics={"out": str(self.path), "owner": owner}) from None
+        except OSError as exc:  # a file system without locks
+            os.close(fd)
+            raise OutputPathError(f"--out {self.path}: cannot lock {self.lock_path} ({exc.strerror or exc}), so "
+                                  "concurrent runs could not be kept apart; choose an --out on a local disk") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, json.dumps({"key": self.key, "pid": os.getpid(), "host": socket.gethostname(),
+                                  "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}).encode(), 0)
+        self._lock = fd
+
+    def release(self) -> None:
+        fd, self._lock = getattr(self, "_lock", None), None
+        if fd is not None:
+            os.close(fd)  # drops the flock; the file stays (removing it would race with a run opening it)
+
     def _point_files(self):
         return sorted(self.parts.glob("point_*.npz")) if self.parts.is_dir() else []
 
@@ -486,8 +562,9 @@ class LibraryStore:
         elif (self.path / "library.json").exists():
             (self.path / "library.json").unlink()
 
-    def existing(self) -> dict:
-        """Records of the points solved by an earlier run of the same settings (resume)."""
+    def existing(self, expect: str | None = None) -> dict:
+        """Records of the points solved by an earlier run of the same settings (resume); with ``expect``
+        (the key in ``library.json``, when loading) a point file of another key is a :class:`LibraryError`."""
         from ..io import load_npz, read_meta
 
         out: dict = {}
@@ -515,6 +592,13 @@ class LibraryStore:
                 lib_meta = meta.get("library", {})
                 if self.key is not None and lib_meta.get("key") != self.key:
                     self._mismatch(f"{f.name}", lib_meta.get("key"))
+                if expect is not None and lib_meta.get("key") != expect:
+                    raise LibraryError(
+                        f"{f}: point {lib_meta.get('index')} ({lib_meta.get('values')}) belongs to another library "
+                        f"(settings key {lib_meta.get('key')}; library.json of {self.path} has {expect}): runs of "
+                        "different settings wrote into this folder; generate the library again into an empty "
+                        "--out (or with --force)", diagnostics={"file": str(f), "key": lib_meta.get("key"),
+                                                              "library_key": expect})
                 z, _ = load_npz(f, ("Inverse", "LibraryPoint"))
             except ResultFileError:
                 continue  # a file cut off by the interruption: solve that point again
