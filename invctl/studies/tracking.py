@@ -283,7 +283,7 @@ class TrackingSetup:
         plant follows the inverse."""
         if self._c1 is None:
             self._require_inverse("C1-inv")
-            t = np.linspace(0.0, self.t_end, int(round(self.t_end / 5e-4)) + 1)
+            t = self._inverse_grid(5e-4)
             q, v = self.inverse.q(t), self.inverse.v(t)
             psi = self.lin.psi_function().map(t.size)
             w = np.array(psi(q, v, np.tile(self.model.theta_values[:, None], (1, t.size))))
@@ -310,10 +310,16 @@ class TrackingSetup:
             self.inverse = invert_tracking(self.scene, self.model, self.reference)
             self.timings["inversion"] = time.perf_counter() - t0
 
+    def _inverse_grid(self, step):
+        """Sample times on ``[0, min(t_end, Tf)]`` (at least 4): the inverse rests after its horizon ``Tf`` and
+        the sampled signals hold their last value, so the grid does not grow with ``t_end``."""
+        stop = min(self.t_end, max(float(self.inverse.Tf), 0.0))
+        return np.linspace(0.0, max(stop, 3 * step), max(int(round(stop / step)), 3) + 1)
+
     def u_ff_samples(self):
         if self.inverse is None:
             raise ParameterError("no feedforward: pass inverse= or let setup_tracking invert the reference model")
-        t = np.linspace(0.0, self.t_end, int(round(self.t_end / min(self.dt, 1e-3))) + 1)
+        t = self._inverse_grid(min(self.dt, 1e-3))
         u = np.asarray(self.inverse.u_causal(t), float).reshape(self.model.m, t.size)
         if not np.all(np.isfinite(u)):
             raise ParameterError("the feedforward u_causal(t) has non-finite values")
