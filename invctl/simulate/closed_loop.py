@@ -255,12 +255,23 @@ class ClosedLoop:
         Horizon and output step.
     chunks : int
         Integrator calls per run (funnel checks between them).
+    rtol, atol, max_num_steps
+        CVODES tolerances and the most steps it may take per output step ``dt`` (CLI ``--rtol``, ``--atol``,
+        ``--max-steps``).
     """
 
     def __init__(self, plant, reference, *, controller=None, u_ff=None, signals=None, t_end=2.0, dt=1e-3,
                  chunks=8, baumgarte=(20.0, 20.0), rtol=1e-8, atol=1e-10, name="", max_num_steps=20000):
         if not t_end > 0 or not dt > 0:
             raise ParameterError(f"need t_end > 0 and dt > 0, got t_end={t_end}, dt={dt}")
+        try:
+            ok = rtol > 0 and atol > 0 and int(max_num_steps) == max_num_steps >= 1
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise ParameterError(f"the integrator needs rtol > 0, atol > 0 and an integer max_num_steps >= 1, got "
+                                 f"rtol={rtol!r}, atol={atol!r}, max_num_steps={max_num_steps!r}")
+        self.rtol, self.atol, self.max_num_steps = float(rtol), float(atol), int(max_num_steps)
         self.plant, self.reference, self.controller = plant, reference, controller
         self.signals, self.name = dict(signals or {}), name
         self.t_end, self.dt = float(t_end), float(dt)
@@ -306,8 +317,8 @@ class ClosedLoop:
         self._signal_sizes = [int(s.numel()) for s in sig]
         dae = {"t": t, "x": x, "p": ca.vertcat(theta, t_start), "ode": ca.vertcat(v, a, zdot), "quad": ca.vertcat(*quad)}
         grid = np.linspace(0.0, self.per_chunk * self.dt, self.per_chunk + 1)[1:]
-        opts = {"abstol": atol, "reltol": rtol, "max_num_steps": max_num_steps, "linear_solver": "csparse",
-                "print_stats": False, "disable_internal_warnings": True}
+        opts = {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": self.max_num_steps,
+                "linear_solver": "csparse", "print_stats": False, "disable_internal_warnings": True}
         self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
         self.step_integrator = ca.integrator("closed_loop_step", "cvodes", dae, 0.0, [self.dt], opts)
         G = plant.function("G")(q, theta)
@@ -426,13 +437,37 @@ class ClosedLoop:
             res.status, res.message = "failed", str(fail).splitlines()[-1][:300]
             where = (f"; the plant left the operating region at t = {exit_['t']:.4g} s ({exit_['coordinates']}; "
                      f"{exit_['region']}), where the relative degree and (A1) are not established: the "
-                     "mismatch is too large for this controller" if exit_ is not None else
-                     "; try a smaller dt or looser tolerances")
+                     "mismatch is too large for this controller" if exit_ is not None else self._advice(res))
             raise SimulationFailed(
                 f"{res.controller or 'closed loop'}: the integrator failed at t = {T[-1]:.4g} s inside the funnel "
                 f"(max ratio {res.max_funnel_ratio if res.ratios.size else float('nan'):.4g}): {res.message}{where}",
                 partial=res, diagnostics={"t": float(T[-1]), "left_region": exit_})
         return res
+
+    def _advice(self, res) -> str:
+        """Why the integrator stopped inside the funnel and what to try: a finite-time escape (the input grows
+        without bound; no integrator setting helps), else the integrator's settings, by option name."""
+        settings = (f"rerun with a larger max_num_steps (CLI --max-steps; now {self.max_num_steps} per output step "
+                    f"of {self.dt:g} s) or other rtol/atol (--rtol, --atol; now {self.rtol:g}, {self.atol:g})")
+        un = np.linalg.norm(res.u, axis=0)
+        k = un.size - 1
+        if k < 4 or not (un[k] > 2 * un[k - 3] and un[k] > un[:k - 3].max()):
+            return f"; the integrator reached its limits: {settings}"
+        a1 = ""
+        try:  # (A1) along the last output steps: where it fails the feedback pushes the error the wrong way
+            from ..control.funnel_design import a1_margin_along
+
+            sl = slice(max(0, k - 30), k + 1)
+            m = a1_margin_along(self.controller, self.controller.model, res.q[:, sl], res.v[:, sl], t=res.t[sl])
+            if m.min_eig <= 0:
+                a1 = f"; (A1) fails there, lambda_min = {m.min_eig:.3g} at t = {m.t_min:.4g} s: the feedback pushes " \
+                     "the error the wrong way"
+        except Exception:  # noqa: BLE001 -- a diagnosis only
+            pass
+        return (f"; |u| grew from {un[k - 3]:.3g} to {un[k]:.3g} in the last {3 * self.dt:.3g} s: the loop escapes in "
+                f"finite time{a1}. No integrator setting removes that: slow the transition, start the plant on "
+                f"the inverse's trajectory (feedforward, C1-inv) or reduce the mismatch; to rule out the integrator, "
+                f"{settings}")
 
     def _steps(self, x, ts, theta, exc):
         """Re-run a failed chunk step by step (one output step per call) to keep the trajectory up to the

@@ -35,7 +35,8 @@ from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
 __all__ = ["CONTROLLERS", "NEEDS_INVERSE", "check_controller", "TrackingSetup", "TrackingStudy", "setup_tracking",
            "run_controller", "run_tracking_study", "tracking_model", "tracking_linearization",
-           "equilibrium_configuration", "invert_tracking", "plant_of", "a1_along", "feedback_design"]
+           "equilibrium_configuration", "invert_tracking", "plant_of", "a1_along", "feedback_design",
+           "INTEGRATOR_OPTIONS", "check_integrator_options"]
 
 
 class _Names(dict):
@@ -235,6 +236,26 @@ def invert_tracking(scene, model, reference, *, progress=False, **options):
     return invert_normal_form(model, reference, **cfg)
 
 
+#: CVODES settings of the closed loop (keywords of :class:`~invctl.simulate.closed_loop.ClosedLoop`) with
+#: their CLI options
+INTEGRATOR_OPTIONS = {"rtol": "--rtol", "atol": "--atol", "max_num_steps": "--max-steps"}
+
+
+def check_integrator_options(integrator) -> dict:
+    """``integrator`` as a dict of :data:`INTEGRATOR_OPTIONS` (positive numbers; ``max_num_steps`` an
+    integer), ``None`` entries dropped; else a :class:`ParameterError` naming the known ones."""
+    out = {k: v for k, v in dict(integrator or {}).items() if v is not None}
+    bad = sorted(set(out) - set(INTEGRATOR_OPTIONS))
+    if bad:
+        raise ParameterError(f"integrator: unknown setting(s) {bad}; known: {', '.join(INTEGRATOR_OPTIONS)}")
+    for k, v in out.items():
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v > 0
+        if not ok or (k == "max_num_steps" and int(v) != v):
+            raise ParameterError(f"integrator: {k} must be a positive {'integer' if k == 'max_num_steps' else 'number'}"
+                                 f", got {v!r}")
+    return {k: int(v) if k == "max_num_steps" else float(v) for k, v in out.items()}
+
+
 def _signals(scene, model) -> dict:
     return {name: make(model) for name, make in scene.tracking.signals.items()}
 
@@ -268,6 +289,7 @@ class TrackingSetup:
     signals: dict
     params: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    integrator: dict = field(default_factory=dict)
     _loops: dict = field(default_factory=dict)
     _c1: object = None
 
@@ -334,7 +356,8 @@ class TrackingSetup:
             ctrl = self.controller_for(name)
             uff = self.u_ff_samples() if name in NEEDS_INVERSE else None
             self._loops[name] = ClosedLoop(self.plant, self.reference, controller=ctrl, u_ff=uff,
-                                           signals=self.signals, t_end=self.t_end, dt=self.dt, name=name)
+                                           signals=self.signals, t_end=self.t_end, dt=self.dt, name=name,
+                                           **self.integrator)
             self.timings[f"build_{name}"] = time.perf_counter() - t0
         return self._loops[name]
 
@@ -349,11 +372,15 @@ class TrackingSetup:
 
 def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, invert=True, t_end=None, dt=1e-3,
                    feedback=None, plant_factors=None, q0=None, reference=None, progress=False,
-                   inversion_options=None) -> TrackingSetup:
+                   inversion_options=None, integrator=None) -> TrackingSetup:
     """Build the reference model (``params``), the plant (declared mismatch, then ``plant_params``),
     the linearization, the funnel controller (declared feedback updated by ``feedback``) and, if
     ``invert`` and no ``inverse`` is given, the servo-constraint inverse of the reference model.
-    ``reference`` (a Reference or ``model -> Reference``) replaces the scene's reference."""
+    ``reference`` (a Reference or ``model -> Reference``) replaces the scene's reference; ``dt`` is the
+    output step of the runs and ``integrator`` their CVODES settings (:data:`INTEGRATOR_OPTIONS`)."""
+    integrator = check_integrator_options(integrator)
+    if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
+        raise ParameterError(f"dt (output step of the closed loop) must be a positive number of seconds, got {dt!r}")
     timings = {}
     t0 = time.perf_counter()
     params = dict(params or {})
@@ -388,7 +415,7 @@ def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, inver
         inverse.meta = {"scene": scene_reference(scene), "params": dict(params)}
         timings["inversion"] = time.perf_counter() - t0
     return TrackingSetup(scene, model, plant, ref, lin, ctrl, inverse, design, q0, t_end, float(dt),
-                         _signals(scene, model), params, timings)
+                         _signals(scene, model), params, timings, integrator)
 
 
 def a1_along(setup: TrackingSetup, res: ClosedLoopResult, stride: int = 10) -> dict:
