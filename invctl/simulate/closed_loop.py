@@ -31,6 +31,8 @@ __all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acce
 VIOLATION_RATIO = 1.0 - 5e-7
 #: an integrator failure with a level this close to its boundary counts as leaving the funnel
 BOUNDARY_RATIO = 0.99
+#: most output samples per call of the monitor (~0.05 s of compiled code)
+MONITOR_BLOCK = 2000
 
 
 @dataclass
@@ -275,7 +277,7 @@ class ClosedLoop:
         self.plant, self.reference, self.controller = plant, reference, controller
         self.signals, self.name = dict(signals or {}), name
         self.t_end, self.dt = float(t_end), float(dt)
-        n_steps = int(round(self.t_end / self.dt))
+        n_steps = max(1, int(round(self.t_end / self.dt)))
         self.chunks = max(1, min(int(chunks), n_steps))
         self.per_chunk = int(np.ceil(n_steps / self.chunks))
         self.n_steps = self.per_chunk * self.chunks
@@ -333,12 +335,20 @@ class ClosedLoop:
         self._mon_map = {}
 
     def _monitor(self, t, X, theta):
-        N = t.size
-        fn = self._mon_map.get(N)
-        if fn is None:
-            fn = self._mon_map[N] = self.monitor.map(N)
-        out = fn(t[None, :], np.zeros((1, N)), X, np.tile(theta[:, None], (1, N)))
-        return [np.array(o) for o in out]
+        """The monitor's outputs at the columns of ``X``, in blocks of at most :data:`MONITOR_BLOCK` columns (a
+        Ctrl-C waits for one block only)."""
+        parts = []
+        for a in range(0, t.size, MONITOR_BLOCK):
+            check_interrupt()
+            tb, Xb = t[a:a + MONITOR_BLOCK], X[:, a:a + MONITOR_BLOCK]
+            N = tb.size
+            fn = self._mon_map.get(N)
+            if fn is None:
+                fn = self._mon_map[N] = self.monitor.map(N)
+            parts.append([np.array(o) for o in fn(tb[None, :], np.zeros((1, N)), Xb, np.tile(theta[:, None], (1, N)))])
+        if not parts:
+            return [np.zeros((self.monitor.size1_out(i), 0)) for i in range(self.monitor.n_out())]
+        return [np.hstack(p) for p in zip(*parts)] if len(parts) > 1 else parts[0]
 
     def run(self, q0, v0=None, theta=None, *, controller_label=None, raise_on_violation=True) -> ClosedLoopResult:
         """Integrate from ``(q0, v0)`` (plant at rest by default) and return the trajectory.
@@ -359,6 +369,7 @@ class ClosedLoop:
         x = np.concatenate([q0, v0, z0])
         wall0 = time.perf_counter()
         Xs, Ts, quad = [x[:, None]], [np.zeros(1)], np.zeros(self.n_quad)
+        Ms = [self._monitor(np.zeros(1), x[:, None], theta)]  # the monitor per chunk, reused by the result
         status, message, fail = "ok", "", None
         try:
             for c in range(self.chunks):
@@ -380,16 +391,18 @@ class ClosedLoop:
                 if Xc.shape[1]:
                     x = Xc[:, -1]
                     quad = quad + np.asarray(qf).reshape(self.n_quad, -1)[:, -1]
-                mon_ratios = self._monitor(tg, Xc, theta)[7] if Xc.shape[1] and self.controller is not None else None
+                Ms.append(self._monitor(tg, Xc, theta))
+                mon_ratios = Ms[-1][7] if Xc.shape[1] and self.controller is not None else None
                 if fail is not None or (mon_ratios is not None and mon_ratios.size
                                         and mon_ratios.max() >= VIOLATION_RATIO):
                     break
         except INTERRUPT_LIKE as _exc:  # keep the simulated prefix (complete chunks)
             if not is_interrupt(_exc):
                 raise
-            k = min(len(Xs), len(Ts))
+            k = min(len(Xs), len(Ts), len(Ms))
             T, X = np.concatenate(Ts[:k]), np.hstack(Xs[:k])
-            prefix = self._result(T, X, theta, None, time.perf_counter() - wall0, controller_label or self.name)
+            prefix = self._result(T, X, theta, None, time.perf_counter() - wall0, controller_label or self.name,
+                                  _stack(Ms[:k]))
             prefix.status, prefix.message = "interrupted", f"interrupted at t = {T[-1]:.4g} s"
             raise RunInterrupted(f"{prefix.controller or 'closed loop'}: interrupted at t = {T[-1]:.4g} s of "
                                  f"{self.t_end:g} s; the simulated prefix is in exc.partial", partial=prefix,
@@ -397,12 +410,14 @@ class ClosedLoop:
         wall = time.perf_counter() - wall0
         T = np.concatenate(Ts)
         X = np.hstack(Xs)
-        res = self._result(T, X, theta, quad, wall, controller_label or self.name)
+        mon = _stack(Ms)
+        res = self._result(T, X, theta, quad, wall, controller_label or self.name, mon)
         viol = np.nonzero(res.ratios.max(axis=0) >= VIOLATION_RATIO)[0] if res.ratios.size else np.zeros(0, int)
         if viol.size:
             idx = int(viol[0])
             level = int(np.argmax(res.ratios[:, idx]))
-            cut = self._result(T[:idx + 1], X[:, :idx + 1], theta, None, wall, res.controller)
+            cut = self._result(T[:idx + 1], X[:, :idx + 1], theta, None, wall, res.controller,
+                               [o[:, :idx + 1] for o in mon])
             cut.status, cut.message = "funnel_violation", f"left the funnel at t = {T[idx]:.4g} s"
             diag = {"t": float(T[idx]), "level": res.ratio_names[level] if res.ratio_names else level,
                     "ratio": float(res.ratios[level, idx]), "margin": float(1 - res.ratios[level, idx]),
@@ -512,9 +527,9 @@ class ClosedLoop:
         return {"t": float(res.t[k]), "coordinates": ", ".join(out) or "a region constraint",
                 "region": getattr(region, "description", "")}
 
-    def _result(self, T, X, theta, quad, wall, label):
+    def _result(self, T, X, theta, quad, wall, label, mon=None):
         n = self.plant.n
-        u, uff, ufb, y, yref, s, sref, ratios, ebar, phib, dg, dgv = self._monitor(T, X, theta)
+        u, uff, ufb, y, yref, s, sref, ratios, ebar, phib, dg, dgv = self._monitor(T, X, theta) if mon is None else mon
         signals, signals_ref, off = {}, {}, 0
         for name, size in zip(self.signals, self._signal_sizes):
             signals[name], signals_ref[name] = s[off:off + size], sref[off:off + size]
@@ -533,6 +548,11 @@ class ClosedLoop:
             wall_s=wall, signals=signals, signals_ref=signals_ref, controller=label, ratio_names=names,
             q_names=list(plant.q_names), y_names=list(plant.y_names), u_names=list(plant.u_names),
             stats={"chunks": self.chunks, "dt": self.dt})
+
+
+def _stack(mons):
+    """The monitor's outputs of consecutive pieces joined along time."""
+    return [np.hstack(p) for p in zip(*mons)]
 
 
 def simulate_closed_loop(plant, reference, q0, v0=None, **options) -> ClosedLoopResult:

@@ -268,11 +268,14 @@ def _run_size(command, scene: Scene, params, settings, o) -> tuple | None:
     t_opt = o.get("t_end")
     if kind == "contact":  # Moreau-Jean estimates its record itself, with the recording options that fit
         return None
-    if kind == "tracking" and command in ("simulate", "pipeline") and t_opt is not None:
-        from .tracking import setup_tracking
+    if kind == "tracking" and command in ("simulate", "pipeline") and (t_opt is not None or o.get("dt") is not None):
+        from .tracking import setup_tracking, tracking_model
         import inspect
 
         dt = float(o.get("dt") or inspect.signature(setup_tracking).parameters["dt"].default)
+        if t_opt is None:  # the scene's horizon (as setup_tracking takes it)
+            ref = tracking_model(scene, params)[1]
+            t_opt = scene.tracking.t_end or (ref.tf + (ref.tf - ref.t0))
         runs = 1 if command == "simulate" else len(scene.tracking.controllers)
         return float(t_opt) / dt, runs, dt, float(t_opt), "--t-end ", "--dt "
     if kind == "switched" and command in ("simulate", "pipeline", "study"):
