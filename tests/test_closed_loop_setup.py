@@ -63,8 +63,9 @@ def _child(args, code, cwd):
                             stderr=subprocess.PIPE, text=True)
 
 
-def _interrupt_latency(p, marker, delay, timeout=600):
-    """Send SIGINT once ``marker`` is on stderr (after ``delay`` s); ``(rc, seconds to exit, stdout, stderr)``."""
+def _interrupt_latency(p, marker, delay, timeout=300, honoured=60):
+    """Send SIGINT once ``marker`` is on stderr (after ``delay`` s); ``(rc, seconds to exit, stdout, stderr)``; an
+    error if the child is still running ``honoured`` seconds after the signal."""
     lines, t0 = [], time.monotonic()
     for line in p.stderr:
         lines.append(line)
@@ -76,18 +77,24 @@ def _interrupt_latency(p, marker, delay, timeout=600):
         assert time.monotonic() - t0 < timeout, "the child never reached the point to interrupt"
     else:
         raise AssertionError(f"the child ended before {marker!r}: {''.join(lines)[-2000:]}")
-    out, rest = p.communicate(timeout=timeout)
+    try:
+        out, rest = p.communicate(timeout=honoured)
+    except subprocess.TimeoutExpired:
+        p.kill()
+        p.communicate()
+        raise AssertionError(f"Ctrl-C not honoured within {honoured} s") from None
     return p.returncode, time.monotonic() - sent, out, "".join(lines) + rest
 
 
 _MARK_SETUP = textwrap.dedent("""
     import sys
-    from invctl.control import funnel_nmp
-    build = funnel_nmp.NMPFunnelController._eta2_ref_function
-    def marked(self):  # the signal lands while the interpolant of the new reference (42) is built
-        print("REFERENCE INTERPOLANT", file=sys.stderr, flush=True)
-        return build(self)
-    funnel_nmp.NMPFunnelController._eta2_ref_function = marked
+    import casadi
+    make = casadi.interpolant
+    def marked(name, *a, **k):  # the signal lands while the interpolant of the new reference (42) is built
+        if name == "eta2_ref":
+            print("REFERENCE INTERPOLANT", file=sys.stderr, flush=True)
+        return make(name, *a, **k)
+    casadi.interpolant = marked
     from invctl.cli import main
     sys.exit(main(sys.argv[1:]))
     """)
@@ -123,11 +130,11 @@ def test_sigint_during_a_long_run_keeps_the_prefix_quickly(tmp_path):
 
     args = ["simulate", "cartpole", "--controller", "C2", "--t-end", "300", "--out", "run.npz", "--quiet", "--json"]
     p = _child(args, _MARK_RUN, tmp_path)
-    rc, latency, out, err = _interrupt_latency(p, "SIMULATION STARTED", 2.0)
+    rc, latency, out, err = _interrupt_latency(p, "SIMULATION STARTED", 3.0)
     print(f"SIGINT during the run: exit {rc} after {latency:.2f} s")
     assert rc == 130, err[-2000:]
     assert json.loads(out.strip().splitlines()[-1])["error"] == "RunInterrupted"
-    assert latency < 3.0
+    assert latency < 2.5  # was 3 s and more, growing with the prefix (its monitor recomputed in one call)
     part = ClosedLoopResult.load(tmp_path / "run.partial.npz")
     assert part.status == "interrupted" and 0 < part.t[-1] < 300 and part.u.shape[1] == part.t.size
 
