@@ -172,6 +172,8 @@ def test_integrator_options_are_checked(capsys):
         setup_tracking(scene, invert=False, dt=0.0)
     rc, d = _cli(capsys, "simulate", "cartpole", "--rtol", "-1")
     assert rc == 2 and "--rtol" in d["message"], d
+    rc, d = _cli(capsys, "simulate", "cartpole", "--dt", "1e-12")  # the scene's horizon at this step: too many samples
+    assert rc == 2 and d["error"] == "ResourceLimitError" and "--dt" in d["message"], d
     rc, d = _cli(capsys, "simulate", "bouncing_ball", "--max-steps", "10")
     assert rc == 2 and d["error"] == "ParameterError" and "tracking scenes only" in d["message"], d
 

@@ -345,7 +345,8 @@ class ClosedLoop:
             fn = self._mon_map.get(N)
             if fn is None:
                 fn = self._mon_map[N] = self.monitor.map(N)
-            parts.append([np.array(o) for o in fn(tb[None, :], np.zeros((1, N)), Xb, np.tile(theta[:, None], (1, N)))])
+            out = fn(tb[None, :], np.zeros((1, N)), Xb, np.tile(theta[:, None], (1, N)))
+            parts.append([np.array(o) for o in out])
         if not parts:
             return [np.zeros((self.monitor.size1_out(i), 0)) for i in range(self.monitor.n_out())]
         return [np.hstack(p) for p in zip(*parts)] if len(parts) > 1 else parts[0]
