@@ -387,6 +387,9 @@ class ClosedLoop:
                     Xc, tg, qf, fail = self._steps(x, ts, theta, exc)
                 Xs.append(Xc)
                 Ts.append(tg)
+                if isinstance(fail, KeyboardInterrupt):  # during the step-by-step rerun: keep its steps
+                    Ms.append(self._monitor(tg, Xc, theta))
+                    raise fail
                 if sigint.seen:  # CVODES may recover from a right-hand side that raised KeyboardInterrupt
                     raise KeyboardInterrupt
                 if Xc.shape[1]:
@@ -487,13 +490,17 @@ class ClosedLoop:
 
     def _steps(self, x, ts, theta, exc):
         """Re-run a failed chunk step by step (one output step per call) to keep the trajectory up to the
-        failure; returns the failure of the step integrator, or ``None`` if every step succeeded."""
+        failure; returns the failure of the step integrator (a ``KeyboardInterrupt`` after a Ctrl-C), or ``None``
+        if every step succeeded."""
         cols, tg, qf = [], [], np.zeros(self.n_quad)
         for kstep in range(self.per_chunk):
             t0 = ts + kstep * self.dt
+            check_interrupt()
             try:
-                out = self.step_integrator(x0=x, p=np.concatenate([theta, [t0]]))
+                with watch_sigint() as sigint:
+                    out = self.step_integrator(x0=x, p=np.concatenate([theta, [t0]]))
             except RuntimeError as e2:
+                e2 = KeyboardInterrupt() if sigint.seen else e2  # a Ctrl-C is an interruption, not the failure
                 return (np.array(cols).T if cols else np.zeros((self.nx, 0))), np.array(tg), qf[:, None], e2
             x = np.array(out["xf"]).ravel()
             qf = qf + np.array(out["qf"]).ravel()
