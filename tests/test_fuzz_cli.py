@@ -155,6 +155,12 @@ def _option_values(draw, name: str, scene: str, tmp: Path, case: int) -> list[st
     if name == "dt":
         return [flag, draw(st.sampled_from(["0.01", "0.005"])) if valid else draw(st.sampled_from(
             ["0", "-1", "nan", "abc", "1e-300"]))]
+    if name in ("rtol", "atol"):
+        return [flag, draw(st.sampled_from(["1e-6", "1e-9"])) if valid else draw(st.sampled_from(
+            ["0", "-1", "nan", "inf", "abc"]))]
+    if name == "max_steps":
+        return [flag, draw(st.sampled_from(["20000", "500"])) if valid else draw(st.sampled_from(
+            ["0", "-1", "abc", "2.5"]))]
     if name == "controller":
         return [flag, draw(st.sampled_from(["C1", "C2", "C3", "C1-42", "c2", "pd", "pdplus", "preload", "switching",
                                             "juggling", "none", "foo", ""]))]

@@ -139,7 +139,8 @@ class NMPFunnelController:
     reference_mode : {"backward", "forward"}
         How the new reference (42) is produced (see module docstring).
     t_end : float
-        Horizon of the precomputed reference (``reference_mode="backward"``).
+        Default horizon of :meth:`eta2_ref_samples` (the controller interpolates (42) only up to ``tf``,
+        after which it rests at its equilibrium).
     eta2_ref0 : array_like, optional
         Initial value of (42) (default: (43) by ``lin.eta2_ref0``), used by ``"forward"``.
     eta2_ref_samples : (t, values), optional
@@ -389,7 +390,8 @@ class NMPFunnelController:
     # ------------------------------------------------------------ reference (42)
     def eta2_ref_samples(self, t_end=None, dt=None):
         """Bounded solution of (42) on a grid: backward from the equilibrium ``-Q~^-1 P~ y_f`` at
-        ``max(tf, t_end)`` (stable in reverse time).  Returns ``(t, eta2_ref)`` with shape (k, N)."""
+        ``max(tf, t_end)`` (stable in reverse time; constant after ``tf``).  Returns ``(t, eta2_ref)`` with
+        shape (k, N)."""
         ref, Qt, Pt = self.reference, self.Qt, self.Pt
         t_end = self.t_end if t_end is None else float(t_end)
         dt = self._grid_dt if dt is None else float(dt)
@@ -401,8 +403,8 @@ class NMPFunnelController:
         t_hold = max(ref.tf, 0.0)
         yf = np.asarray(ref(t_hold)).ravel()
         eq = -np.linalg.solve(Qt, Pt @ yf)
-        n = int(np.ceil(max(t_end, t_hold) / dt)) + 1
-        tg = np.linspace(0.0, max(t_end, t_hold), n)
+        span = max(t_end, t_hold, 3 * dt)
+        tg = np.linspace(0.0, span, int(np.ceil(span / dt)) + 1)
         yfun = ref.function(0)
         sol = solve_ivp(lambda s, x: Qt @ x + Pt @ np.asarray(yfun(s)).ravel(), (t_hold, 0.0), eq,
                         method="DOP853", rtol=1e-12, atol=1e-14, dense_output=True)
@@ -412,7 +414,9 @@ class NMPFunnelController:
         return tg, vals
 
     def _eta2_ref_function(self):
-        tg, vals = self._given_ref if self._given_ref is not None else self.eta2_ref_samples()
+        # the grid ends at tf, after which (42) rests at its equilibrium (held below): the interpolant's
+        # size does not grow with the simulated time (its construction costs more than linearly in it)
+        tg, vals = self._given_ref if self._given_ref is not None else self.eta2_ref_samples(t_end=0.0)
         self.eta2_ref_grid = (tg, vals)
         interp = ca.interpolant("eta2_ref", "bspline", [tg], vals.T.ravel())
         tt = ca.MX.sym("t")

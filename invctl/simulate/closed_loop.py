@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, fields
 import casadi as ca
 import numpy as np
 
-from ..errors import (FunnelViolation, ParameterError, RunInterrupted, SimulationFailed, check_interrupt,
+from ..errors import (FunnelViolation, OptionError, ParameterError, RunInterrupted, SimulationFailed, check_interrupt,
                       INTERRUPT_LIKE, is_interrupt, watch_sigint)
 from ..io import file_loader
 
@@ -31,6 +31,8 @@ __all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acce
 VIOLATION_RATIO = 1.0 - 5e-7
 #: an integrator failure with a level this close to its boundary counts as leaving the funnel
 BOUNDARY_RATIO = 0.99
+#: most output samples per call of the monitor (~0.05 s of compiled code)
+MONITOR_BLOCK = 2000
 
 
 @dataclass
@@ -275,16 +277,27 @@ class ClosedLoop:
         Horizon and output step.
     chunks : int
         Integrator calls per run (funnel checks between them).
+    rtol, atol, max_num_steps
+        CVODES tolerances and the most steps it may take per output step ``dt`` (CLI ``--rtol``, ``--atol``,
+        ``--max-steps``).
     """
 
     def __init__(self, plant, reference, *, controller=None, u_ff=None, signals=None, t_end=2.0, dt=1e-3,
                  chunks=8, baumgarte=(20.0, 20.0), rtol=1e-8, atol=1e-10, name="", max_num_steps=20000):
         if not t_end > 0 or not dt > 0:
             raise ParameterError(f"need t_end > 0 and dt > 0, got t_end={t_end}, dt={dt}")
+        try:
+            ok = rtol > 0 and atol > 0 and int(max_num_steps) == max_num_steps >= 1
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise OptionError(f"the integrator needs rtol > 0, atol > 0 and an integer max_num_steps >= 1, got "
+                                 f"rtol={rtol!r}, atol={atol!r}, max_num_steps={max_num_steps!r}")
+        self.rtol, self.atol, self.max_num_steps = float(rtol), float(atol), int(max_num_steps)
         self.plant, self.reference, self.controller = plant, reference, controller
         self.signals, self.name = dict(signals or {}), name
         self.t_end, self.dt = float(t_end), float(dt)
-        n_steps = int(round(self.t_end / self.dt))
+        n_steps = max(1, int(round(self.t_end / self.dt)))
         self.chunks = max(1, min(int(chunks), n_steps))
         self.per_chunk = int(np.ceil(n_steps / self.chunks))
         self.n_steps = self.per_chunk * self.chunks
@@ -326,8 +339,8 @@ class ClosedLoop:
         self._signal_sizes = [int(s.numel()) for s in sig]
         dae = {"t": t, "x": x, "p": ca.vertcat(theta, t_start), "ode": ca.vertcat(v, a, zdot), "quad": ca.vertcat(*quad)}
         grid = np.linspace(0.0, self.per_chunk * self.dt, self.per_chunk + 1)[1:]
-        opts = {"abstol": atol, "reltol": rtol, "max_num_steps": max_num_steps, "linear_solver": "csparse",
-                "print_stats": False, "disable_internal_warnings": True}
+        opts = {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": self.max_num_steps,
+                "linear_solver": "csparse", "print_stats": False, "disable_internal_warnings": True}
         self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
         self.step_integrator = ca.integrator("closed_loop_step", "cvodes", dae, 0.0, [self.dt], opts)
         G = plant.function("G")(q, theta)
@@ -342,12 +355,21 @@ class ClosedLoop:
         self._mon_map = {}
 
     def _monitor(self, t, X, theta):
-        N = t.size
-        fn = self._mon_map.get(N)
-        if fn is None:
-            fn = self._mon_map[N] = self.monitor.map(N)
-        out = fn(t[None, :], np.zeros((1, N)), X, np.tile(theta[:, None], (1, N)))
-        return [np.array(o) for o in out]
+        """The monitor's outputs at the columns of ``X``, in blocks of at most :data:`MONITOR_BLOCK` columns (a
+        Ctrl-C waits for one block only)."""
+        parts = []
+        for a in range(0, t.size, MONITOR_BLOCK):
+            check_interrupt()
+            tb, Xb = t[a:a + MONITOR_BLOCK], X[:, a:a + MONITOR_BLOCK]
+            N = tb.size
+            fn = self._mon_map.get(N)
+            if fn is None:
+                fn = self._mon_map[N] = self.monitor.map(N)
+            out = fn(tb[None, :], np.zeros((1, N)), Xb, np.tile(theta[:, None], (1, N)))
+            parts.append([np.array(o) for o in out])
+        if not parts:
+            return [np.zeros((self.monitor.size1_out(i), 0)) for i in range(self.monitor.n_out())]
+        return [np.hstack(p) for p in zip(*parts)] if len(parts) > 1 else parts[0]
 
     def run(self, q0, v0=None, theta=None, *, controller_label=None, raise_on_violation=True) -> ClosedLoopResult:
         """Integrate from ``(q0, v0)`` (plant at rest by default) and return the trajectory.
@@ -368,7 +390,8 @@ class ClosedLoop:
         x = np.concatenate([q0, v0, z0])
         wall0 = time.perf_counter()
         Xs, Ts, quad = [x[:, None]], [np.zeros(1)], np.zeros(self.n_quad)
-        status, message, fail = "ok", "", None
+        Ms = [self._monitor(np.zeros(1), x[:, None], theta)]  # the monitor per chunk, reused by the result
+        fail = None
         try:
             for c in range(self.chunks):
                 check_interrupt()
@@ -384,21 +407,26 @@ class ClosedLoop:
                     Xc, tg, qf, fail = self._steps(x, ts, theta, exc)
                 Xs.append(Xc)
                 Ts.append(tg)
+                if isinstance(fail, KeyboardInterrupt):  # during the step-by-step rerun: keep its steps
+                    Ms.append(self._monitor(tg, Xc, theta))
+                    raise fail
                 if sigint.seen:  # CVODES may recover from a right-hand side that raised KeyboardInterrupt
                     raise KeyboardInterrupt
                 if Xc.shape[1]:
                     x = Xc[:, -1]
                     quad = quad + np.asarray(qf).reshape(self.n_quad, -1)[:, -1]
-                mon_ratios = self._monitor(tg, Xc, theta)[7] if Xc.shape[1] and self.controller is not None else None
+                Ms.append(self._monitor(tg, Xc, theta))
+                mon_ratios = Ms[-1][7] if Xc.shape[1] and self.controller is not None else None
                 if fail is not None or (mon_ratios is not None and mon_ratios.size
                                         and mon_ratios.max() >= VIOLATION_RATIO):
                     break
         except INTERRUPT_LIKE as _exc:  # keep the simulated prefix (complete chunks)
             if not is_interrupt(_exc):
                 raise
-            k = min(len(Xs), len(Ts))
+            k = min(len(Xs), len(Ts), len(Ms))
             T, X = np.concatenate(Ts[:k]), np.hstack(Xs[:k])
-            prefix = self._result(T, X, theta, None, time.perf_counter() - wall0, controller_label or self.name)
+            prefix = self._result(T, X, theta, None, time.perf_counter() - wall0, controller_label or self.name,
+                                  _stack(Ms[:k]))
             prefix.status, prefix.message = "interrupted", f"interrupted at t = {T[-1]:.4g} s"
             raise RunInterrupted(f"{prefix.controller or 'closed loop'}: interrupted at t = {T[-1]:.4g} s of "
                                  f"{self.t_end:g} s; the simulated prefix is in exc.partial", partial=prefix,
@@ -406,12 +434,14 @@ class ClosedLoop:
         wall = time.perf_counter() - wall0
         T = np.concatenate(Ts)
         X = np.hstack(Xs)
-        res = self._result(T, X, theta, quad, wall, controller_label or self.name)
+        mon = _stack(Ms)
+        res = self._result(T, X, theta, quad, wall, controller_label or self.name, mon)
         viol = np.nonzero(res.ratios.max(axis=0) >= VIOLATION_RATIO)[0] if res.ratios.size else np.zeros(0, int)
         if viol.size:
             idx = int(viol[0])
             level = int(np.argmax(res.ratios[:, idx]))
-            cut = self._result(T[:idx + 1], X[:, :idx + 1], theta, None, wall, res.controller)
+            cut = self._result(T[:idx + 1], X[:, :idx + 1], theta, None, wall, res.controller,
+                               [o[:, :idx + 1] for o in mon])
             cut.status, cut.message = "funnel_violation", f"left the funnel at t = {T[idx]:.4g} s"
             diag = {"t": float(T[idx]), "level": res.ratio_names[level] if res.ratio_names else level,
                     "ratio": float(res.ratios[level, idx]), "margin": float(1 - res.ratios[level, idx]),
@@ -447,23 +477,51 @@ class ClosedLoop:
             res.status, res.message = "failed", str(fail).splitlines()[-1][:300]
             where = (f"; the plant left the operating region at t = {exit_['t']:.4g} s ({exit_['coordinates']}; "
                      f"{exit_['region']}), where the relative degree and (A1) are not established: the "
-                     "mismatch is too large for this controller" if exit_ is not None else
-                     "; try a smaller dt or looser tolerances")
+                     "mismatch is too large for this controller" if exit_ is not None else self._advice(res))
             raise SimulationFailed(
                 f"{res.controller or 'closed loop'}: the integrator failed at t = {T[-1]:.4g} s inside the funnel "
                 f"(max ratio {res.max_funnel_ratio if res.ratios.size else float('nan'):.4g}): {res.message}{where}",
                 partial=res, diagnostics={"t": float(T[-1]), "left_region": exit_})
         return res
 
+    def _advice(self, res) -> str:
+        """Why the integrator stopped inside the funnel and what to try: a finite-time escape (the input grows
+        without bound; no integrator setting helps), else the integrator's settings, by option name."""
+        settings = (f"rerun with a larger max_num_steps (CLI --max-steps; now {self.max_num_steps} per output step "
+                    f"of {self.dt:g} s) or other rtol/atol (--rtol, --atol; now {self.rtol:g}, {self.atol:g})")
+        un = np.linalg.norm(res.u, axis=0)
+        k = un.size - 1
+        if k < 4 or not (un[k] > 2 * un[k - 3] and un[k] > un[:k - 3].max()):
+            return f"; the integrator reached its limits: {settings}"
+        a1 = ""
+        try:  # (A1) along the last output steps: where it fails the feedback pushes the error the wrong way
+            from ..control.funnel_design import a1_margin_along
+
+            sl = slice(max(0, k - 30), k + 1)
+            m = a1_margin_along(self.controller, self.controller.model, res.q[:, sl], res.v[:, sl], t=res.t[sl])
+            if m.min_eig <= 0:
+                a1 = f"; (A1) fails there, lambda_min = {m.min_eig:.3g} at t = {m.t_min:.4g} s: the feedback pushes " \
+                     "the error the wrong way"
+        except Exception:  # noqa: BLE001 -- a diagnosis only
+            pass
+        return (f"; |u| grew from {un[k - 3]:.3g} to {un[k]:.3g} in the last {3 * self.dt:.3g} s: the loop escapes in "
+                f"finite time{a1}. No integrator setting removes that: slow the transition, start the plant on "
+                f"the inverse's trajectory (feedforward, C1-inv) or reduce the mismatch; to rule out the integrator, "
+                f"{settings}")
+
     def _steps(self, x, ts, theta, exc):
         """Re-run a failed chunk step by step (one output step per call) to keep the trajectory up to the
-        failure; returns the failure of the step integrator, or ``None`` if every step succeeded."""
+        failure; returns the failure of the step integrator (a ``KeyboardInterrupt`` after a Ctrl-C), or ``None``
+        if every step succeeded."""
         cols, tg, qf = [], [], np.zeros(self.n_quad)
         for kstep in range(self.per_chunk):
             t0 = ts + kstep * self.dt
+            check_interrupt()
             try:
-                out = self.step_integrator(x0=x, p=np.concatenate([theta, [t0]]))
+                with watch_sigint() as sigint:
+                    out = self.step_integrator(x0=x, p=np.concatenate([theta, [t0]]))
             except RuntimeError as e2:
+                e2 = KeyboardInterrupt() if sigint.seen else e2  # a Ctrl-C is an interruption, not the failure
                 return (np.array(cols).T if cols else np.zeros((self.nx, 0))), np.array(tg), qf[:, None], e2
             x = np.array(out["xf"]).ravel()
             qf = qf + np.array(out["qf"]).ravel()
@@ -498,9 +556,9 @@ class ClosedLoop:
         return {"t": float(res.t[k]), "coordinates": ", ".join(out) or "a region constraint",
                 "region": getattr(region, "description", "")}
 
-    def _result(self, T, X, theta, quad, wall, label):
+    def _result(self, T, X, theta, quad, wall, label, mon=None):
         n = self.plant.n
-        u, uff, ufb, y, yref, s, sref, ratios, ebar, phib, dg, dgv = self._monitor(T, X, theta)
+        u, uff, ufb, y, yref, s, sref, ratios, ebar, phib, dg, dgv = self._monitor(T, X, theta) if mon is None else mon
         signals, signals_ref, off = {}, {}, 0
         for name, size in zip(self.signals, self._signal_sizes):
             signals[name], signals_ref[name] = s[off:off + size], sref[off:off + size]
@@ -519,6 +577,11 @@ class ClosedLoop:
             wall_s=wall, signals=signals, signals_ref=signals_ref, controller=label, ratio_names=names,
             q_names=list(plant.q_names), y_names=list(plant.y_names), u_names=list(plant.u_names),
             stats={"chunks": self.chunks, "dt": self.dt})
+
+
+def _stack(mons):
+    """The monitor's outputs of consecutive pieces joined along time."""
+    return [np.hstack(p) for p in zip(*mons)]
 
 
 def simulate_closed_loop(plant, reference, q0, v0=None, **options) -> ClosedLoopResult:

@@ -98,6 +98,12 @@ OPTIONS: dict[str, Option] = {
                            ("simulate", "pipeline"), None, _at_least(1)),
     "record": Option(str, "contact runs: record every step ('steps') or only impacts and contact changes "
                           "('events')", ("simulate", "pipeline"), None, choices=("steps", "events")),
+    "rtol": Option(float, "tracking runs: relative tolerance of the closed-loop integrator (CVODES; default 1e-8)",
+                   ("simulate", "pipeline"), None, _positive),
+    "atol": Option(float, "tracking runs: absolute tolerance of the closed-loop integrator (default 1e-10)",
+                   ("simulate", "pipeline"), None, _positive),
+    "max_steps": Option(int, "tracking runs: most integrator steps per output step (default 20000)",
+                        ("simulate", "pipeline"), None, _at_least(1)),
     "max_wall_time": Option(float, "stop the inversion's solver after this many seconds", ("invert",), None,
                             _positive),
     "bound": Option(str, "a bound of the inversion: u=8, u.NAME=-5:8, u_rate=100, q.NAME=-0.2:0.2, v.NAME=1.5, "
@@ -132,6 +138,8 @@ OPTIONS.update({
                          "as C code, compiled once per machine when a C compiler is found)", ("generate",), False,
                          flag=True),
 })
+OPTIONS["dt"] = replace(OPTIONS["dt"], commands=OPTIONS["dt"].commands + ("simulate", "pipeline"),
+                        help=OPTIONS["dt"].help + "; tracking runs: output step of the closed loop (default 1e-3 s)")
 for _name in ("N", "scheme", "tol", "backend", "out", "force", "quiet"):
     OPTIONS[_name] = replace(OPTIONS[_name], commands=OPTIONS[_name].commands + ("generate",))
 OPTIONS["out"] = replace(OPTIONS["out"], help=OPTIONS["out"].help + "; generate: a .npz file or a folder (an "
@@ -331,13 +339,16 @@ def _run_size(command, scene: Scene, params, settings, o) -> tuple | None:
     t_opt = o.get("t_end")
     if kind == "contact":  # Moreau-Jean estimates its record itself, with the recording options that fit
         return None
-    if kind == "tracking" and command in ("simulate", "pipeline") and t_opt is not None:
-        from .tracking import setup_tracking
+    if kind == "tracking" and command in ("simulate", "pipeline") and (t_opt is not None or o.get("dt") is not None):
+        from .tracking import setup_tracking, tracking_model
         import inspect
 
-        dt = float(inspect.signature(setup_tracking).parameters["dt"].default)
+        dt = float(o.get("dt") or inspect.signature(setup_tracking).parameters["dt"].default)
+        if t_opt is None:  # the scene's horizon (as setup_tracking takes it)
+            ref = tracking_model(scene, params)[1]
+            t_opt = scene.tracking.t_end or (ref.tf + (ref.tf - ref.t0))
         runs = 1 if command == "simulate" else len(scene.tracking.controllers)
-        return float(t_opt) / dt, runs, dt, float(t_opt), "--t-end ", None
+        return float(t_opt) / dt, runs, dt, float(t_opt), "--t-end ", "--dt "
     if kind == "switched" and command in ("simulate", "pipeline", "study"):
         p = {**scene.params, **params}
         if "h_max" not in p or "t_end" not in p:
@@ -696,7 +707,7 @@ def simulate(scene, values=None, **options) -> CommandResult:
     plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
     params, settings = scene.split(values, preset=o["preset"])
     kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"], scene), t_end=o["t_end"], out=out,
-              plot=plot, quiet=o["quiet"], **_recording(scene, o))
+              plot=plot, quiet=o["quiet"], **_recording(scene, o), **_integration(scene, o))
     if o["inverse"]:
         if scene.kind != "tracking":
             raise OptionError(f"--inverse applies to tracking scenes only; {scene.name!r} is a {scene.kind} scene")
@@ -718,6 +729,20 @@ def _recording(scene: Scene, o: dict) -> dict:
     return given
 
 
+def _integration(scene: Scene, o: dict) -> dict:
+    """The closed-loop options of a tracking run (``--dt``, ``--rtol``, ``--atol``, ``--max-steps``); an error
+    for other kinds."""
+    keys = ("rtol", "atol", "max_steps")
+    given = [k for k in ("dt",) + keys if o.get(k) is not None]
+    if given and scene.kind != "tracking":
+        raise OptionError(f"{', '.join('--' + k.replace('_', '-') for k in given)}: applies to tracking scenes "
+                             f"only; {scene.name!r} is a {scene.kind} scene")
+    out = {"integrator": {"max_num_steps" if k == "max_steps" else k: o[k] for k in keys if o.get(k) is not None}}
+    if o.get("dt") is not None:
+        out["dt"] = o["dt"]
+    return out if given else {}
+
+
 def pipeline(scene, values=None, **options) -> CommandResult:
     """``invctl pipeline``: the scene's whole job (tracking: invert, design, C1/C2/C3, compare, figures)."""
     scene = _scene(scene)
@@ -729,7 +754,7 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     out_dir = check_output_dir(o["out_dir"])
     from ..scenes import scene_reference
 
-    rec = _recording(scene, o)
+    rec = {**_recording(scene, o), **_integration(scene, o)}
     result = _interruptible(lambda: _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
                                                           plant_params=plant,
                                                           quiet=o["quiet"], animate=not o["no_animation"], **rec),

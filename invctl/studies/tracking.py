@@ -28,14 +28,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import (CoordinateError, DimensionError, FunnelViolation, ParameterError, RunInterrupted, SceneError,
+from ..errors import (CoordinateError, DimensionError, FunnelViolation, OptionError, ParameterError, RunInterrupted, SceneError,
                       check_interrupt, INTERRUPT_LIKE, is_interrupt)
 from ..io import file_loader, read_json
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
 __all__ = ["CONTROLLERS", "NEEDS_INVERSE", "check_controller", "TrackingSetup", "TrackingStudy", "setup_tracking",
            "run_controller", "run_tracking_study", "tracking_model", "tracking_linearization",
-           "equilibrium_configuration", "invert_tracking", "plant_of", "a1_along", "feedback_design"]
+           "equilibrium_configuration", "invert_tracking", "plant_of", "a1_along", "feedback_design",
+           "INTEGRATOR_OPTIONS", "check_integrator_options"]
 
 
 class _Names(dict):
@@ -248,6 +249,26 @@ def invert_tracking(scene, model, reference, *, progress=False, **options):
     return invert_normal_form(model, reference, **cfg)
 
 
+#: CVODES settings of the closed loop (keywords of :class:`~invctl.simulate.closed_loop.ClosedLoop`) with
+#: their CLI options
+INTEGRATOR_OPTIONS = {"rtol": "--rtol", "atol": "--atol", "max_num_steps": "--max-steps"}
+
+
+def check_integrator_options(integrator) -> dict:
+    """``integrator`` as a dict of :data:`INTEGRATOR_OPTIONS` (positive numbers; ``max_num_steps`` an
+    integer), ``None`` entries dropped; else a :class:`ParameterError` naming the known ones."""
+    out = {k: v for k, v in dict(integrator or {}).items() if v is not None}
+    bad = sorted(set(out) - set(INTEGRATOR_OPTIONS))
+    if bad:
+        raise OptionError(f"integrator: unknown setting(s) {bad}; known: {', '.join(INTEGRATOR_OPTIONS)}")
+    for k, v in out.items():
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) and v > 0
+        if not ok or (k == "max_num_steps" and int(v) != v):
+            raise OptionError(f"integrator: {k} must be a positive {'integer' if k == 'max_num_steps' else 'number'}"
+                                 f", got {v!r}")
+    return {k: int(v) if k == "max_num_steps" else float(v) for k, v in out.items()}
+
+
 def _signals(scene, model) -> dict:
     return {name: make(model) for name, make in scene.tracking.signals.items()}
 
@@ -281,6 +302,7 @@ class TrackingSetup:
     signals: dict
     params: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    integrator: dict = field(default_factory=dict)
     _loops: dict = field(default_factory=dict)
     _c1: object = None
 
@@ -296,7 +318,7 @@ class TrackingSetup:
         plant follows the inverse."""
         if self._c1 is None:
             self._require_inverse("C1-inv")
-            t = np.linspace(0.0, self.t_end, int(round(self.t_end / 5e-4)) + 1)
+            t = self._inverse_grid(5e-4)
             q, v = self.inverse.q(t), self.inverse.v(t)
             psi = self.lin.psi_function().map(t.size)
             w = np.array(psi(q, v, np.tile(self.model.theta_values[:, None], (1, t.size))))
@@ -323,10 +345,16 @@ class TrackingSetup:
             self.inverse = invert_tracking(self.scene, self.model, self.reference)
             self.timings["inversion"] = time.perf_counter() - t0
 
+    def _inverse_grid(self, step):
+        """Sample times on ``[0, min(t_end, Tf)]`` (at least 4): the inverse rests after its horizon ``Tf`` and
+        the sampled signals hold their last value, so the grid does not grow with ``t_end``."""
+        stop = min(self.t_end, max(float(self.inverse.Tf), 0.0))
+        return np.linspace(0.0, max(stop, 3 * step), max(int(round(stop / step)), 3) + 1)
+
     def u_ff_samples(self):
         if self.inverse is None:
             raise ParameterError("no feedforward: pass inverse= or let setup_tracking invert the reference model")
-        t = np.linspace(0.0, self.t_end, int(round(self.t_end / min(self.dt, 1e-3))) + 1)
+        t = self._inverse_grid(min(self.dt, 1e-3))
         u = np.asarray(self.inverse.u_causal(t), float).reshape(self.model.m, t.size)
         if not np.all(np.isfinite(u)):
             raise ParameterError("the feedforward u_causal(t) has non-finite values")
@@ -341,7 +369,8 @@ class TrackingSetup:
             ctrl = self.controller_for(name)
             uff = self.u_ff_samples() if name in NEEDS_INVERSE else None
             self._loops[name] = ClosedLoop(self.plant, self.reference, controller=ctrl, u_ff=uff,
-                                           signals=self.signals, t_end=self.t_end, dt=self.dt, name=name)
+                                           signals=self.signals, t_end=self.t_end, dt=self.dt, name=name,
+                                           **self.integrator)
             self.timings[f"build_{name}"] = time.perf_counter() - t0
         return self._loops[name]
 
@@ -356,11 +385,15 @@ class TrackingSetup:
 
 def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, invert=True, t_end=None, dt=1e-3,
                    feedback=None, plant_factors=None, q0=None, reference=None, progress=False,
-                   inversion_options=None) -> TrackingSetup:
+                   inversion_options=None, integrator=None) -> TrackingSetup:
     """Build the reference model (``params``), the plant (declared mismatch, then ``plant_params``),
     the linearization, the funnel controller (declared feedback updated by ``feedback``) and, if
     ``invert`` and no ``inverse`` is given, the servo-constraint inverse of the reference model.
-    ``reference`` (a Reference or ``model -> Reference``) replaces the scene's reference."""
+    ``reference`` (a Reference or ``model -> Reference``) replaces the scene's reference; ``dt`` is the
+    output step of the runs and ``integrator`` their CVODES settings (:data:`INTEGRATOR_OPTIONS`)."""
+    integrator = check_integrator_options(integrator)
+    if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
+        raise OptionError(f"dt (output step of the closed loop) must be a positive number of seconds, got {dt!r}")
     timings = {}
     t0 = time.perf_counter()
     params = dict(params or {})
@@ -395,7 +428,7 @@ def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, inver
         inverse.meta = {"scene": scene_reference(scene), "params": dict(params)}
         timings["inversion"] = time.perf_counter() - t0
     return TrackingSetup(scene, model, plant, ref, lin, ctrl, inverse, design, q0, t_end, float(dt),
-                         _signals(scene, model), params, timings)
+                         _signals(scene, model), params, timings, integrator)
 
 
 def a1_along(setup: TrackingSetup, res: ClosedLoopResult, stride: int = 10) -> dict:

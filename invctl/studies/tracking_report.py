@@ -307,13 +307,19 @@ def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
 
 
 # ----------------------------------------------------------------- simulate
+def _step(dt) -> dict:
+    """``dt=`` for :func:`setup_tracking` when given (its default otherwise)."""
+    return {} if dt is None else {"dt": dt}
+
+
 def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
-             plot=None, inverse=None, quiet=False) -> CommandResult:
-    """One closed-loop run of ``controller`` (C1, C2, C3, C1-42) on the mismatched plant."""
+             plot=None, inverse=None, quiet=False, dt=None, integrator=None) -> CommandResult:
+    """One closed-loop run of ``controller`` (C1, C2, C3, C1-42) on the mismatched plant (output step ``dt``,
+    CVODES settings ``integrator``: see :func:`~invctl.studies.tracking.setup_tracking`)."""
     name = (controller or "C1").upper()
     t0 = time.perf_counter()
     setup = setup_tracking(scene, params, plant_params, inverse=inverse, invert=name in ("C1", "C3", "C1-42"),
-                           t_end=t_end, progress=not quiet)
+                           t_end=t_end, progress=not quiet, integrator=integrator, **_step(dt))
     res = run_controller(setup, name)
     wall_total = time.perf_counter() - t0
     s = res.summary()
@@ -353,10 +359,11 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
 
 # ----------------------------------------------------------------- pipeline
 def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
-             quiet=False, animate=True) -> CommandResult:
+             quiet=False, animate=True, dt=None, integrator=None) -> CommandResult:
     """Invert, design, simulate every declared controller, compare, write figures, runs (and animations)."""
     t0 = time.perf_counter()
-    study = run_tracking_study(scene, params, plant_params, t_end=t_end, progress=not quiet)
+    study = run_tracking_study(scene, params, plant_params, t_end=t_end, progress=not quiet, integrator=integrator,
+                               **_step(dt))
     out = Path(out_dir)
     meta = study.setup.meta()
     study.save(out, meta=meta)
