@@ -25,7 +25,8 @@ import numpy as np
 
 from ..errors import InfeasibleBoundsError, InversionFailed, OptionError, WallTimeLimitError
 from .backends import _TIME_LIMIT
-from .bounded import _inverse, _limits, _violation, active_bounds, constraint_points, solve_scaled
+from .bounded import (_inverse, _limits, _violation, active_bounds, between_nodes, check_between_nodes,
+                      constraint_points, solve_scaled)
 from .cache import ocp_transcription, servo_model
 from .options import Bounds, from_keywords
 from .problem import prepare, resolve_plan
@@ -127,7 +128,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         guess = None
     sch, N = setup.scheme, t_mesh.size - 1
     tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True, bounded=rb.bounded,
-                           rated=rb.rated, compiled=disc.compiled)
+                           rated=rb.rated, hull=True, compiled=disc.compiled)
     tc = tr.collocation_times(t_mesh)
     tau0 = float(np.clip(tau_ref if warm_start is None else warm_start.tf - warm_start.t0, lo, hi))
     no_inverse = None  # a shorter duration at which the exact inverse of the shape was not found
@@ -207,7 +208,6 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     from .square import residuals
 
     res = residuals(inv, servo, ref_opt, theta)
-    _ts, Xs, _tr, Us = constraint_points(inv, servo, ref_opt, theta)
     inv.diagnostics.update({
         "status": status, "iterations": int(st["iterations"]), "success": ok, "max_constraint_violation": viol,
         "backend": "ipopt", "hessian": hessian, "scheme": sch.name, "N": int(N), "relaxed": relaxed,
@@ -218,7 +218,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         "free_time": {"duration": tau, "reference_duration": tau_ref, "t0": reference.t0, "tf": reference.t0 + tau,
                       "energy": E, "energy_weight": float(energy), "objective": tau + energy * E,
                       "duration_range": [lo, hi], "at_duration_limit": at_limit, "active": active,
-                      "bound_violation": max([0.0] + [v for v in rb.violations(Xs, Us).values()])},
+                      "bound_violation": between_nodes(inv, rb)["max_violation_between_nodes"]},
         "wall_s": time.perf_counter() - t_all,
     })
     ft = inv.diagnostics["free_time"]
@@ -255,6 +255,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
             f"violation {viol:.3g}); try more iterations (max_iter), another initial duration (a reference of a "
             f"feasible duration) or hessian='exact'; the last iterate is in exc.partial{model_limit}", partial=inv,
             diagnostics=inv.diagnostics)
+    check_between_nodes(inv, rb, None, f"minimum_time ({sch.name} N={N})")
     return inv
 
 

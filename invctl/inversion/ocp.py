@@ -17,9 +17,16 @@ Relaxed servo constraint
     the multipliers of the holonomic and non-holonomic constraints, and ``s`` is (at low
     frequencies) the output error it buys.
 Bounds
-    On entries of ``q``, ``v``, ``u`` at the mesh points and at the collocation points
-    (Hermite-Simpson: the interval midpoints), and on ``u'`` (the ``u`` rows of ``F``) wherever
-    ``F`` is evaluated.
+    On entries of ``q``, ``v``, ``u`` and on ``u'`` over the whole interpolating polynomial of
+    every interval (the trajectory the :class:`~invctl.inversion.result.Inverse` returns), not
+    only at its nodes: a polynomial lies between its Bernstein (Bezier) coefficients, so
+    bounding them (linear in the unknowns) is sufficient, and the conservatism shrinks as
+    ``h^2``.  Hermite-Simpson: the mesh values, the control points ``X_k + h F_k / 3`` and
+    ``X_{k+1} - h F_{k+1} / 3`` of the cubic; for ``u'`` the mesh slopes and the middle
+    coefficient ``2 F_m - (F_k + F_{k+1}) / 2`` of its quadratic derivative (equal to
+    ``3 (X_{k+1} - X_k) / h - F_k - F_{k+1}`` where the defects vanish).  Legendre/Radau: the
+    mesh and collocation values, and (``hull=True``) the interior Bernstein coefficients of the
+    Lagrange polynomial; ``u'`` (the ``u`` rows of ``F``) at the collocation points only.
 Free transition time
     A decision ``tau = tf - t0``: the mesh intervals of ``[t0, tf]`` scale with ``tau / tau_ref``,
     the reference samples of derivative ``k`` with ``(tau_ref / tau)^k`` (the shape is fixed);
@@ -72,11 +79,64 @@ def relaxed_rhs(servo) -> ca.Function:
     return fn
 
 
+#: pieces of every mesh interval whose Bezier control points bound the interpolant: their convex
+#: hull lies within O((h / HULL_PIECES)^2) of the curve (the conservatism of the bound)
+HULL_PIECES = 2
+
+
+def _bernstein(n: int, t) -> np.ndarray:
+    """``B[j, i]``: the degree-``n`` Bernstein polynomial ``i`` at ``t[j]``."""
+    from math import comb
+
+    t = np.asarray(t, float)[:, None]
+    i = np.arange(n + 1)[None, :]
+    return np.array([[comb(n, k) for k in range(n + 1)]]) * t ** i * (1 - t) ** (n - i)
+
+
+def hull_matrix(n: int, pieces: int | None = None) -> np.ndarray:
+    """``(n pieces - 1, n + 1)``: Bernstein coefficients of a degree-``n`` polynomial on ``[0, 1]`` to
+    the control points of its ``pieces`` equal pieces, without the two end points (the values at 0
+    and 1), in the order of :func:`hull_times`."""
+    pieces = pieces or HULL_PIECES
+    A = _bernstein(n, np.linspace(0.0, 1.0, n + 1))
+    rows = []
+    for r in range(pieces):
+        T = np.linalg.solve(A, _bernstein(n, (r + np.linspace(0.0, 1.0, n + 1)) / pieces))
+        rows += list(T[1:])  # the first is the last of the piece before (or the value at 0)
+    return np.array(rows[:-1])
+
+
+def hull_times(n: int, pieces: int | None = None) -> np.ndarray:
+    """Where in ``[0, 1]`` each row of :func:`hull_matrix` sits (its Greville abscissa)."""
+    pieces = pieces or HULL_PIECES
+    return np.arange(1, n * pieces) / (n * pieces)
+
+
+def hs_hull(Xa, Xb, Fa, Fb, Fm, h, bnd, rate_rows):
+    """The Hermite-Simpson interval rows that bound the interpolant (module doc): the control points
+    of the pieces of the cubics of ``X[bnd]`` and of the quadratics ``X'[rate_rows]``."""
+    P = ca.horzcat(Xa[bnd], Xa[bnd] + h / 3 * Fa[bnd], Xb[bnd] - h / 3 * Fb[bnd], Xb[bnd])
+    Q = ca.horzcat(Fa[rate_rows], 2 * Fm[rate_rows] - (Fa[rate_rows] + Fb[rate_rows]) / 2, Fb[rate_rows])
+    return ca.vertcat(ca.vec(ca.mtimes(P, ca.DM(hull_matrix(3).T))), ca.vec(ca.mtimes(Q, ca.DM(hull_matrix(2).T))))
+
+
+def bernstein_interior(scheme: Scheme, hull: bool = True) -> np.ndarray:
+    """``(d+1, d HULL_PIECES - 1)``: the values of a degree-``d`` polynomial at ``0`` and the
+    collocation points (a row) times it give the interior control points of its pieces (no
+    columns without ``hull``)."""
+    d = scheme.degree
+    if not hull:
+        return np.zeros((d + 1, 0))
+    s = np.concatenate([[0.0], scheme.tau])
+    return np.linalg.inv(_bernstein(d, s)).T @ hull_matrix(d).T
+
+
 @dataclass(frozen=True)
 class PathRow:
     """One bounded quantity of a transcription: ``kind`` ("X": an entry of ``X``; "rate": an
     entry of ``u'``), ``entry`` (index into ``X``, or into ``u`` for rates), ``where`` ("mesh",
-    "mid" or "col") and ``point`` (its index among those points)."""
+    "mid", "col"; the control points of :func:`hull_matrix` "hull", "rate_hull") and ``point``
+    (its index among those points)."""
 
     kind: str
     entry: int
@@ -108,11 +168,14 @@ class OCPTranscription:
     free_time : bool
         ``tau`` is a decision variable.
     bounded : tuple of int
-        Entries of ``X`` that have bounds (Hermite-Simpson adds their midpoint values to ``g``).
+        Entries of ``X`` that have bounds (their interior Bernstein coefficients are added to ``g``).
     rated : tuple of int
         Entries of ``u`` with rate bounds (their ``F`` rows are added to ``g``).
     elastic : bool
         Every bound as a relaxed constraint (module doc); needs ``relaxed``.
+    hull : bool
+        Legendre/Radau: bound the interior Bernstein coefficients of the bounded entries too
+        (module doc); Hermite-Simpson always bounds its Bezier control points.
 
     Notes
     -----
@@ -134,12 +197,14 @@ class OCPTranscription:
     """
 
     def __init__(self, servo, selection, scheme: Scheme, N: int, *, relaxed: bool, free_time: bool = False,
-                 bounded: tuple = (), rated: tuple = (), elastic: bool = False, compiled: bool | str = False):
+                 bounded: tuple = (), rated: tuple = (), elastic: bool = False, hull: bool = False,
+                 compiled: bool | str = False):
         t_build = time.perf_counter()
         if elastic and not relaxed:
             raise ValueError("the elastic problem relaxes the servo constraint (relaxed=True)")
         self.servo, self.selection, self.scheme, self.N = servo, selection, scheme, int(N)
         self.relaxed, self.free_time, self.elastic = bool(relaxed), bool(free_time), bool(elastic)
+        self.hull = bool(hull) or scheme.is_hs
         self.bounded, self.rated = tuple(int(i) for i in bounded), tuple(int(i) for i in rated)
         L = servo.layout
         nx, m, m4 = L.nx, L.m, 4 * L.m
@@ -226,7 +291,7 @@ class OCPTranscription:
             def hs_rows(Xa_, Xb_, Xm_, Fa_, Fb_, Fm_, ra, rm, rb, h_):
                 return (Xb_ - Xa_ - h_ / 6 * (Fa_ + 4 * Fm_ + Fb_),
                         ca.vertcat(ca.sqrt(h_ / 6) * ra, ca.sqrt(2 * h_ / 3) * rm, ca.sqrt(h_ / 6) * rb),
-                        ca.vertcat(Xm_[bnd], Fm_[rate_rows]))
+                        hs_hull(Xa_, Xb_, Fa_, Fb_, Fm_, h_, bnd, rate_rows))
 
             val = hs_rows(Xa, Xb, Xm, Fa, Fb, Fm, Ga[nx:], Gm[nx:], Gb[nx:], h)
             iv_val = ca.Function("ocp_hs_interval", [Xa, Xb, Xm, Ga, Gb, Gm] + ipars, list(val))
@@ -245,7 +310,10 @@ class OCPTranscription:
             dsq = [dh * dt / (2 * q) * k for q, k in zip(sq, (1 / 6, 2 / 3, 1 / 6))]
             dR = ca.vertcat(*[sq[i] * dG[nx:] + dsq[i] * G_[nx:]
                               for i, (dG, G_) in enumerate(((dGa, Ga), (dGm, Gm), (dGb, Gb)))])
-            dpath = ca.vertcat(dXm[bnd], dGm[:nx][rate_rows])
+            Z = ca.SX.zeros(nx)
+            dpath = (hs_hull(dXa, dXb, dGa[:nx], dGb[:nx], dGm[:nx], h, bnd, rate_rows)
+                     + dh * dt * (hs_hull(Z, Z, Fa, Fb, Fm, 1, bnd, rate_rows) - hs_hull(Z, Z, Fa, Fb, Fm, 0, bnd,
+                                                                                         rate_rows)))
             z = ca.vertcat(dXa, dXb, dsa, dsb, dsm, *([dt] if tau is not None else []))
             jins = [Ga, Gb, Gm, JGa, JGb, JGm] + ([Gta, Gtb, Gtm] if tau is not None else []) + ipars
             iv_jac = ca.Function("ocp_hs_interval_jac", jins,
@@ -258,13 +326,13 @@ class OCPTranscription:
         else:
             Xk, Xk1, Xc, Gc = ca.SX.sym("Xk", nx), ca.SX.sym("Xk1", nx), ca.SX.sym("Xc", nx, d), ca.SX.sym("Gc", nG, d)
             wq = quadrature_weights(scheme)
-            Cm, Dm = ca.DM(scheme.C), ca.DM(scheme.D)
+            Cm, Dm, Bm = ca.DM(scheme.C), ca.DM(scheme.D), ca.DM(bernstein_interior(scheme, self.hull))
 
             def coll_rows(Xk_, Xk1_, Xc_, Fc_, rc, h_):
                 Xall = ca.horzcat(Xk_, Xc_)
                 return (ca.vertcat(ca.vec(ca.mtimes(Xall, Cm) - h_ * Fc_), Xk1_ - ca.mtimes(Xall, Dm)),
                         ca.vertcat(*[ca.sqrt(h_ * float(wq[q])) * rc[:, q] for q in range(d)]),
-                        ca.vertcat(*[Fc_[rate_rows, q] for q in range(d)]))
+                        ca.vertcat(*[Fc_[rate_rows, q] for q in range(d)], ca.vec(ca.mtimes(Xall[bnd, :], Bm))))
 
             val = coll_rows(Xk, Xk1, Xc, Gc[:nx, :], Gc[nx:, :], h)
             iv_val = ca.Function("ocp_coll_interval", [Xk, Xk1, Xc, Gc] + ipars, list(val))
@@ -280,7 +348,7 @@ class OCPTranscription:
             sq = [ca.sqrt(h * float(wq[q])) for q in range(d)]
             dR = ca.vertcat(*[sq[q] * dGc[nx:, q] + dh * dt * float(wq[q]) / (2 * sq[q]) * Gc[nx:, q]
                               for q in range(d)])
-            dpath = ca.vertcat(*[dGc[rate_rows, q] for q in range(d)])
+            dpath = ca.vertcat(*[dGc[rate_rows, q] for q in range(d)], ca.vec(ca.mtimes(dall[bnd, :], Bm)))
             z = ca.vertcat(dXk, dXk1, ca.vec(dXc), ca.vec(dSc), *([dt] if tau is not None else []))
             jins = [Gc, JGc] + ([Gtc] if tau is not None else []) + ipars
             iv_jac = ca.Function("ocp_coll_interval_jac", jins,
@@ -358,12 +426,14 @@ class OCPTranscription:
             base = n_el = len(ccols)
         if n_ip:
             parts.append(ca.vec(ipath))
-            if hs:
-                rows += [PathRow("X", i, "mid", k) if q < len(bnd) else
-                         PathRow("rate", self.rated[q - len(bnd)], "mid", k)
-                         for k in range(N) for q, i in enumerate(bnd + list(self.rated))]
-            else:
-                rows += [PathRow("rate", j, "col", k * d + q) for k in range(N) for q in range(d) for j in self.rated]
+            for k in range(N):  # in the order of the interval rows (hs_hull, coll_rows)
+                nh = (3 if hs else d) * HULL_PIECES - 1 if self.hull else 0
+                if not hs:
+                    rows += [PathRow("rate", j, "col", k * d + q) for q in range(d) for j in self.rated]
+                rows += [PathRow("X", i, "hull", k * nh + b) for b in range(nh) for i in bnd]
+                if hs:
+                    nr_ = 2 * HULL_PIECES - 1
+                    rows += [PathRow("rate", j, "rate_hull", k * nr_ + b) for b in range(nr_) for j in self.rated]
             pj.append((*_block_triplets(n_ip, iv_index, base), ca.vec(Jip)))
             base += N * n_ip
         if hs and self.rated:  # rates at the mesh points
@@ -462,9 +532,13 @@ class OCPTranscription:
         return np.zeros(0) if self.scheme.is_hs else self.sample_times(t_mesh)
 
     def row_times(self, t_mesh) -> np.ndarray:
-        """Time of every bounded quantity (:attr:`path_rows`)."""
+        """Time of every bounded quantity (:attr:`path_rows`; a Bernstein coefficient at its
+        Greville abscissa)."""
         t_mesh = np.asarray(t_mesh, float)
-        at = {"mesh": t_mesh, "mid": 0.5 * (t_mesh[:-1] + t_mesh[1:]), "col": self.collocation_times(t_mesh)}
+        a, h = t_mesh[:-1], np.diff(t_mesh)
+        at = {"mesh": t_mesh, "mid": a + 0.5 * h, "col": self.collocation_times(t_mesh)}
+        for key, n in (("hull", self.scheme.degree), ("rate_hull", 2)):
+            at[key] = (a[:, None] + h[:, None] * hull_times(n)[None, :]).ravel()
         return np.array([at[r.where][r.point] for r in self.path_rows])
 
     def parameters(self, t_mesh, Ysamples, theta, E0, Ef, *, W=1.0, rho=0.0, energy=0.0, rate=0.0,

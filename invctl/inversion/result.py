@@ -108,6 +108,25 @@ class Inverse:
             out = out + self.X_col[:, k * d + j - 1] * self._basis[j](s)
         return out
 
+    def dX(self, t) -> np.ndarray:
+        """Time derivative of :meth:`X` (of the same polynomials; zero outside ``[T0, Tf]``)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        tc = np.clip(t, self.T0, self.Tf)
+        k = np.clip(np.searchsorted(self.t_mesh, tc, side="right") - 1, 0, self.N - 1)
+        h = self.t_mesh[k + 1] - self.t_mesh[k]
+        s = (tc - self.t_mesh[k]) / h
+        if self._scheme.is_hs:
+            s2 = s * s
+            out = ((self.X_mesh[:, k + 1] - self.X_mesh[:, k]) * (6 * s - 6 * s2) / h
+                   + self.dX_mesh[:, k] * (3 * s2 - 4 * s + 1) + self.dX_mesh[:, k + 1] * (3 * s2 - 2 * s))
+        else:
+            d = self._scheme.degree
+            out = self.X_mesh[:, k] * np.polyder(self._basis[0])(s)
+            for j in range(1, d + 1):
+                out = out + self.X_col[:, k * d + j - 1] * np.polyder(self._basis[j])(s)
+            out = out / h
+        return np.where((t < self.T0) | (t > self.Tf), 0.0, out)
+
     def _block(self, block, t):
         return self.X(t)[self._slice(block)]
 

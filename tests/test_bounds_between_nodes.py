@@ -1,0 +1,151 @@
+"""Bounds hold on the trajectory the user gets (the interpolants of :class:`Inverse`, the saved
+``.npz`` samples), not only at the mesh and collocation points; the reported largest violation
+between the nodes is the one measured on a fine grid."""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+
+import numpy as np
+import pytest
+
+import problems.cartpole as cp
+from invctl.cli import main
+from invctl.errors import InversionFailed
+from invctl.inversion import Bounds, invert
+from invctl.inversion.bounded import ACTIVE_TOL, between_nodes
+from invctl.inversion.cache import servo_model
+from invctl.inversion.mintime import minimum_time
+from invctl.inversion.result import Inverse
+
+TOL = 1e-9  # IPOPT meets the constraints to 1e-10
+
+
+@pytest.fixture(scope="module")
+def cartpole():
+    md = cp.build()
+    return md, cp.reference(md)
+
+
+def _cli(*argv):
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        rc = main(list(argv) + ["--json", "--quiet"])
+    return rc, json.loads(out.getvalue().strip().splitlines()[-1])
+
+
+def _cubic_peak(inv, row):
+    """Largest |X[row]| of the Hermite-Simpson interpolant, exactly: the ends of every interval and
+    the real roots in it of the derivative of its cubic (independent of the library's sampling)."""
+    best = np.max(np.abs(inv.X_mesh[row]))
+    for k in range(inv.N):
+        a, b, h = inv.t_mesh[k], inv.t_mesh[k + 1], inv.t_mesh[k + 1] - inv.t_mesh[k]
+        y0, y1, d0, d1 = inv.X_mesh[row, k], inv.X_mesh[row, k + 1], h * inv.dX_mesh[row, k], h * inv.dX_mesh[row, k + 1]
+        # p(s) = c3 s^3 + c2 s^2 + c1 s + c0 in s = (t - a) / h
+        c3, c2, c1 = 2 * y0 + d0 - 2 * y1 + d1, -3 * y0 - 2 * d0 + 3 * y1 - d1, d0
+        for s in np.roots([3 * c3, 2 * c2, c1]):
+            if abs(s.imag) < 1e-12 and 0 < s.real < 1:
+                best = max(best, abs(float(inv.X([a + s.real * h])[row, 0])))
+        assert b > a
+    return best
+
+
+def test_cartpole_input_bound_holds_on_the_saved_and_sampled_feedforward(cartpole, tmp_path):
+    # the audit case: the node-only bound let the saved feedforward reach |u| = 0.1047 (2.1x the
+    # bound) at 439 of 1001 samples; now the .npz samples, the reloaded interpolant and the Python
+    # result on 5000 points all stay within 0.05
+    path = tmp_path / "cp.npz"
+    rc, data = _cli("invert", "cartpole", "--bound", "u=0.05", "--out", str(path))
+    assert rc == 0 and data["success"]
+    z = np.load(path)
+    assert z["u"].shape[1] == 1001 and np.max(np.abs(z["u"])) <= 0.05 + TOL
+    inv = Inverse.load(path)
+    t = np.linspace(inv.T0, inv.Tf, 5000)
+    assert np.max(np.abs(inv.u(t))) <= 0.05 + TOL
+    assert np.max(np.abs(inv.sample(t)["u"])) <= 0.05 + TOL
+    # the bound is active (not trivially met) and the reported violation is the measured one
+    assert np.max(np.abs(inv.u(t))) > 0.05 - 1e-6
+    row = inv._slice("u").start
+    exact = max(0.0, _cubic_peak(inv, row) - 0.05)
+    b = data["bounds"]
+    assert b["max_violation_between_nodes"] == pytest.approx(exact, abs=1e-12) and exact <= TOL
+    assert b["samples_per_interval"] >= 10
+
+    md, ref = cartpole
+    py = invert(md, ref, bounds=Bounds(u=0.05))
+    assert np.max(np.abs(py.u(t))) <= 0.05 + TOL
+    assert py.diagnostics["bounds"]["max_violation_between_nodes"] <= TOL
+
+
+def test_reported_violation_equals_an_independent_fine_grid_measurement(cartpole):
+    # an interpolant that leaves the bound between its nodes (slopes of a node-only solution):
+    # between_nodes reports the exact cubic peak to within its sampling, and flags the bound
+    md, ref = cartpole
+    inv = invert(md, ref, bounds=Bounds(u=0.05), N=60)
+    row = inv._slice("u").start
+    inv.dX_mesh[row] += np.where(np.arange(inv.N + 1) % 2, 3.0, -3.0)  # wiggles through the bound
+    rb = Bounds(u=0.05).resolve(servo_model(md))
+    chk = between_nodes(inv, rb)
+    exact = _cubic_peak(inv, row) - 0.05
+    assert exact > 1e-2
+    assert chk["max_violation_bound"] == "u[F]"
+    assert 0.99 * exact <= chk["max_violation_between_nodes"] <= exact + 1e-15
+    t = np.linspace(inv.T0, inv.Tf, 200001)
+    assert chk["max_violation_between_nodes"] <= np.max(np.abs(inv.u(t))) - 0.05 + 1e-4 * exact
+
+
+@pytest.mark.parametrize("bounds, check", [
+    (Bounds(u=(-0.03, 0.08)), lambda inv, t: (inv.u(t)[0], -0.03, 0.08)),
+    (Bounds(q={"theta": 0.05}), lambda inv, t: (inv.q(t)[1], -0.05, 0.05)),
+    (Bounds(v={"x": 0.3}), lambda inv, t: (inv.v(t)[0], -0.3, 0.3)),
+    (Bounds(u_rate=0.5), lambda inv, t: (inv.dX(t)[inv._slice("u")][0], -0.5, 0.5)),
+], ids=["u", "q", "v", "u_rate"])
+def test_every_kind_of_bound_holds_between_the_nodes(cartpole, bounds, check):
+    md, ref = cartpole
+    inv = invert(md, ref, bounds=bounds, N=60)
+    t = np.linspace(inv.T0, inv.Tf, 20001)
+    x, lo, hi = check(inv, t)
+    assert lo - TOL <= np.min(x) and np.max(x) <= hi + TOL
+    assert min(hi - np.max(x), np.min(x) - lo) < 1e-6  # active
+    assert inv.diagnostics["bounds"]["max_violation_between_nodes"] <= TOL
+
+
+def test_pre_actuation_bound_holds_on_the_returned_trajectory(cartpole):
+    md, ref = cartpole
+    inv = invert(md, ref, bounds=Bounds(max_pre_actuation=1.0), N=60)
+    assert ref.t0 - inv.T0 <= 1.0 + 1e-12
+    t = np.linspace(inv.T0 - 2.0, ref.t0 - 1.0, 200)  # at rest (the start equilibrium) before T0
+    assert np.ptp(inv.X(t), axis=1).max() == 0.0
+    assert inv.diagnostics["bounds"]["max_violation_between_nodes"] == 0.0
+
+
+@pytest.mark.parametrize("scheme", ["legendre3", "radau3"])
+def test_collocation_schemes_bound_their_polynomials(cartpole, scheme):
+    # their node-only solution leaves the bound between the collocation points: solved again with
+    # the Bernstein coefficients of the polynomials bounded
+    md, ref = cartpole
+    inv = invert(md, ref, bounds=Bounds(u=0.05), N=60, scheme=scheme)
+    t = np.linspace(inv.T0, inv.Tf, 20001)
+    assert np.max(np.abs(inv.u(t))) <= 0.05 + TOL
+
+
+def test_a_violation_between_the_nodes_is_never_a_success(cartpole):
+    # rate bounds of a Legendre scheme hold at the collocation points only: the check refuses it
+    md, ref = cartpole
+    with pytest.raises(InversionFailed, match="u_rate.*hermite-simpson") as exc:
+        invert(md, ref, bounds=Bounds(u_rate=0.5), N=60, scheme="legendre3")
+    part = exc.value.partial
+    assert part is not None and not part.success
+    b = part.diagnostics["bounds"]
+    assert b["max_violation_between_nodes"] > ACTIVE_TOL and b["max_violation_bound"] == "u_rate[F]"
+
+
+def test_minimum_time_bounds_hold_on_the_returned_trajectory(cartpole):
+    md, ref = cartpole
+    inv = minimum_time(md, ref, bounds=Bounds(u=1.0), N=60)
+    t = np.linspace(inv.T0, inv.Tf, 20001)
+    peak = np.max(np.abs(inv.u(t)))
+    assert 0.99 < peak <= 1.0 + TOL
+    assert inv.diagnostics["free_time"]["bound_violation"] <= TOL
+    assert inv.diagnostics["bounds"]["max_violation_between_nodes"] <= TOL
