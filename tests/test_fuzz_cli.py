@@ -463,3 +463,60 @@ def test_property_checker_rejects_bad_outcomes():
             check_property(["x"], rc, out, err)
     assert check_property(["x"], 2, '{"error": "ParameterError", "message": "bad"}', "") == "ParameterError"
     assert math.isfinite(CASE_LIMIT_S)
+
+
+#: bounds of random size on the cart-pole (its exact inverse peaks at |F| = 1.32 N, |theta| = 0.065,
+#: |x'| = 0.62 m/s, |F'| = 10 N/s, with 4.8 s of pre-actuation): value range of each kind
+BOUND_KINDS = {"u": (0.02, 2.0), "u.F": (0.02, 2.0), "q.theta": (0.01, 0.1), "v.x": (0.1, 1.0),
+               "u_rate": (0.3, 20.0), "pre": (0.3, 6.0)}
+
+
+@settings(max_examples=20 if LONG else 5, deadline=None, database=None,
+          derandomize=not (LONG or os.environ.get("INVCTL_FUZZ_RANDOM")),
+          suppress_health_check=list(HealthCheck))
+@given(data=st.data())
+def test_fuzz_bounds_hold_between_the_nodes(fuzz_dir, data):
+    """``invctl invert cartpole --bound ...`` with random bounds, schemes, meshes and minimum time: a
+    success's saved trajectory meets the bound on a fine grid of its interpolant and in its samples,
+    and reports that largest violation; anything else is a specific error."""
+    from invctl.inversion.result import Inverse
+
+    kind = data.draw(st.sampled_from(sorted(BOUND_KINDS)))
+    lo, hi = BOUND_KINDS[kind]
+    value = data.draw(st.floats(lo, hi))
+    asym = kind in ("u.F", "q.theta") and data.draw(st.booleans())
+    spec = f"{kind}={-0.5 * value:.6g}:{value:.6g}" if asym else f"{kind}={value:.6g}"
+    case = CASES["n"] = CASES["n"] + 1
+    out = fuzz_dir / f"bounds_{case}.npz"
+    argv = ["invert", "cartpole", "--bound", spec, "--N", str(data.draw(st.sampled_from([20, 40, 60]))),
+            "--scheme", data.draw(st.sampled_from(["hermite-simpson", "hermite-simpson", "legendre3"])),
+            "--out", str(out), "--force", "--json", "--quiet"]
+    if kind != "pre" and data.draw(st.booleans()):
+        argv.append("--minimum-time")
+    t_case = time.perf_counter()
+    rc, text, err = run_case(argv, fuzz_dir / "cwd")
+    CASES["wall"] += time.perf_counter() - t_case
+    OUTCOMES["bounds:" + check_property(argv, rc, text, err)] += 1
+    if rc != 0:
+        return
+    report = json.loads(text.strip().splitlines()[-1])["bounds"]
+    inv = Inverse.load(out)
+    z = np.load(out)
+    t = np.linspace(inv.T0, inv.Tf, 20001)
+    b_lo, b_hi = (-0.5 * value, value) if asym else (-value, value)
+    if kind == "pre":
+        excess = (inv.t0 - inv.T0) - value
+        assert z["t"][0] == pytest.approx(inv.T0) and excess <= 1e-9, f"{argv}: pre-actuation {inv.t0 - inv.T0}"
+        return
+    pick = {"u": lambda X, dX: X[inv._slice("u")], "u.F": lambda X, dX: X[inv._slice("u")],
+            "q.theta": lambda X, dX: X[inv._slice("q")][1:2], "v.x": lambda X, dX: X[inv._slice("v")][0:1],
+            "u_rate": lambda X, dX: dX[inv._slice("u")]}[kind]
+    fine = pick(inv.X(t), inv.dX(t))
+    measured = float(max(np.max(fine - b_hi), np.max(b_lo - fine), 0.0))
+    tol = 1e-6 * max(1.0, value)
+    assert measured <= tol, f"{argv}: the returned trajectory violates {spec} by {measured:.3g}"
+    if kind != "u_rate":  # the saved samples (rates are not saved)
+        saved = {"u": z["u"], "u.F": z["u"], "q.theta": z["q"][1:2], "v.x": z["v"][0:1]}[kind]
+        assert np.max(saved - b_hi) <= tol and np.max(b_lo - saved) <= tol, f"{argv}: saved samples violate {spec}"
+    assert 0.0 <= report["max_violation_between_nodes"] <= tol
+    assert report["max_violation_between_nodes"] == pytest.approx(measured, abs=1e-3 * tol + 1e-12), argv

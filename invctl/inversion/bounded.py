@@ -16,7 +16,9 @@ tracking with the servo constraint relaxed when it does not (:mod:`invctl.invers
    nonnegative amount, the scaled sum minimized) gives the closest feasible relaxation, and
    :class:`~invctl.errors.InfeasibleBoundsError` reports it.
 5. The bounds hold on the whole returned trajectory, not only at the nodes: the problem bounds
-   the Bernstein coefficients of every interval's polynomial (:mod:`invctl.inversion.ocp`), and
+   the Bezier control points of every interval's cubic (Hermite-Simpson; Legendre/Radau: solved
+   again with the Bernstein coefficients bounded when their polynomials leave a bound between the
+   collocation points; :mod:`invctl.inversion.ocp`), and
    the result is checked at :data:`CHECK_SAMPLES` points per interval
    (``diagnostics["bounds"]["max_violation_between_nodes"]``); a violation beyond
    :data:`ACTIVE_TOL` (relative) raises :class:`~invctl.errors.InversionFailed`.
@@ -45,6 +47,8 @@ ACTIVE_TOL = 1e-6
 #: weight of the least-squares tracking in the elastic problem (relaxations weigh 1/|bound|): small,
 #: so that the smallest relaxation wins, large enough to keep the Gauss-Newton steps regular
 ELASTIC_EPS = 1e-3
+#: most re-solves of minimum time with the interior bound points moved to the extrema of the polynomials
+EXTREMA_ROUNDS = 8
 #: points per mesh interval where :func:`between_nodes` checks the bounds on the returned trajectory
 CHECK_SAMPLES = 20
 #: statuses meaning "IPOPT believes the constraints cannot be satisfied"
@@ -435,16 +439,17 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
         return sol, st, scale, x, g, viol, status, ok, inv
 
     sol, st, scale, x, g, viol, status, ok, inv = run(x0)
-    solve_s = time.perf_counter() - t_solve
-    if ok and not tr.hull and _beyond_tolerance(rb, between_nodes(inv, rb, reference)):
+    if ok and tr.interior is None and _beyond_tolerance(rb, between_nodes(inv, rb)):
         # Legendre/Radau: the polynomials leave the bounds between the collocation points; solve again
-        # from here with their Bernstein coefficients bounded too (not by default: when no bound needs
-        # it they only add rows)
+        # from here with their Bernstein coefficients bounded too (not by default: where no bound
+        # needs them they only add rows)
+        iterations = st["iterations"]
         tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=True, bounded=rb.bounded, rated=rb.rated,
-                               hull=True, compiled=disc.compiled)
+                               interior="hull", compiled=disc.compiled)
         lbx, ubx, lbg, ubg = _limits(tr, rb)
         sol, st, scale, x, g, viol, status, ok, inv = run(x)
-        solve_s = time.perf_counter() - t_solve
+        st["iterations"] += iterations
+    solve_s = time.perf_counter() - t_solve
     if not ok and status in _TIME_LIMIT:
         raise WallTimeLimitError(
             f"bounded inversion stopped at the wall-time limit of {slv.max_wall_time:g} s after "

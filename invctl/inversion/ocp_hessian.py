@@ -19,7 +19,7 @@ import casadi as ca
 import numpy as np
 
 from .assembly import _all_cached, _assembly, _block_triplets, _compile, quadrature_weights
-from .ocp import bernstein_interior, hs_hull
+from .ocp import coll_points, hs_points
 
 
 def structured_hessian(tr) -> ca.Function:
@@ -42,6 +42,7 @@ def structured_hessian(tr) -> ca.Function:
     bnd = c.bnd
     rate_rows = c.rate_rows
     ipars = c.ipars
+    sp = ipars[-1]  # the positions of the interior points
     scheme = c.scheme
     d = c.d
     N = c.N
@@ -65,7 +66,7 @@ def structured_hessian(tr) -> ca.Function:
     h_d = h + (dh * hd_sym if tau is not None else 0)
     if hs:
         def hull(Xa, Xb, Fa, Fb, Fm, hh):  # the interval's path rows
-            return hs_hull(Xa, Xb, Fa, Fb, Fm, hh, bnd, rate_rows)
+            return hs_points(Xa, Xb, Fa, Fb, Fm, hh, sp, bnd, rate_rows, c.hull)
 
         Ga_, Gb_, Gm_ = (ca.SX.sym(k, nG) for k in ("Ga", "Gb", "Gm"))
         JGa_, JGb_, JGm_ = (ca.SX.sym(k, nG, nz_pt) for k in ("JGa", "JGb", "JGm"))
@@ -108,7 +109,7 @@ def structured_hessian(tr) -> ca.Function:
     else:
         Gc_, JGc_, Gtc_ = ca.SX.sym("Gc", nG, d), ca.SX.sym("JGc", nG, nz_pt * d), ca.SX.sym("Gtc", nG, d)
         wq = quadrature_weights(scheme)
-        Cm, Dm, Bm = ca.DM(scheme.C), ca.DM(scheme.D), ca.DM(bernstein_interior(scheme, tr.hull))
+        Cm, Dm = ca.DM(scheme.C), ca.DM(scheme.D)
         dGc = ca.SX.sym("dGc", nG, d)
 
         def coll_phi(Gc_d, hh, dall, dXk1):
@@ -116,7 +117,7 @@ def structured_hessian(tr) -> ca.Function:
             PHI = ca.dot(lam_s, ca.vertcat(ca.vec(res), dXk1 - ca.mtimes(dall, Dm)))
             PHI += fs * sum(hh * float(wq[q]) * ca.sumsqr(Gc_d[nx:, q]) for q in range(d))
             return PHI + ca.dot(mu_s, ca.vertcat(*[Gc_d[rate_rows, q] for q in range(d)],
-                                                 ca.vec(ca.mtimes(dall[bnd, :], Bm))))
+                                                 coll_points(dall, sp, bnd, c.basis, c.bern)))
 
         PHI = coll_phi(Gc_ + dGc, h, ca.SX.zeros(nx, d + 1), ca.SX.zeros(nx))
         wc = ca.substitute(ca.gradient(PHI, ca.vec(dGc)), ca.vec(dGc), ca.DM.zeros(nG * d))
