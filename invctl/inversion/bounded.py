@@ -75,19 +75,22 @@ def constraint_points(inv, servo, reference, theta):
 
 def between_nodes(inv, rb, reference=None, samples: int = CHECK_SAMPLES) -> dict:
     """The bounds checked on the trajectory the user gets (:meth:`Inverse.X`, :meth:`Inverse.dX`
-    sampled at ``samples`` points per mesh interval, and the pre-/post-actuation of ``reference``):
+    sampled at ``samples`` points per mesh interval and at the interior extrema of every interval's
+    polynomial, so that the largest values are exact, and the pre-/post-actuation of ``reference``):
     ``margins`` (smallest distance to each bound, negative: violated), the largest violation (0
     when every bound holds), the bound and time where it occurs."""
     tm = inv.t_mesh
     s = np.arange(samples) / samples
-    t = np.concatenate([(tm[:-1, None] + np.diff(tm)[:, None] * s[None, :]).ravel(), [tm[-1]]])
-    X = inv.X(t)
-    rates = inv.dX(t)[inv._slice("u")] if rb.rated else None
+    grid = np.concatenate([(tm[:-1, None] + np.diff(tm)[:, None] * s[None, :]).ravel(), [tm[-1]]])
+    ub = inv._slice("u").start
     margins, when = {}, {}
-    for labels, lo, hi, idx, V in ((rb.labels, rb.lo, rb.hi, rb.bounded, X),
-                                   (rb.rate_labels, rb.rate_lo, rb.rate_hi, rb.rated, rates)):
+    for labels, lo, hi, idx, rate in ((rb.labels, rb.lo, rb.hi, rb.bounded, False),
+                                      (rb.rate_labels, rb.rate_lo, rb.rate_hi, rb.rated, True)):
         for i in idx:
-            m = np.minimum(hi[i] - V[i], V[i] - lo[i])
+            row = ub + i if rate else i
+            t = np.concatenate([grid, inv.extrema(row, derivative=rate)])
+            v = (inv.dX(t) if rate else inv.X(t))[row]
+            m = np.minimum(hi[i] - v, v - lo[i])
             k = int(np.argmin(m))
             margins[labels[i]], when[labels[i]] = float(m[k]), float(t[k])
     if reference is not None:

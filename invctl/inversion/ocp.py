@@ -102,12 +102,13 @@ def hs_points(Xa, Xb, Fa, Fb, Fm, h, sp, bnd, rate_rows, hull: bool):
     fa, fb, b1 = Fa[rate_rows], Fb[rate_rows], 2 * Fm[rate_rows] - (Fa[rate_rows] + Fb[rate_rows]) / 2
     if hull:
         return ca.vertcat(Xa[bnd] + h / 3 * Fa[bnd], Xb[bnd] - h / 3 * Fb[bnd], b1)
-    for q in range(2):
+    for q in range(2 if nb else 0):
         h00, h10, h01, h11 = _hermite(sp[q * nb:(q + 1) * nb])
         out.append(Xa[bnd] * h00 + h * Fa[bnd] * h10 + Xb[bnd] * h01 + h * Fb[bnd] * h11)
-    r = sp[2 * nb:]
-    out.append(fa * (1 - r) ** 2 + 2 * b1 * r * (1 - r) + fb * r ** 2)
-    return ca.vertcat(*out)
+    if len(rate_rows):
+        r = sp[2 * nb:]
+        out.append(fa * (1 - r) ** 2 + 2 * b1 * r * (1 - r) + fb * r ** 2)
+    return ca.vertcat(*out) if out else ca.SX(0, 1)
 
 
 def lagrange_basis(scheme: Scheme) -> list:

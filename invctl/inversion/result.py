@@ -127,6 +127,27 @@ class Inverse:
             out = out / h
         return np.where((t < self.T0) | (t > self.Tf), 0.0, out)
 
+    def extrema(self, row: int, derivative: bool = False) -> np.ndarray:
+        """Times of the interior extrema of ``X[row]`` (of its time derivative with ``derivative``)
+        on every mesh interval: where a bound on it can be exceeded between the nodes."""
+        h = np.diff(self.t_mesh)
+        if self._scheme.is_hs:  # the cubic in s = (t - t_k) / h
+            y0, y1 = self.X_mesh[row, :-1], self.X_mesh[row, 1:]
+            d0, d1 = h * self.dX_mesh[row, :-1], h * self.dX_mesh[row, 1:]
+            C = np.array([2 * y0 + d0 - 2 * y1 + d1, -3 * y0 - 2 * d0 + 3 * y1 - d1, d0, y0])
+        else:
+            d = self._scheme.degree
+            vals = np.vstack([self.X_mesh[row, :-1]] + [self.X_col[row, q::d] for q in range(d)])
+            C = sum(np.outer(b.coeffs, vals[j]) for j, b in enumerate(self._basis))
+        out = []
+        for k in range(self.N):
+            p = np.polyder(np.poly1d(C[:, k]), 2 if derivative else 1)
+            if p.order < 1 and not p.coeffs.any():
+                continue
+            out += [self.t_mesh[k] + z.real * h[k] for z in np.atleast_1d(p.roots)
+                    if abs(z.imag) < 1e-9 and 0 < z.real < 1]
+        return np.array(out, float)
+
     def _block(self, block, t):
         return self.X(t)[self._slice(block)]
 
