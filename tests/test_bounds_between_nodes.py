@@ -141,12 +141,18 @@ def test_a_violation_between_the_nodes_is_never_a_success(cartpole):
     assert b["max_violation_between_nodes"] > ACTIVE_TOL and b["max_violation_bound"] == "u_rate[F]"
 
 
-def test_minimum_time_bounds_hold_on_the_returned_trajectory(cartpole):
+@pytest.mark.parametrize("scheme, bounds, row, value", [
+    ("hermite-simpson", Bounds(u=1.0), 4, 1.0), ("legendre3", Bounds(u=1.0), 4, 1.0),
+    ("legendre3", Bounds(q={"theta": 0.03}), 1, 0.03),
+])
+def test_minimum_time_bounds_hold_on_the_returned_trajectory(cartpole, scheme, bounds, row, value):
+    # exact tracking: the interior points moved to the extrema bound the interpolant exactly (its
+    # peak touches the bound, checked at the roots of its derivative)
     md, ref = cartpole
-    inv = minimum_time(md, ref, bounds=Bounds(u=1.0), N=60)
-    t = np.linspace(inv.T0, inv.Tf, 20001)
-    peak = np.max(np.abs(inv.u(t)))
-    assert 0.99 < peak <= 1.0 + TOL
+    inv = minimum_time(md, ref, bounds=bounds, N=60, scheme=scheme)
+    t = np.concatenate([np.linspace(inv.T0, inv.Tf, 20001), inv.extrema(row)])
+    peak = np.max(np.abs(inv.X(t)[row]))
+    assert value - 1e-6 < peak <= value + TOL
     assert inv.diagnostics["free_time"]["bound_violation"] <= TOL
     assert inv.diagnostics["bounds"]["max_violation_between_nodes"] <= TOL
 

@@ -17,9 +17,9 @@ move balances the time (``w_E > 0``).
 
 The bounds hold on the returned interpolant, between the mesh points too: the problem bounds every
 interval's polynomial at interior points (``interior="points"`` of :mod:`invctl.inversion.ocp`),
-first spread over the interval, then, solved again, at the interior extrema of the solution, until
-the check of :func:`~invctl.inversion.bounded.between_nodes` passes (``diagnostics["bound_rounds"]``
-re-solves, at most :data:`~invctl.inversion.bounded.EXTREMA_ROUNDS`).
+first spread over the interval (Legendre/Radau: none at first), then, solved again, at the interior
+extrema of the solution, until the check of :func:`~invctl.inversion.bounded.between_nodes` passes
+(``diagnostics["bound_rounds"]`` re-solves, at most :data:`~invctl.inversion.bounded.EXTREMA_ROUNDS`).
 """
 from __future__ import annotations
 
@@ -134,7 +134,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         guess = None
     sch, N = setup.scheme, t_mesh.size - 1
     tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True, bounded=rb.bounded,
-                           rated=rb.rated, interior="points", compiled=disc.compiled)
+                           rated=rb.rated, interior="points" if sch.is_hs else None, compiled=disc.compiled)
     tc = tr.collocation_times(t_mesh)
     tau0 = float(np.clip(tau_ref if warm_start is None else warm_start.tf - warm_start.t0, lo, hi))
     no_inverse = None  # a shorter duration at which the exact inverse of the shape was not found
@@ -209,6 +209,10 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         inv = _inverse(tr, servo, ref_opt, sch, mesh_opt, x, Yopt, theta, c, make_inverse)
         if not ok or rounds >= EXTREMA_ROUNDS or not _beyond_tolerance(rb, between_nodes(inv, rb)):
             break
+        if tr.interior is None:  # Legendre/Radau: add the interior points only where a bound needs them
+            tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True,
+                                   bounded=rb.bounded, rated=rb.rated, interior="points", compiled=disc.compiled)
+            lbx, ubx, lbg, ubg = _limits(tr, rb, (lo, hi))
         points, start, rounds = tr.extremum_points(inv), x, rounds + 1
     st["iterations"] = iterations
     solve_s = time.perf_counter() - t_solve

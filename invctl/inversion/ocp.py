@@ -193,7 +193,7 @@ class OCPTranscription:
     free_time : bool
         ``tau`` is a decision variable.
     bounded : tuple of int
-        Entries of ``X`` that have bounds (their interior Bernstein coefficients are added to ``g``).
+        Entries of ``X`` that have bounds (with ``interior``, rows between the nodes are added to ``g``).
     rated : tuple of int
         Entries of ``u`` with rate bounds (their ``F`` rows are added to ``g``).
     elastic : bool
