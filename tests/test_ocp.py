@@ -224,8 +224,9 @@ def test_active_input_bound_on_the_manipulator(manip, manip_exact, manip_u2):
 def test_bounded_output_error_matches_forward_simulation(manip, manip_u2):
     # independent of the collocation: the model simulated under the bounded feedforward (CVODES)
     # reproduces the output the OCP predicts, h(q(t)), to the discretization error (measured
-    # 2.3e-7 at HS N = 100), and so the reported output error (measured 4.16369e-3 sampled vs
-    # 4.16377e-3 simulated)
+    # 8.1e-7 at HS N = 100 with the bound held between the nodes, 2.3e-7 when it held at the nodes
+    # only), and so the reported output error (measured 4.16369e-3 sampled vs 4.16377e-3 simulated
+    # with the node-only bound)
     md, ref, q0 = manip
     inv = manip_u2
     sv = servo_model(md)
