@@ -566,3 +566,67 @@ def test_fuzz_concurrent_generate_into_one_output(tmp_path_factory, case):
     for i, pt in enumerate(lib.points):
         inv = lib.inverse(i)
         assert abs(inv.q(inv.Tf)[0] - pt["xf"]) < 1e-6, (i, pt)
+
+
+#: bounds of random size on the cart-pole (its exact inverse peaks at |F| = 1.32 N, |theta| = 0.065,
+#: |x'| = 0.62 m/s, |F'| = 10 N/s, with 4.8 s of pre-actuation): value range of each kind
+BOUND_KINDS = {"u": (0.02, 2.0), "u.F": (0.02, 2.0), "q.theta": (0.01, 0.1), "v.x": (0.1, 1.0),
+               "u_rate": (0.3, 20.0), "pre": (0.3, 6.0)}
+
+
+@settings(max_examples=20 if LONG else 5, deadline=None, database=None,
+          derandomize=not (LONG or os.environ.get("INVCTL_FUZZ_RANDOM")),
+          suppress_health_check=list(HealthCheck))
+@given(data=st.data())
+def test_fuzz_bounds_hold_between_the_nodes(fuzz_dir, data):
+    """``invctl invert cartpole --bound ...`` with random bounds, schemes, meshes and minimum time: a
+    success's saved trajectory meets the bound on a fine grid of its interpolant and in its samples,
+    and reports that largest violation; anything else is a specific error."""
+    from invctl.inversion.result import Inverse
+
+    kind = data.draw(st.sampled_from(sorted(BOUND_KINDS)))
+    lo, hi = BOUND_KINDS[kind]
+    value = float(f"{data.draw(st.floats(lo, hi)):.6g}")  # as written on the command line
+    asym = kind in ("u.F", "q.theta") and data.draw(st.booleans())
+    low = float(f"{-0.5 * value:.6g}") if asym else -value
+    spec = f"{kind}={low:.6g}:{value:.6g}" if asym else f"{kind}={value:.6g}"
+    case = CASES["n"] = CASES["n"] + 1
+    out = fuzz_dir / f"bounds_{case}.npz"
+    argv = ["invert", "cartpole", "--bound", spec, "--N", str(data.draw(st.sampled_from([20, 40, 60]))),
+            "--scheme", data.draw(st.sampled_from(["hermite-simpson", "hermite-simpson", "legendre3"])),
+            "--out", str(out), "--force", "--json", "--quiet"]
+    if kind != "pre" and data.draw(st.booleans()):
+        argv.append("--minimum-time")
+    t_case = time.perf_counter()
+    rc, text, err = run_case(argv, fuzz_dir / "cwd")
+    CASES["wall"] += time.perf_counter() - t_case
+    OUTCOMES["bounds:" + check_property(argv, rc, text, err)] += 1
+    if rc != 0:
+        return
+    report = json.loads(text.strip().splitlines()[-1])["bounds"]
+    inv = Inverse.load(out)
+    z = np.load(out)
+    t = np.linspace(inv.T0, inv.Tf, 20001)
+    b_lo, b_hi = low, value
+    if kind == "pre":
+        excess = (inv.t0 - inv.T0) - value
+        assert z["t"][0] == pytest.approx(inv.T0) and excess <= 1e-9, f"{argv}: pre-actuation {inv.t0 - inv.T0}"
+        return
+    pick = {"u": lambda X, dX: X[inv._slice("u")], "u.F": lambda X, dX: X[inv._slice("u")],
+            "q.theta": lambda X, dX: X[inv._slice("q")][1:2], "v.x": lambda X, dX: X[inv._slice("v")][0:1],
+            "u_rate": lambda X, dX: dX[inv._slice("u")]}[kind]
+    fine = pick(inv.X(t), inv.dX(t))
+    tol = 1e-6 * max(1.0, value)
+    assert np.max(fine - b_hi) <= tol and np.max(b_lo - fine) <= tol, f"{argv}: the trajectory violates {spec}"
+    # 200 points per mesh interval (those of the report among them) and the polynomials' extrema
+    s = np.arange(200) / 200
+    t = np.concatenate([(inv.t_mesh[:-1, None] + np.diff(inv.t_mesh)[:, None] * s).ravel(), [inv.Tf]])
+    row = {"q.theta": inv._slice("q").start + 1, "v.x": inv._slice("v").start}.get(kind, inv._slice("u").start)
+    t = np.concatenate([t, inv.extrema(row, derivative=kind == "u_rate")])
+    fine = pick(inv.X(t), inv.dX(t))
+    measured = float(max(np.max(fine - b_hi), np.max(b_lo - fine), 0.0))
+    if kind != "u_rate":  # the saved samples (rates are not saved)
+        saved = {"u": z["u"], "u.F": z["u"], "q.theta": z["q"][1:2], "v.x": z["v"][0:1]}[kind]
+        assert np.max(saved - b_hi) <= tol and np.max(b_lo - saved) <= tol, f"{argv}: saved samples violate {spec}"
+    assert 0.0 <= report["max_violation_between_nodes"] <= tol
+    assert report["max_violation_between_nodes"] == pytest.approx(measured, rel=1e-9, abs=1e-15), argv

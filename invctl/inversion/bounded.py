@@ -2,7 +2,7 @@
 tracking with the servo constraint relaxed when it does not (:mod:`invctl.inversion.ocp`).
 
 1. The exact (square) inverse is computed on the horizon of the automatic setup and checked
-   against the bounds at every point where the bounded problem imposes them.  If it satisfies
+   against the bounds on its interpolant (:func:`between_nodes`).  If it satisfies
    them, it *is* the answer (``diagnostics["tracking"]["exact"]``; the margins are reported).
 2. Otherwise the relaxed problem is solved from it (IPOPT): the inputs are free, the output
    error is minimized in the least-squares sense with the user's :class:`Objective` weights.
@@ -15,6 +15,13 @@ tracking with the servo constraint relaxed when it does not (:mod:`invctl.invers
 4. If IPOPT finds the bounds infeasible, the elastic problem (every bound relaxed by a
    nonnegative amount, the scaled sum minimized) gives the closest feasible relaxation, and
    :class:`~invctl.errors.InfeasibleBoundsError` reports it.
+5. The bounds hold on the whole returned trajectory, not only at the nodes: the problem bounds
+   the Bezier control points of every interval's cubic (Hermite-Simpson; Legendre/Radau: solved
+   again with the Bernstein coefficients bounded when their polynomials leave a bound between the
+   collocation points; :mod:`invctl.inversion.ocp`), and
+   the result is checked at :data:`CHECK_SAMPLES` points per interval
+   (``diagnostics["bounds"]["max_violation_between_nodes"]``); a violation beyond
+   :data:`ACTIVE_TOL` (relative) raises :class:`~invctl.errors.InversionFailed`.
 """
 from __future__ import annotations
 
@@ -40,6 +47,10 @@ ACTIVE_TOL = 1e-6
 #: weight of the least-squares tracking in the elastic problem (relaxations weigh 1/|bound|): small,
 #: so that the smallest relaxation wins, large enough to keep the Gauss-Newton steps regular
 ELASTIC_EPS = 1e-3
+#: most re-solves of minimum time with the interior bound points moved to the extrema of the polynomials
+EXTREMA_ROUNDS = 8
+#: points per mesh interval where :func:`between_nodes` checks the bounds on the returned trajectory
+CHECK_SAMPLES = 20
 #: statuses meaning "IPOPT believes the constraints cannot be satisfied"
 INFEASIBLE = ("Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeasibility",
               "Not_Enough_Degrees_Of_Freedom")
@@ -62,14 +73,62 @@ def constraint_points(inv, servo, reference, theta):
     return np.concatenate([tm, tc]), np.hstack([inv.X_mesh, inv.X_col]), tc, Fc[ub]
 
 
-def _margins(rb, X, rates) -> dict:
-    """Smallest distance of ``X`` / ``rates`` to each bound (negative: violated)."""
-    out = {}
-    for i in rb.bounded:
-        out[rb.labels[i]] = float(min(np.min(rb.hi[i] - X[i]), np.min(X[i] - rb.lo[i])))
-    for j in rb.rated:
-        out[rb.rate_labels[j]] = float(min(np.min(rb.rate_hi[j] - rates[j]), np.min(rates[j] - rb.rate_lo[j])))
-    return out
+def between_nodes(inv, rb, reference=None, samples: int = CHECK_SAMPLES) -> dict:
+    """The bounds checked on the trajectory the user gets (:meth:`Inverse.X`, :meth:`Inverse.dX`
+    sampled at ``samples`` points per mesh interval and at the interior extrema of every interval's
+    polynomial, so that the largest values are exact, and the pre-/post-actuation of ``reference``):
+    ``margins`` (smallest distance to each bound, negative: violated), the largest violation (0
+    when every bound holds), the bound and time where it occurs."""
+    tm = inv.t_mesh
+    s = np.arange(samples) / samples
+    grid = np.concatenate([(tm[:-1, None] + np.diff(tm)[:, None] * s[None, :]).ravel(), [tm[-1]]])
+    ub = inv._slice("u").start
+    margins, when = {}, {}
+    for labels, lo, hi, idx, rate in ((rb.labels, rb.lo, rb.hi, rb.bounded, False),
+                                      (rb.rate_labels, rb.rate_lo, rb.rate_hi, rb.rated, True)):
+        for i in idx:
+            row = ub + i if rate else i
+            t = np.concatenate([grid, inv.extrema(row, derivative=rate)])
+            v = (inv.dX(t) if rate else inv.X(t))[row]
+            m = np.minimum(hi[i] - v, v - lo[i])
+            k = int(np.argmin(m))
+            margins[labels[i]], when[labels[i]] = float(m[k]), float(t[k])
+    if reference is not None:
+        for name, need in (("max_pre_actuation", reference.t0 - inv.T0), ("max_post_actuation", inv.Tf - reference.tf)):
+            if getattr(rb, name) is not None:
+                margins[name] = float(getattr(rb, name) - need)
+                when[name] = inv.T0 if name == "max_pre_actuation" else inv.Tf
+    worst = min(margins, key=margins.get, default=None)
+    bad = worst is not None and margins[worst] < 0
+    return {"max_violation_between_nodes": float(-margins[worst]) if bad else 0.0,
+            "max_violation_bound": worst if bad else None, "t_max_violation": when[worst] if bad else None,
+            "samples_per_interval": int(samples), "margins": margins}
+
+
+def check_between_nodes(inv, rb, reference, where: str) -> dict:
+    """:func:`between_nodes` of a solution, stored in ``diagnostics["bounds"]``; raises
+    :class:`InversionFailed` (``exc.partial`` the solution) when a bound is violated beyond
+    :data:`ACTIVE_TOL` (relative to the bound)."""
+    chk = between_nodes(inv, rb, reference)
+    chk.pop("margins")
+    inv.diagnostics.setdefault("bounds", {}).update(chk)
+    if _beyond_tolerance(rb, chk):
+        label = chk["max_violation_bound"]
+        hint = ("rate bounds hold between the collocation points with scheme='hermite-simpson' only; use it"
+                if label in rb.rate_labels and not inv._scheme.is_hs else "try a finer mesh (N) or more iterations "
+                "(max_iter)")
+        inv.diagnostics["success"] = False
+        raise InversionFailed(
+            f"{where}: the solution violates the bound on {label} by {chk['max_violation_between_nodes']:.3g} at "
+            f"t = {chk['t_max_violation']:.6g} s on the returned trajectory (checked at {chk['samples_per_interval']} "
+            f"points per mesh interval); {hint}; the solution is in exc.partial", partial=inv,
+            diagnostics=inv.diagnostics)
+    return chk
+
+
+def _beyond_tolerance(rb, chk) -> bool:
+    label = chk["max_violation_bound"]
+    return label is not None and chk["max_violation_between_nodes"] > ACTIVE_TOL * max(1.0, _bound_size(rb, label))
 
 
 def _intervals(times, spacing):
@@ -327,13 +386,13 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
         else:
             exact = solve_square(model, reference, exact_opts, warm_start)
         exact_s = time.perf_counter() - t0_
-        _ts, Xs, _tr, Us = constraint_points(exact, servo, reference, theta)
-        margins = _margins(rb, Xs, Us)
+        margins = between_nodes(exact, rb)["margins"]
         if not (rest_start or rest_end) and all(v >= -ACTIVE_TOL * max(1.0, _bound_size(rb, k))
                                                 for k, v in margins.items()):
             exact.diagnostics["bounds"] = {"active": [], "margins": margins, "rest": [False, False],
                                            "describe": "exact tracking within the bounds (no bound active)"}
             exact.diagnostics["tracking"] = {"exact": True, "max_output_error": 0.0, "rms_output_error": 0.0}
+            check_between_nodes(exact, rb, reference, "bounded inversion")
             return exact
     elif disc.tol is not None:
         raise OptionError("invert: tol (mesh refinement) needs an exact inverse first (a square selection and no "
@@ -383,6 +442,16 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
         return sol, st, scale, x, g, viol, status, ok, inv
 
     sol, st, scale, x, g, viol, status, ok, inv = run(x0)
+    if ok and tr.interior is None and _beyond_tolerance(rb, between_nodes(inv, rb)):
+        # Legendre/Radau: the polynomials leave the bounds between the collocation points; solve again
+        # from here with their Bernstein coefficients bounded too (not by default: where no bound
+        # needs them they only add rows)
+        iterations = st["iterations"]
+        tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=True, bounded=rb.bounded, rated=rb.rated,
+                               interior="hull", compiled=disc.compiled)
+        lbx, ubx, lbg, ubg = _limits(tr, rb)
+        sol, st, scale, x, g, viol, status, ok, inv = run(x)
+        st["iterations"] += iterations
     solve_s = time.perf_counter() - t_solve
     if not ok and status in _TIME_LIMIT:
         raise WallTimeLimitError(
@@ -450,10 +519,13 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
             f"the bounded solution violates the holonomic constraints g = 0 by {res['holonomic_mesh']:.3g} > "
             f"residual_tol = {slv.residual_tol:.3g} at the mesh ({sch.name} N={N}); refine the mesh",
             partial=inv, diagnostics=inv.diagnostics)
+    check_between_nodes(inv, rb, reference, f"bounded inversion ({sch.name} N={N})")
     return inv
 
 
 def _bound_size(rb, label) -> float:
+    if label in ("max_pre_actuation", "max_post_actuation"):
+        return float(getattr(rb, label))
     labels = list(rb.labels)
     if label in labels:
         i = labels.index(label)

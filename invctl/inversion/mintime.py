@@ -14,6 +14,12 @@ end equilibria, not on ``tau``) keep their lengths; the mesh intervals of ``[t0,
 With exact tracking the states are a function of ``tau`` alone (the square system), so the
 optimum is where a bound becomes active (minimum time) or where the energy saved by a longer
 move balances the time (``w_E > 0``).
+
+The bounds hold on the returned interpolant, between the mesh points too: the problem bounds every
+interval's polynomial at interior points (``interior="points"`` of :mod:`invctl.inversion.ocp`),
+first spread over the interval (Legendre/Radau: none at first), then, solved again, at the interior
+extrema of the solution, until the check of :func:`~invctl.inversion.bounded.between_nodes` passes
+(``diagnostics["bound_rounds"]`` re-solves, at most :data:`~invctl.inversion.bounded.EXTREMA_ROUNDS`).
 """
 from __future__ import annotations
 
@@ -25,7 +31,8 @@ import numpy as np
 
 from ..errors import InfeasibleBoundsError, InversionFailed, OptionError, WallTimeLimitError
 from .backends import _TIME_LIMIT
-from .bounded import _inverse, _limits, _violation, active_bounds, constraint_points, solve_scaled
+from .bounded import (EXTREMA_ROUNDS, _beyond_tolerance, _inverse, _limits, _violation, active_bounds, between_nodes,
+                      check_between_nodes, constraint_points, solve_scaled)
 from .cache import ocp_transcription, servo_model
 from .options import Bounds, from_keywords
 from .problem import prepare, resolve_plan
@@ -127,7 +134,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         guess = None
     sch, N = setup.scheme, t_mesh.size - 1
     tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True, bounded=rb.bounded,
-                           rated=rb.rated, compiled=disc.compiled)
+                           rated=rb.rated, interior="points" if sch.is_hs else None, compiled=disc.compiled)
     tc = tr.collocation_times(t_mesh)
     tau0 = float(np.clip(tau_ref if warm_start is None else warm_start.tf - warm_start.t0, lo, hi))
     no_inverse = None  # a shorter duration at which the exact inverse of the shape was not found
@@ -179,23 +186,36 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     ow = objective.output_weights(model) if relaxed else 0.0
     rho, e_w, r_w = (objective.slack, objective.energy + energy, objective.rate) if relaxed else (0.0, energy, 0.0)
 
+    points = None  # interior points spread over the intervals, then at the extrema of the polynomials
+
     def params(scale):
         return tr.parameters(t_mesh, Y, theta, setup.E0, setup.Ef, W=ow, rho=rho, energy=e_w, rate=r_w,
-                             time_weight=1.0, c=c, mask=mask, tau_ref=tau_ref, scale=scale)
+                             time_weight=1.0, c=c, mask=mask, tau_ref=tau_ref, scale=scale, points=points)
 
     t_solve = time.perf_counter()
     hessian = "exact" if slv.hessian == "auto" else slv.hessian
-    sol, st, scale = solve_scaled(tr, slv, x0, params, (lbx, ubx, lbg, ubg), hessian=hessian, scale=1.0)
+    start, rounds, iterations = x0, 0, 0
+    while True:  # until the bounds hold between the nodes too (interior points at the extrema)
+        sol, st, scale = solve_scaled(tr, slv, start, params, (lbx, ubx, lbg, ubg), hessian=hessian, scale=1.0)
+        iterations += st["iterations"]
+        x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
+        viol = _violation(g, lbg, ubg, x, lbx, ubx)
+        status = st.get("return_status", "?")
+        ok = bool(st.get("success", False)) or (status == "Solved_To_Acceptable_Level" and viol < 1e-8)
+        tau = float(x[tr.i_tau])
+        ref_opt = retime(reference, tau)
+        mesh_opt = tr.retimed_mesh(t_mesh, mask, tau_ref, tau)
+        Yopt = servo.reference_samples(ref_opt, tr.sample_times(mesh_opt))
+        inv = _inverse(tr, servo, ref_opt, sch, mesh_opt, x, Yopt, theta, c, make_inverse)
+        if not ok or rounds >= EXTREMA_ROUNDS or not _beyond_tolerance(rb, between_nodes(inv, rb)):
+            break
+        if tr.interior is None:  # Legendre/Radau: add the interior points only where a bound needs them
+            tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True,
+                                   bounded=rb.bounded, rated=rb.rated, interior="points", compiled=disc.compiled)
+            lbx, ubx, lbg, ubg = _limits(tr, rb, (lo, hi))
+        points, start, rounds = tr.extremum_points(inv), x, rounds + 1
+    st["iterations"] = iterations
     solve_s = time.perf_counter() - t_solve
-    x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
-    viol = _violation(g, lbg, ubg, x, lbx, ubx)
-    status = st.get("return_status", "?")
-    ok = bool(st.get("success", False)) or (status == "Solved_To_Acceptable_Level" and viol < 1e-8)
-    tau = float(x[tr.i_tau])
-    ref_opt = retime(reference, tau)
-    mesh_opt = tr.retimed_mesh(t_mesh, mask, tau_ref, tau)
-    Yopt = servo.reference_samples(ref_opt, tr.sample_times(mesh_opt))
-    inv = _inverse(tr, servo, ref_opt, sch, mesh_opt, x, Yopt, theta, c, make_inverse)
     # energy by the scheme's quadrature (the objective's own), and the active bounds at the optimum
     w_unit = tr.parameters(mesh_opt, Yopt, theta, setup.E0, setup.Ef, W=0.0, energy=1.0, time_weight=0.0,
                            mask=np.zeros(N), tau_ref=tau)
@@ -207,7 +227,6 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     from .square import residuals
 
     res = residuals(inv, servo, ref_opt, theta)
-    _ts, Xs, _tr, Us = constraint_points(inv, servo, ref_opt, theta)
     inv.diagnostics.update({
         "status": status, "iterations": int(st["iterations"]), "success": ok, "max_constraint_violation": viol,
         "backend": "ipopt", "hessian": hessian, "scheme": sch.name, "N": int(N), "relaxed": relaxed,
@@ -215,10 +234,11 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         "solve_s": solve_s, "guess_s": setup.timings["guess_s"], "unknowns": tr.nX, "equations": tr.ng,
         "selection": setup.selection.describe(), "T0": inv.T0, "Tf": inv.Tf, "residuals": res,
         "plan": None if setup.plan is None else setup.plan.to_dict(), "mesh": setup.mesh_kind,
+        "bound_rounds": rounds,
         "free_time": {"duration": tau, "reference_duration": tau_ref, "t0": reference.t0, "tf": reference.t0 + tau,
                       "energy": E, "energy_weight": float(energy), "objective": tau + energy * E,
                       "duration_range": [lo, hi], "at_duration_limit": at_limit, "active": active,
-                      "bound_violation": max([0.0] + [v for v in rb.violations(Xs, Us).values()])},
+                      "bound_violation": between_nodes(inv, rb)["max_violation_between_nodes"]},
         "wall_s": time.perf_counter() - t_all,
     })
     ft = inv.diagnostics["free_time"]
@@ -255,6 +275,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
             f"violation {viol:.3g}); try more iterations (max_iter), another initial duration (a reference of a "
             f"feasible duration) or hessian='exact'; the last iterate is in exc.partial{model_limit}", partial=inv,
             diagnostics=inv.diagnostics)
+    check_between_nodes(inv, rb, None, f"minimum_time ({sch.name} N={N})")
     return inv
 
 

@@ -17,9 +17,23 @@ Relaxed servo constraint
     the multipliers of the holonomic and non-holonomic constraints, and ``s`` is (at low
     frequencies) the output error it buys.
 Bounds
-    On entries of ``q``, ``v``, ``u`` at the mesh points and at the collocation points
-    (Hermite-Simpson: the interval midpoints), and on ``u'`` (the ``u`` rows of ``F``) wherever
-    ``F`` is evaluated.
+    On entries of ``q``, ``v``, ``u`` and on ``u'`` of the interpolating polynomial of every
+    interval (the trajectory the :class:`~invctl.inversion.result.Inverse` returns), not only at
+    the mesh (and collocation) points, with interior rows of one of two kinds (``interior``):
+
+    * ``"hull"``: a polynomial lies between its Bernstein (Bezier) coefficients, so bounding them
+      (linear in the unknowns) guarantees the bound everywhere, conservatively by O(h^2).
+      Hermite-Simpson: the control points ``X_k + h F_k / 3`` and ``X_{k+1} - h F_{k+1} / 3`` of the
+      cubic, and for ``u'`` the middle coefficient ``2 F_m - (F_k + F_{k+1}) / 2`` of its quadratic
+      derivative (equal to ``3 (X_{k+1} - X_k) / h - F_k - F_{k+1}`` where the defects vanish) besides
+      ``u'`` at the mesh.  Legendre/Radau: the interior Bernstein coefficients of ``X``.
+    * ``"points"``: the polynomial at interior points whose positions (fractions of the interval)
+      are NLP parameters, for a caller that moves them to the interior extrema
+      (:meth:`OCPTranscription.extremum_points`) and solves again: exact, not conservative, where
+      the solution cannot reshape itself around the points (exact tracking, minimum time).
+
+    Legendre/Radau without ``interior``: mesh and collocation points only; their ``u'`` bounds
+    (the ``u`` rows of ``F``) hold at the collocation points only.
 Free transition time
     A decision ``tau = tf - t0``: the mesh intervals of ``[t0, tf]`` scale with ``tau / tau_ref``,
     the reference samples of derivative ``k`` with ``(tau_ref / tau)^k`` (the shape is fixed);
@@ -72,11 +86,82 @@ def relaxed_rhs(servo) -> ca.Function:
     return fn
 
 
+def _hermite(s):
+    """The cubic Hermite basis ``h00, h10, h01, h11`` at ``s`` (numbers, arrays or SX)."""
+    s2, s3 = s * s, s * s * s
+    return 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
+
+
+def hs_points(Xa, Xb, Fa, Fb, Fm, h, sp, bnd, rate_rows, hull: bool):
+    """Hermite-Simpson interval rows (module doc).  ``hull``: the interior Bezier control points of
+    the interpolating cubics of ``X[bnd]`` (``X_k + h F_k / 3``, ``X_{k+1} - h F_{k+1} / 3``) and the
+    middle Bernstein coefficient ``2 F_m - (F_k + F_{k+1}) / 2`` of the quadratic derivatives of
+    ``X[rate_rows]``; otherwise the cubics at the interval fractions ``sp[:nb]`` and ``sp[nb:2 nb]``
+    and the derivatives at ``sp[2 nb:]``."""
+    nb, out = len(bnd), []
+    fa, fb, b1 = Fa[rate_rows], Fb[rate_rows], 2 * Fm[rate_rows] - (Fa[rate_rows] + Fb[rate_rows]) / 2
+    if hull:
+        return ca.vertcat(Xa[bnd] + h / 3 * Fa[bnd], Xb[bnd] - h / 3 * Fb[bnd], b1)
+    for q in range(2 if nb else 0):
+        h00, h10, h01, h11 = _hermite(sp[q * nb:(q + 1) * nb])
+        out.append(Xa[bnd] * h00 + h * Fa[bnd] * h10 + Xb[bnd] * h01 + h * Fb[bnd] * h11)
+    if len(rate_rows):
+        r = sp[2 * nb:]
+        out.append(fa * (1 - r) ** 2 + 2 * b1 * r * (1 - r) + fb * r ** 2)
+    return ca.vertcat(*out) if out else ca.SX(0, 1)
+
+
+def lagrange_basis(scheme: Scheme) -> list:
+    """Coefficients (highest power first) of the Lagrange polynomials through ``0`` and the
+    collocation points (the interpolant of :class:`~invctl.inversion.result.Inverse`)."""
+    allt = np.concatenate([[0.0], scheme.tau])
+    out = []
+    for j in range(allt.size):
+        c = np.poly1d([1.0])
+        for r in range(allt.size):
+            if r != j:
+                c *= np.poly1d([1.0, -allt[r]]) / (allt[j] - allt[r])
+        out.append(c.coeffs)
+    return out
+
+
+def bernstein_interior(scheme: Scheme) -> np.ndarray:
+    """``(d+1, d-1)``: the values of a degree-``d`` polynomial at ``0`` and the collocation points
+    (a row) times it give its interior Bernstein coefficients on ``[0, 1]``."""
+    from math import comb
+
+    d = scheme.degree
+    s = np.concatenate([[0.0], scheme.tau])[:, None]
+    i = np.arange(d + 1)[None, :]
+    A = np.array([[comb(d, k) for k in range(d + 1)]]) * s ** i * (1 - s) ** (d - i)
+    return np.linalg.inv(A).T[:, 1:d]
+
+
+def coll_points(Xall, sp, bnd, basis, hull=None):
+    """Legendre/Radau interval rows: ``X[bnd]`` of the interval's polynomial (values ``Xall`` at 0
+    and the collocation points) at the fractions ``sp[q nb:(q + 1) nb]``, ``q < d - 1``, or with
+    ``hull`` (:func:`bernstein_interior`) its interior Bernstein coefficients."""
+    if hull is not None:
+        return ca.vec(ca.mtimes(Xall[bnd, :], ca.DM(hull)))
+    nb, out = len(bnd), []
+    for q in range(len(basis) - 2):
+        s = sp[q * nb:(q + 1) * nb]
+        val = 0
+        for j, coeffs in enumerate(basis):
+            lj = 0
+            for a in coeffs:  # Horner
+                lj = lj * s + float(a)
+            val = val + Xall[bnd, j] * lj
+        out.append(val)
+    return ca.vertcat(*out) if out else ca.SX(0, 1)
+
+
 @dataclass(frozen=True)
 class PathRow:
     """One bounded quantity of a transcription: ``kind`` ("X": an entry of ``X``; "rate": an
     entry of ``u'``), ``entry`` (index into ``X``, or into ``u`` for rates), ``where`` ("mesh",
-    "mid" or "col") and ``point`` (its index among those points)."""
+    "mid", "col", "ext": at an interval fraction given as a parameter, see
+    :meth:`OCPTranscription.extremum_points`) and ``point`` (its index among those points)."""
 
     kind: str
     entry: int
@@ -88,7 +173,7 @@ class PathRow:
 _HESSIAN_CONTEXT = (
     "nG", "zeta", "tau", "pin", "G", "n_def", "n_ip", "h", "dh", "hs", "nx", "m", "nz_pt", "lin",
     "bnd", "rate_rows", "ipars", "scheme", "d", "N", "npr", "n_el", "flat_pts", "pts_keys", "x",
-    "p", "ip", "common", "iv_index", "point_cols",
+    "p", "ip", "common", "iv_index", "point_cols", "basis", "hull", "bern",
 )
 
 
@@ -108,17 +193,22 @@ class OCPTranscription:
     free_time : bool
         ``tau`` is a decision variable.
     bounded : tuple of int
-        Entries of ``X`` that have bounds (Hermite-Simpson adds their midpoint values to ``g``).
+        Entries of ``X`` that have bounds (with ``interior``, rows between the nodes are added to ``g``).
     rated : tuple of int
         Entries of ``u`` with rate bounds (their ``F`` rows are added to ``g``).
     elastic : bool
         Every bound as a relaxed constraint (module doc); needs ``relaxed``.
+    interior : {"hull", "points", None}
+        Interior rows of the bounded entries (module doc): Bezier control points ("hull"; the
+        Hermite-Simpson default), points at parameter positions ("points") or none (Legendre/Radau
+        default: mesh and collocation points only).
 
     Notes
     -----
     Decision vector ``[vec(X_mesh); vec(X_col); vec(S) (m x nS, relaxed); tau (free_time); r
     (elastic)]``; parameters ``[h; vec(Y); theta; E0; Ef; sqrt(W) (m); sqrt(rho, w_E, w_R); w_T;
-    c; mask (N: 1 on the intervals of [t0, tf]); tau_ref; relaxation weights; eps; scale]``;
+    c; mask (N: 1 on the intervals of [t0, tf]); tau_ref; relaxation weights; eps; scale; interior
+    points (n_points x N)]``;
     constraints ``[defects; boundary conditions; bounded quantities (:attr:`path_rows`)]``, the
     bounded quantities twice (upper, lower) in the elastic problem.
 
@@ -134,12 +224,18 @@ class OCPTranscription:
     """
 
     def __init__(self, servo, selection, scheme: Scheme, N: int, *, relaxed: bool, free_time: bool = False,
-                 bounded: tuple = (), rated: tuple = (), elastic: bool = False, compiled: bool | str = False):
+                 bounded: tuple = (), rated: tuple = (), elastic: bool = False, interior: str | None = "auto",
+                 compiled: bool | str = False):
         t_build = time.perf_counter()
         if elastic and not relaxed:
             raise ValueError("the elastic problem relaxes the servo constraint (relaxed=True)")
         self.servo, self.selection, self.scheme, self.N = servo, selection, scheme, int(N)
         self.relaxed, self.free_time, self.elastic = bool(relaxed), bool(free_time), bool(elastic)
+        if interior == "auto":
+            interior = "hull" if scheme.is_hs else None
+        if interior not in ("hull", "points", None) or (interior is None and scheme.is_hs):
+            raise ValueError(f"interior must be 'hull', 'points' (or None for Legendre/Radau), got {interior!r}")
+        self.interior = interior
         self.bounded, self.rated = tuple(int(i) for i in bounded), tuple(int(i) for i in rated)
         L = servo.layout
         nx, m, m4 = L.nx, L.m, 4 * L.m
@@ -155,6 +251,9 @@ class OCPTranscription:
         u_idx = list(range(ub.start, ub.stop))
         rate_rows = [u_idx[i] for i in self.rated]
         bnd = list(self.bounded)
+        # interior points per interval (module doc): positions are parameters
+        self.n_points = ((2 * len(bnd) + len(rate_rows)) if hs else (d - 1) * len(bnd)) if interior == "points" else 0
+        hull = interior == "hull"
         # ---------------------------------------------------------------- global layout
         self.nXs = nx * (N + 1) + nx * self.n_col
         self.nSv = m * self.nS if self.relaxed else 0
@@ -166,7 +265,8 @@ class OCPTranscription:
         self.nr = len(self.relax_labels)
         self.nX = self.i_r + self.nr
         sizes = [("h", N), ("Y", m4 * self.nY), ("theta", nth), ("E0", nx), ("Ef", nx), ("W", m), ("w", 3),
-                 ("wT", 1), ("c", 1), ("mask", N), ("tau_ref", 1), ("relax_w", self.nr), ("eps", 1), ("fscale", 1)]
+                 ("wT", 1), ("c", 1), ("mask", N), ("tau_ref", 1), ("relax_w", self.nr), ("eps", 1), ("fscale", 1),
+                 ("points", self.n_points * N)]
         self._p_slices, o = {}, 0
         for name, k in sizes:
             self._p_slices[name] = slice(o, o + k)
@@ -209,7 +309,8 @@ class OCPTranscription:
         # interval: values from the point outputs, and their Jacobian by the chain rule (linear in d)
         h = hr if tau is None else hr * (1 + mk * (ratio - 1))
         dh = 0 if tau is None else hr * mk / tau_ref  # dh/dtau
-        ipars = [hr, mk] + T + [tau_ref]
+        sp = ca.SX.sym("points", self.n_points)
+        ipars = [hr, mk] + T + [tau_ref, sp]
         nG = self.nG
 
         def lin(JG, Gt, dzeta, dt):  # first-order change of G at a point
@@ -226,7 +327,7 @@ class OCPTranscription:
             def hs_rows(Xa_, Xb_, Xm_, Fa_, Fb_, Fm_, ra, rm, rb, h_):
                 return (Xb_ - Xa_ - h_ / 6 * (Fa_ + 4 * Fm_ + Fb_),
                         ca.vertcat(ca.sqrt(h_ / 6) * ra, ca.sqrt(2 * h_ / 3) * rm, ca.sqrt(h_ / 6) * rb),
-                        ca.vertcat(Xm_[bnd], Fm_[rate_rows]))
+                        hs_points(Xa_, Xb_, Fa_, Fb_, Fm_, h_, sp, bnd, rate_rows, hull))
 
             val = hs_rows(Xa, Xb, Xm, Fa, Fb, Fm, Ga[nx:], Gm[nx:], Gb[nx:], h)
             iv_val = ca.Function("ocp_hs_interval", [Xa, Xb, Xm, Ga, Gb, Gm] + ipars, list(val))
@@ -245,7 +346,10 @@ class OCPTranscription:
             dsq = [dh * dt / (2 * q) * k for q, k in zip(sq, (1 / 6, 2 / 3, 1 / 6))]
             dR = ca.vertcat(*[sq[i] * dG[nx:] + dsq[i] * G_[nx:]
                               for i, (dG, G_) in enumerate(((dGa, Ga), (dGm, Gm), (dGb, Gb)))])
-            dpath = ca.vertcat(dXm[bnd], dGm[:nx][rate_rows])
+            Z = ca.SX.zeros(nx)
+            dpath = (hs_points(dXa, dXb, dGa[:nx], dGb[:nx], dGm[:nx], h, sp, bnd, rate_rows, hull)
+                     + dh * dt * (hs_points(Z, Z, Fa, Fb, Fm, 1, sp, bnd, rate_rows, hull)
+                                  - hs_points(Z, Z, Fa, Fb, Fm, 0, sp, bnd, rate_rows, hull)))
             z = ca.vertcat(dXa, dXb, dsa, dsb, dsm, *([dt] if tau is not None else []))
             jins = [Ga, Gb, Gm, JGa, JGb, JGm] + ([Gta, Gtb, Gtm] if tau is not None else []) + ipars
             iv_jac = ca.Function("ocp_hs_interval_jac", jins,
@@ -259,12 +363,14 @@ class OCPTranscription:
             Xk, Xk1, Xc, Gc = ca.SX.sym("Xk", nx), ca.SX.sym("Xk1", nx), ca.SX.sym("Xc", nx, d), ca.SX.sym("Gc", nG, d)
             wq = quadrature_weights(scheme)
             Cm, Dm = ca.DM(scheme.C), ca.DM(scheme.D)
+            basis = lagrange_basis(scheme) if interior else lagrange_basis(scheme)[:1]
+            bern = bernstein_interior(scheme) if hull else None
 
             def coll_rows(Xk_, Xk1_, Xc_, Fc_, rc, h_):
                 Xall = ca.horzcat(Xk_, Xc_)
                 return (ca.vertcat(ca.vec(ca.mtimes(Xall, Cm) - h_ * Fc_), Xk1_ - ca.mtimes(Xall, Dm)),
                         ca.vertcat(*[ca.sqrt(h_ * float(wq[q])) * rc[:, q] for q in range(d)]),
-                        ca.vertcat(*[Fc_[rate_rows, q] for q in range(d)]))
+                        ca.vertcat(*[Fc_[rate_rows, q] for q in range(d)], coll_points(Xall, sp, bnd, basis, bern)))
 
             val = coll_rows(Xk, Xk1, Xc, Gc[:nx, :], Gc[nx:, :], h)
             iv_val = ca.Function("ocp_coll_interval", [Xk, Xk1, Xc, Gc] + ipars, list(val))
@@ -280,7 +386,7 @@ class OCPTranscription:
             sq = [ca.sqrt(h * float(wq[q])) for q in range(d)]
             dR = ca.vertcat(*[sq[q] * dGc[nx:, q] + dh * dt * float(wq[q]) / (2 * sq[q]) * Gc[nx:, q]
                               for q in range(d)])
-            dpath = ca.vertcat(*[dGc[rate_rows, q] for q in range(d)])
+            dpath = ca.vertcat(*[dGc[rate_rows, q] for q in range(d)], coll_points(dall, sp, bnd, basis, bern))
             z = ca.vertcat(dXk, dXk1, ca.vec(dXc), ca.vec(dSc), *([dt] if tau is not None else []))
             jins = [Gc, JGc] + ([Gtc] if tau is not None else []) + ipars
             iv_jac = ca.Function("ocp_coll_interval_jac", jins,
@@ -308,7 +414,7 @@ class OCPTranscription:
         S = ca.reshape(x[self.nXs:self.nXs + self.nSv], m, self.nS) if self.relaxed else None
         tau_x = [x[self.i_tau]] if self.free_time else []
         common = tau_x + [P["theta"], P["c"], P["W"], P["w"], P["tau_ref"]]
-        ip = [P["h"].T, P["mask"].T] + tau_x + [P["tau_ref"]]
+        ip = [P["h"].T, P["mask"].T] + tau_x + [P["tau_ref"], ca.reshape(P["points"], self.n_points, N)]
 
         def zeta_of(Xs, a, b):
             return ca.vertcat(Xs, S[:, a:b]) if self.relaxed else Xs
@@ -358,12 +464,13 @@ class OCPTranscription:
             base = n_el = len(ccols)
         if n_ip:
             parts.append(ca.vec(ipath))
-            if hs:
-                rows += [PathRow("X", i, "mid", k) if q < len(bnd) else
-                         PathRow("rate", self.rated[q - len(bnd)], "mid", k)
-                         for k in range(N) for q, i in enumerate(bnd + list(self.rated))]
-            else:
-                rows += [PathRow("rate", j, "col", k * d + q) for k in range(N) for q in range(d) for j in self.rated]
+            for k in range(N):  # in the order of the interval rows (hs_points, coll_points)
+                if not hs:
+                    rows += [PathRow("rate", j, "col", k * d + q) for q in range(d) for j in self.rated]
+                rows += [PathRow("X", i, "ext", k) for _q in range((2 if hs else d - 1) if interior else 0)
+                         for i in bnd]
+                if hs:
+                    rows += [PathRow("rate", j, "ext", k) for j in self.rated]
             pj.append((*_block_triplets(n_ip, iv_index, base), ca.vec(Jip)))
             base += N * n_ip
         if hs and self.rated:  # rates at the mesh points
@@ -462,18 +569,20 @@ class OCPTranscription:
         return np.zeros(0) if self.scheme.is_hs else self.sample_times(t_mesh)
 
     def row_times(self, t_mesh) -> np.ndarray:
-        """Time of every bounded quantity (:attr:`path_rows`)."""
+        """Time of every bounded quantity (:attr:`path_rows`; interior points: the midpoint)."""
         t_mesh = np.asarray(t_mesh, float)
-        at = {"mesh": t_mesh, "mid": 0.5 * (t_mesh[:-1] + t_mesh[1:]), "col": self.collocation_times(t_mesh)}
+        mid = 0.5 * (t_mesh[:-1] + t_mesh[1:])
+        at = {"mesh": t_mesh, "mid": mid, "col": self.collocation_times(t_mesh), "ext": mid}
         return np.array([at[r.where][r.point] for r in self.path_rows])
 
     def parameters(self, t_mesh, Ysamples, theta, E0, Ef, *, W=1.0, rho=0.0, energy=0.0, rate=0.0,
                    time_weight=0.0, c=1.0, mask=None, tau_ref=1.0, relax_weights=None, eps=0.0,
-                   scale=1.0) -> np.ndarray:
+                   scale=1.0, points=None) -> np.ndarray:
         """The parameter vector (class notes); ``W``, ``rho``, ``energy``, ``rate``, ``time_weight``
         are the objective weights (the square roots of the first four enter the residuals),
         ``scale`` multiplies the whole objective (IPOPT's objective scaling without a new solver;
-        the elastic problem has ``eps`` on its least-squares part instead)."""
+        the elastic problem has ``eps`` on its least-squares part instead); ``points``: the positions
+        of the interior points (:meth:`extremum_points`; default :meth:`default_points`)."""
         p = np.zeros(self.np)
         S = self._p_slices
         p[S["h"]] = np.diff(np.asarray(t_mesh, float))
@@ -490,7 +599,61 @@ class OCPTranscription:
             p[S["relax_w"]] = relax_weights
         p[S["eps"]] = eps
         p[S["fscale"]] = scale
+        p[S["points"]] = (self.default_points() if points is None else np.asarray(points, float)).ravel(order="F")
         return p
+
+    def default_points(self) -> np.ndarray:
+        """Interior points spread over every interval: ``(n_points, N)`` fractions."""
+        nb, nr, d = len(self.bounded), len(self.rated), self.scheme.degree
+        if self.interior != "points":
+            col = []
+        elif self.scheme.is_hs:
+            col = [1 / 3] * nb + [2 / 3] * nb + [0.5] * nr
+        else:
+            col = [q / d for q in range(1, d) for _ in range(nb)]
+        return np.zeros((len(col), self.N)) + np.array(col, float)[:, None]
+
+    def extremum_points(self, inv) -> np.ndarray:
+        """Where the polynomials of ``inv`` (on this transcription's mesh, or a retimed one) have their
+        interior extrema: the positions for :meth:`parameters` that bound them exactly (a bound
+        held at every interior extremum and at the nodes holds everywhere); free slots stay spread."""
+        pts = self.default_points()
+        if not self.n_points:
+            return pts
+        nb, N = len(self.bounded), self.N
+        h = np.diff(inv.t_mesh)
+        slots = 2 if self.scheme.is_hs else self.scheme.degree - 1
+        if self.scheme.is_hs:
+            deriv = []  # coefficients of d/ds of the cubic, per entry: (3 c3, 2 c2, c1) x N
+            for i in self.bounded:
+                y0, y1 = inv.X_mesh[i, :-1], inv.X_mesh[i, 1:]
+                d0, d1 = h * inv.dX_mesh[i, :-1], h * inv.dX_mesh[i, 1:]
+                deriv.append(np.array([3 * (2 * y0 + d0 - 2 * y1 + d1), 2 * (-3 * y0 - 2 * d0 + 3 * y1 - d1), d0]))
+            ub = self.servo.layout.blocks["u"].start
+            for r, j in enumerate(self.rated):
+                fa, fb = inv.dX_mesh[ub + j, :-1], inv.dX_mesh[ub + j, 1:]
+                b1 = 3 * (inv.X_mesh[ub + j, 1:] - inv.X_mesh[ub + j, :-1]) / h - fa - fb
+                den = fa - 2 * b1 + fb
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    s = np.where(np.abs(den) > 1e-300, (fa - b1) / den, 0.5)
+                pts[2 * nb + r] = np.where((s > 0) & (s < 1), s, 0.5)
+        else:
+            basis = [np.polyder(np.poly1d(c)) for c in lagrange_basis(self.scheme)]
+            d = self.scheme.degree
+            deriv = []
+            for i in self.bounded:
+                vals = np.vstack([inv.X_mesh[i, :-1]] + [inv.X_col[i, q::d] for q in range(d)])  # (d+1) x N
+                coeffs = sum(np.outer(np.pad(b.coeffs, (d - 1 - b.order, 0)), vals[j]) for j, b in enumerate(basis))
+                deriv.append(coeffs)
+        for e, D in enumerate(deriv):
+            for k in range(N):
+                roots = [float(z.real) for z in np.roots(D[:, k]) if abs(z.imag) < 1e-12 and 0 < z.real < 1]
+                spread = [q / (slots + 1) for q in range(1, slots + 1)]
+                chosen = sorted(roots)[:slots]
+                chosen += [s for s in spread if all(abs(s - c) > 0.05 for c in chosen)][:slots - len(chosen)]
+                for q, s in enumerate(chosen):
+                    pts[q * nb + e, k] = s
+        return pts
 
     def pack(self, Xmesh, Xcol=None, S=None, tau=None, r=None) -> np.ndarray:
         """The decision vector from its parts (slacks and relaxations default to zero)."""

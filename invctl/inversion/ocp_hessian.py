@@ -19,6 +19,7 @@ import casadi as ca
 import numpy as np
 
 from .assembly import _all_cached, _assembly, _block_triplets, _compile, quadrature_weights
+from .ocp import coll_points, hs_points
 
 
 def structured_hessian(tr) -> ca.Function:
@@ -41,6 +42,7 @@ def structured_hessian(tr) -> ca.Function:
     bnd = c.bnd
     rate_rows = c.rate_rows
     ipars = c.ipars
+    sp = ipars[-1]  # the positions of the interior points
     scheme = c.scheme
     d = c.d
     N = c.N
@@ -63,6 +65,9 @@ def structured_hessian(tr) -> ca.Function:
     hd_sym = ca.SX.sym("dt") if tau is not None else ca.SX(0)
     h_d = h + (dh * hd_sym if tau is not None else 0)
     if hs:
+        def hull(Xa, Xb, Fa, Fb, Fm, hh):  # the interval's path rows
+            return hs_points(Xa, Xb, Fa, Fb, Fm, hh, sp, bnd, rate_rows, c.hull)
+
         Ga_, Gb_, Gm_ = (ca.SX.sym(k, nG) for k in ("Ga", "Gb", "Gm"))
         JGa_, JGb_, JGm_ = (ca.SX.sym(k, nG, nz_pt) for k in ("JGa", "JGb", "JGm"))
         Gta_, Gtb_, Gtm_ = (ca.SX.sym(k, nG) for k in ("Gta", "Gtb", "Gtm"))
@@ -76,7 +81,7 @@ def structured_hessian(tr) -> ca.Function:
         PHI = (ca.dot(lam_s, -h / 6 * (Fa_ + 4 * Gm_l[:nx] + Fb_))
                + fs * (h / 6 * ca.sumsqr(Ga_[nx:] + dGa[nx:]) + 2 * h / 3 * ca.sumsqr(Gm_l[nx:])
                        + h / 6 * ca.sumsqr(Gb_[nx:] + dGb[nx:]))
-               + ca.dot(mu_s, ca.vertcat(dXm[bnd], Gm_l[:nx][rate_rows])))
+               + ca.dot(mu_s, hull(ca.SX.zeros(nx), ca.SX.zeros(nx), Fa_, Fb_, Gm_l[:nx], h)))
         dall = ca.vertcat(dGa, dGb, dGm)
         wa, wb, wm = (ca.substitute(ca.gradient(PHI, v), dall, ca.DM.zeros(3 * nG)) for v in (dGa, dGb, dGm))
         iv_w = ca.Function("ocp_hs_weights", [Ga_, Gb_, Gm_, JGm_, lam_s, mu_s, fs] + ipars, [wa, wb, wm])
@@ -93,7 +98,7 @@ def structured_hessian(tr) -> ca.Function:
         R2 = ca.vertcat(ca.sqrt(h_d / 6) * (Ga_[nx:] + dGa2[nx:]), ca.sqrt(2 * h_d / 3) * Gm2[nx:],
                         ca.sqrt(h_d / 6) * (Gb_[nx:] + dGb2[nx:]))
         PHI2 = (ca.dot(lam_s, dXb_ - dXa_ - h_d / 6 * (Fa2 + 4 * Gm2[:nx] + Fb2)) + fs * ca.sumsqr(R2)
-                + ca.dot(mu_s, ca.vertcat(dXm2[bnd], Gm2[:nx][rate_rows])))
+                + ca.dot(mu_s, hull(dXa_, dXb_, Fa2, Fb2, Gm2[:nx], h_d)))
         zl = ca.vertcat(dXa_, dXb_, dsa_, dsb_, dsm_, *([dt_] if tau is not None else []))
         Jm = ca.jacobian(ca.vertcat(dzm, *([dt_] if tau is not None else [])), zl)
         H2 = ca.hessian(PHI2, zl)[0] + ca.mtimes([Jm.T, Hm_, Jm])
@@ -111,7 +116,8 @@ def structured_hessian(tr) -> ca.Function:
             res = ca.mtimes(dall, Cm) - hh * Gc_d[:nx, :]
             PHI = ca.dot(lam_s, ca.vertcat(ca.vec(res), dXk1 - ca.mtimes(dall, Dm)))
             PHI += fs * sum(hh * float(wq[q]) * ca.sumsqr(Gc_d[nx:, q]) for q in range(d))
-            return PHI + ca.dot(mu_s, ca.vertcat(*[Gc_d[rate_rows, q] for q in range(d)]))
+            return PHI + ca.dot(mu_s, ca.vertcat(*[Gc_d[rate_rows, q] for q in range(d)],
+                                                 coll_points(dall, sp, bnd, c.basis, c.bern)))
 
         PHI = coll_phi(Gc_ + dGc, h, ca.SX.zeros(nx, d + 1), ca.SX.zeros(nx))
         wc = ca.substitute(ca.gradient(PHI, ca.vec(dGc)), ca.vec(dGc), ca.DM.zeros(nG * d))

@@ -267,8 +267,9 @@ class Bounds:
         the inverse must start (end) at rest there: exact tracking becomes impossible and the
         bounded problem trades output error for the shorter actuation.
 
-    Bounds hold at the mesh points and at the collocation points (Hermite-Simpson: the interval
-    midpoints); rate bounds wherever the right-hand side is evaluated.
+    Bounds hold on the returned trajectory (the interpolating polynomials of every mesh interval),
+    not only at the mesh and collocation points (:mod:`invctl.inversion.ocp`); rate bounds of the
+    Legendre/Radau schemes hold at their collocation points only (a violation in between raises).
     """
 
     u: Any = None

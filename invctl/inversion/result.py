@@ -108,6 +108,46 @@ class Inverse:
             out = out + self.X_col[:, k * d + j - 1] * self._basis[j](s)
         return out
 
+    def dX(self, t) -> np.ndarray:
+        """Time derivative of :meth:`X` (of the same polynomials; zero outside ``[T0, Tf]``)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        tc = np.clip(t, self.T0, self.Tf)
+        k = np.clip(np.searchsorted(self.t_mesh, tc, side="right") - 1, 0, self.N - 1)
+        h = self.t_mesh[k + 1] - self.t_mesh[k]
+        s = (tc - self.t_mesh[k]) / h
+        if self._scheme.is_hs:
+            s2 = s * s
+            out = ((self.X_mesh[:, k + 1] - self.X_mesh[:, k]) * (6 * s - 6 * s2) / h
+                   + self.dX_mesh[:, k] * (3 * s2 - 4 * s + 1) + self.dX_mesh[:, k + 1] * (3 * s2 - 2 * s))
+        else:
+            d = self._scheme.degree
+            out = self.X_mesh[:, k] * np.polyder(self._basis[0])(s)
+            for j in range(1, d + 1):
+                out = out + self.X_col[:, k * d + j - 1] * np.polyder(self._basis[j])(s)
+            out = out / h
+        return np.where((t < self.T0) | (t > self.Tf), 0.0, out)
+
+    def extrema(self, row: int, derivative: bool = False) -> np.ndarray:
+        """Times of the interior extrema of ``X[row]`` (of its time derivative with ``derivative``)
+        on every mesh interval: where a bound on it can be exceeded between the nodes."""
+        h = np.diff(self.t_mesh)
+        if self._scheme.is_hs:  # the cubic in s = (t - t_k) / h
+            y0, y1 = self.X_mesh[row, :-1], self.X_mesh[row, 1:]
+            d0, d1 = h * self.dX_mesh[row, :-1], h * self.dX_mesh[row, 1:]
+            C = np.array([2 * y0 + d0 - 2 * y1 + d1, -3 * y0 - 2 * d0 + 3 * y1 - d1, d0, y0])
+        else:
+            d = self._scheme.degree
+            vals = np.vstack([self.X_mesh[row, :-1]] + [self.X_col[row, q::d] for q in range(d)])
+            C = sum(np.outer(b.coeffs, vals[j]) for j, b in enumerate(self._basis))
+        out = []
+        for k in range(self.N):
+            p = np.polyder(np.poly1d(C[:, k]), 2 if derivative else 1)
+            if p.order < 1 and not p.coeffs.any():
+                continue
+            out += [self.t_mesh[k] + z.real * h[k] for z in np.atleast_1d(p.roots)
+                    if abs(z.imag) < 1e-9 and 0 < z.real < 1]
+        return np.array(out, float)
+
     def _block(self, block, t):
         return self.X(t)[self._slice(block)]
 

@@ -278,6 +278,9 @@ def _limit_lines(d: dict) -> list[str]:
         if margins and tr is not None and tr.get("exact"):
             lines.append("  margins: " + ", ".join(f"{k} {v:.3g}" for k, v in margins.items()
                                                       if isinstance(v, (int, float))))
+        if "max_violation_between_nodes" in b:
+            lines.append(f"  bounds checked on the returned trajectory ({b['samples_per_interval']} points per mesh "
+                         f"interval): largest violation {b['max_violation_between_nodes']:.3g}")
     return lines
 
 
