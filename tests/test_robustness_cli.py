@@ -332,7 +332,9 @@ def test_sigint_inside_ipopt_is_an_interruption_not_a_failed_inversion(tmp_path)
     rc, out, err = _interrupt_when(p, r"iter +2 ")
     assert rc == 130, err[-3000:]
     d = _last_json(out)
-    assert d["error"] == "RunInterrupted" and "IPOPT" in d["message"] and "InversionFailed" not in err
+    # the solver's own exception text differs between CasADi releases (3.7.0: a SystemError without the
+    # solver's name; 3.8: IpoptInterface), so the check is on invctl's wording of the path taken
+    assert d["error"] == "RunInterrupted" and "the solver stopped with" in d["message"] and "InversionFailed" not in err
 
 
 _SLOW_LOOP = textwrap.dedent("""
