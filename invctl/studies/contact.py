@@ -69,6 +69,11 @@ def _setting(settings, name):
     raise SceneError(f"a contact scene needs the setting {name!r} (time step h, horizon t_end)")
 
 
+def _values(scene, params, settings) -> dict:
+    """Every parameter and setting of a run (the scene's defaults, then the given values)."""
+    return {**scene.params, **scene.settings, **params, **settings}
+
+
 def contact_setup(scene, params=None, settings=None, *, controller=None, plant_params=None) -> ContactRun:
     """Model, plant, law and initial state of a contact scene's run."""
     from ..control.pdplus import zero_input
@@ -87,6 +92,9 @@ def contact_setup(scene, params=None, settings=None, *, controller=None, plant_p
         plant.validate()
     c = scene.contact
     name = c.controller_for(model, settings, controller)
+    why = c.unmet(name, _values(scene, params, settings))
+    if why:
+        raise SceneError(f"scene {scene.name!r}: {why}")
     potential = c.potential(model) if c.potential is not None else None
     law = zero_input(potential) if name == "none" else c.controllers[name](model, settings)
     q0, v0 = c.initial_state(model, settings, name)
@@ -320,13 +328,20 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
 
 def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
              quiet=False, animate=True, record_every: int = 1, record: str = "steps") -> CommandResult:
-    """Every declared controller of a contact scene: runs, reports, figures (one per controller)."""
+    """Every declared controller of a contact scene that fits the given values (``Contact.requires``):
+    runs, reports, figures (one per controller); the others are listed as skipped, with the reason."""
     from ..plot import close
 
+    values = _values(scene, params, settings)
+    names = list(scene.contact.controllers) or ["none"]
+    skipped = {k: why for k in names if (why := scene.contact.unmet(k, values))}
+    names = [k for k in names if k not in skipped]
+    if not names:
+        raise SceneError(f"scene {scene.name!r}: no controller fits these values: " + "; ".join(skipped.values()))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    names = list(scene.contact.controllers) or ["none"]
-    lines, data = [], {"runs": {}}
+    lines = [f"skipped {why}" for why in skipped.values()] + ([""] if skipped else [])
+    data = {"runs": {}, "skipped": skipped}
     for name in names:
         run = run_contact(contact_setup(scene, params, settings, controller=name, plant_params=plant_params),
                           t_end=t_end, progress=False, record_every=record_every, record=record)
