@@ -524,11 +524,12 @@ def test_wall_time_limit_is_reported_as_such():
 
 
 # ------------------------------------------------------------- resources
-@pytest.mark.parametrize("argv", [["simulate", "bouncing_ball", "--set", "t_end=1e6"],
-                                  ["simulate", "bouncing_ball", "--set", "h=1e-9"]])
+@pytest.mark.parametrize("argv", [["simulate", "bouncing_ball", "--set", "t_end=1e6", "--record-every", "1"],
+                                  ["simulate", "bouncing_ball", "--set", "h=1e-9", "--record-every", "1"]])
 def test_large_contact_runs_are_refused_with_the_recording_that_fits(capsys, argv):
-    """The Moreau-Jean run estimates its record before it starts (every step by default) and names the
-    decimation, the event record and the horizon that fit; the decimated run then goes through."""
+    """The Moreau-Jean run estimates its record before it starts (here every step, --record-every 1; the
+    default is decimated) and names the decimation, the event record and the horizon that fit; the
+    decimated run then goes through."""
     rc, d, _ = run_cli(capsys, *argv)
     assert rc == 2 and d["error"] == "ResourceLimitError"
     assert "--record-every" in d["message"] and "--record events" in d["message"] and "--t-end" in d["message"]

@@ -94,7 +94,8 @@ OPTIONS: dict[str, Option] = {
     "force": Option(bool, "replace existing output files", ("invert", "simulate", "design"), False, flag=True),
     "quiet": Option(bool, "no progress output", ("invert", "simulate", "pipeline", "study"), False, flag=True),
     "no_animation": Option(bool, "do not write animations of the runs", ("pipeline",), False, flag=True),
-    "record_every": Option(int, "contact runs: keep every k-th step (the run's statistics stay exact)",
+    "record_every": Option(int, "contact runs: keep every k-th step (default: at most 20000 samples per run; "
+                           "1: every step; the run's statistics and impacts stay exact)",
                            ("simulate", "pipeline"), None, _at_least(1)),
     "record": Option(str, "contact runs: record every step ('steps') or only impacts and contact changes "
                           "('events')", ("simulate", "pipeline"), None, choices=("steps", "events")),
