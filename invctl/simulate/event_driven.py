@@ -27,7 +27,7 @@ from scipy.integrate import solve_ivp
 from ..contact.mechanics import ContactSystem
 from ..contact.lcp import solve_lcp
 from ..control.pdplus import FeedbackLaw, zero_input
-from ..errors import SimulationFailed
+from ..errors import INTERRUPT_LIKE, RunInterrupted, SimulationFailed, is_interrupt, watch_sigint
 from .timestepping import ContactTrajectory
 
 __all__ = ["simulate_event_driven"]
@@ -96,95 +96,116 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
     ts, qs, vs = [t], [q.copy()], [v.copy()]
     events = []
     imp = {"t": [], "i": [], "pre": [], "post": [], "vplus": []}
-    for _ in range(max_events):
-        if t >= t_end:
-            break
-        act = active.copy()
 
-        def rhs(tt, x, act=act):
-            a, _ = accel(tt, x[:n], x[n:], act)
-            return np.r_[x[n:], a]
+    def package(ts, qs, vs):
+        """The trajectory of the samples so far (impacts and events up to the last sample)."""
+        T, Q, Vv = np.array(ts), np.array(qs), np.array(vs)
+        Pz = np.zeros((mu, T.size - 1))
+        gaps = np.array([cs.gaps(qq, th) for qq in Q]).reshape(T.size, mu).T
+        Un = np.array([cs.gradients(qq, th).T @ vv for qq, vv in zip(Q, Vv)]).reshape(T.size, mu).T
+        En, Vl = [], []
+        for tt, qq, vv in zip(T, Q, Vv):
+            M, _, Vk = forces(tt, qq, vv)
+            En.append(0.5 * vv @ M @ vv)
+            Vl.append(Vk)
+        k = int(np.searchsorted(imp["t"], T[-1], side="right"))
+        stats = {"events": [e for e in events if e[0] <= T[-1]], "impact_t": np.array(imp["t"][:k]),
+                 "impact_contact": np.array(imp["i"][:k], int), "impact_pre": np.array(imp["pre"][:k]),
+                 "impact_post": np.array(imp["post"][:k]), "impact_v_plus": np.array(imp["vplus"][:k]).reshape(-1, n),
+                 "Un": Un, "backend": "event-driven"}
+        # time along the last axis, as every result type
+        return ContactTrajectory(T, Q.T, Vv.T, Pz, np.zeros((mu, T.size - 1), bool), gaps, np.array(En),
+                                 np.array(Vl), float("nan"), {"q": list(model.q_names), "gaps": list(cs.names)}, stats)
 
-        evs = []
-        for i in range(mu):
-            if act[i]:
-                def ev(tt, x, i=i, act=act):
-                    return accel(tt, x[:n], x[n:], act)[1][i]
+    with watch_sigint() as sigint:  # notes a Ctrl-C that a compiled callee swallows
+        try:
+            for _ in range(max_events):
+                if sigint.seen:  # a Ctrl-C that CasADi's argument conversion swallowed
+                    raise KeyboardInterrupt
+                if t >= t_end:
+                    break
+                act = active.copy()
+
+                def rhs(tt, x, act=act):
+                    a, _ = accel(tt, x[:n], x[n:], act)
+                    return np.r_[x[n:], a]
+
+                evs = []
+                for i in range(mu):
+                    if act[i]:
+                        def ev(tt, x, i=i, act=act):
+                            return accel(tt, x[:n], x[n:], act)[1][i]
+                    else:
+                        def ev(tt, x, i=i):
+                            return float(cs.gaps(x[:n], th)[i])
+                    ev.terminal = True
+                    ev.direction = -1
+                    evs.append(ev)
+                t_eval = None
+                if dt_out:
+                    t_eval = np.arange(t, t_end, dt_out)[1:]
+                sol = solve_ivp(rhs, (t, t_end), np.r_[q, v], method="DOP853", rtol=rtol, atol=atol, events=evs,
+                                t_eval=t_eval, dense_output=False)
+                if sol.status == -1:
+                    raise SimulationFailed(f"event-driven: integrator failed at t = {sol.t[-1]:.6g}: {sol.message}")
+                if sol.t.size:
+                    ts.extend(sol.t.tolist())
+                    qs.extend(sol.y[:n].T)
+                    vs.extend(sol.y[n:].T)
+                if sol.status == 0:
+                    t = t_end
+                    break
+                hit = [i for i in range(mu) if sol.t_events[i].size and
+                       (sol.t_events[i][0] > t or len(sol.t_events[i]) > 1 or not np.isclose(sol.t_events[i][0], t))]
+                if not hit:
+                    raise SimulationFailed(f"event-driven: terminated at t = {sol.t[-1]:.6g} without an event")
+                te = min(sol.t_events[i][-1] if sol.t_events[i][0] <= t else sol.t_events[i][0] for i in hit)
+                i_ev = [i for i in hit if np.isclose(min(sol.t_events[i][sol.t_events[i] > t]
+                                                         if np.any(sol.t_events[i] > t) else sol.t_events[i]),
+                                                     te, rtol=0, atol=1e-13)]
+                ye = sol.y_events[i_ev[0]][-1] if sol.y_events[i_ev[0]].shape[0] else sol.y[:, -1]
+                t, q, v = float(te), ye[:n].copy(), ye[n:].copy()
+                if act[i_ev[0]]:
+                    active[i_ev[0]] = False
+                    events.append((t, "release", i_ev[0], 0.0, 0.0))
+                    continue
+                # impact(s)
+                g = cs.gaps(q, th)
+                W = cs.gradients(q, th)
+                U = W.T @ v
+                closed = g <= 1e-10 + 1e-9 * np.abs(U)
+                inv = closed & (U <= 1e-14)
+                ee = e.copy()
+                slow = inv & (np.abs(U) < v_rest)
+                ee[slow] = 0.0
+                res = cs.impact(q, v, theta=th, e=ee, involved=inv)
+                Up = W.T @ res.v_plus
+                for i in np.flatnonzero(inv):
+                    events.append((t, "impact", int(i), float(U[i]), float(Up[i])))
+                    if res.p[i] > 0 and U[i] < -v_rest:
+                        imp["t"].append(t)
+                        imp["i"].append(int(i))
+                        imp["pre"].append(float(U[i]))
+                        imp["post"].append(float(Up[i]))
+                        imp["vplus"].append(res.v_plus.copy())
+                v = res.v_plus
+                ts.append(t)
+                qs.append(q.copy())
+                vs.append(v.copy())
+                Up = W.T @ v
+                active = settle(t, q, v, closed & (np.abs(Up) <= max(1e-12, 1e-9 * np.abs(U).max(initial=0))))
+                if max_impacts is not None and len(imp["t"]) >= max_impacts:
+                    break
             else:
-                def ev(tt, x, i=i):
-                    return float(cs.gaps(x[:n], th)[i])
-            ev.terminal = True
-            ev.direction = -1
-            evs.append(ev)
-        t_eval = None
-        if dt_out:
-            t_eval = np.arange(t, t_end, dt_out)[1:]
-        sol = solve_ivp(rhs, (t, t_end), np.r_[q, v], method="DOP853", rtol=rtol, atol=atol, events=evs,
-                        t_eval=t_eval, dense_output=False)
-        if sol.status == -1:
-            raise SimulationFailed(f"event-driven: integrator failed at t = {sol.t[-1]:.6g}: {sol.message}")
-        if sol.t.size:
-            ts.extend(sol.t.tolist())
-            qs.extend(sol.y[:n].T)
-            vs.extend(sol.y[n:].T)
-        if sol.status == 0:
-            t = t_end
-            break
-        hit = [i for i in range(mu) if sol.t_events[i].size and
-               (sol.t_events[i][0] > t or len(sol.t_events[i]) > 1 or not np.isclose(sol.t_events[i][0], t))]
-        if not hit:
-            raise SimulationFailed(f"event-driven: terminated at t = {sol.t[-1]:.6g} without an event")
-        te = min(sol.t_events[i][-1] if sol.t_events[i][0] <= t else sol.t_events[i][0] for i in hit)
-        i_ev = [i for i in hit if np.isclose(min(sol.t_events[i][sol.t_events[i] > t] if np.any(sol.t_events[i] > t)
-                                                 else sol.t_events[i]), te, rtol=0, atol=1e-13)]
-        ye = sol.y_events[i_ev[0]][-1] if sol.y_events[i_ev[0]].shape[0] else sol.y[:, -1]
-        t, q, v = float(te), ye[:n].copy(), ye[n:].copy()
-        if act[i_ev[0]]:
-            active[i_ev[0]] = False
-            events.append((t, "release", i_ev[0], 0.0, 0.0))
-            continue
-        # impact(s)
-        g = cs.gaps(q, th)
-        W = cs.gradients(q, th)
-        U = W.T @ v
-        closed = g <= 1e-10 + 1e-9 * np.abs(U)
-        inv = closed & (U <= 1e-14)
-        ee = e.copy()
-        slow = inv & (np.abs(U) < v_rest)
-        ee[slow] = 0.0
-        res = cs.impact(q, v, theta=th, e=ee, involved=inv)
-        Up = W.T @ res.v_plus
-        for i in np.flatnonzero(inv):
-            events.append((t, "impact", int(i), float(U[i]), float(Up[i])))
-            if res.p[i] > 0 and U[i] < -v_rest:
-                imp["t"].append(t)
-                imp["i"].append(int(i))
-                imp["pre"].append(float(U[i]))
-                imp["post"].append(float(Up[i]))
-                imp["vplus"].append(res.v_plus.copy())
-        v = res.v_plus
-        ts.append(t)
-        qs.append(q.copy())
-        vs.append(v.copy())
-        Up = W.T @ v
-        active = settle(t, q, v, closed & (np.abs(Up) <= max(1e-12, 1e-9 * np.abs(U).max(initial=0))))
-        if max_impacts is not None and len(imp["t"]) >= max_impacts:
-            break
-    else:
-        raise SimulationFailed(f"event-driven: more than {max_events} events before t_end = {t_end}",
-                               partial=(np.array(ts), np.array(qs).T, np.array(vs).T))
-    T, Q, Vv = np.array(ts), np.array(qs), np.array(vs)
-    Pz = np.zeros((mu, T.size - 1))
-    gaps = np.array([cs.gaps(qq, th) for qq in Q]).reshape(T.size, mu).T
-    Un = np.array([cs.gradients(qq, th).T @ vv for qq, vv in zip(Q, Vv)]).reshape(T.size, mu).T
-    En, Vl = [], []
-    for tt, qq, vv in zip(T, Q, Vv):
-        M, _, Vk = forces(tt, qq, vv)
-        En.append(0.5 * vv @ M @ vv)
-        Vl.append(Vk)
-    stats = {"events": events, "impact_t": np.array(imp["t"]), "impact_contact": np.array(imp["i"], int),
-             "impact_pre": np.array(imp["pre"]), "impact_post": np.array(imp["post"]),
-             "impact_v_plus": np.array(imp["vplus"]).reshape(-1, n), "Un": Un, "backend": "event-driven"}
-    # time along the last axis, as every result type
-    return ContactTrajectory(T, Q.T, Vv.T, Pz, np.zeros((mu, T.size - 1), bool), gaps, np.array(En), np.array(Vl),
-                             float("nan"), {"q": list(model.q_names), "gaps": list(cs.names)}, stats)
+                raise SimulationFailed(f"event-driven: more than {max_events} events before t_end = {t_end}",
+                                       partial=(np.array(ts), np.array(qs).T, np.array(vs).T))
+        except INTERRUPT_LIKE as exc:
+            if not (is_interrupt(exc) or sigint.seen):
+                raise
+            k = min(len(ts), len(qs), len(vs))  # up to the last event or smooth phase completed
+            part = package(ts[:k], qs[:k], vs[:k])
+            part.status, part.message = "interrupted", f"interrupted at t = {ts[k - 1]:.6g} of {t_end:g}"
+            raise RunInterrupted(f"event-driven simulation interrupted at t = {ts[k - 1]:.6g} of {t_end:g}; the "
+                                 "simulated prefix is in exc.partial", partial=part) from None
+    return package(ts, qs, vs)
+

@@ -426,6 +426,10 @@ def _save_partial(exc: RunInterrupted, *, out=None, out_dir=None, meta=None, dt=
                     part.info["partial"] = note
                     part.save(d, meta=meta)
                     exc.saved += [str(d / f"run_{k}.npz") for k in part.runs] + [str(d / "study.json")]
+            elif part is not None and hasattr(part, "to_npz"):  # the simulated prefix of the run under way
+                path = _partial_name(d / exc.diagnostics.pop("run_file", "run.npz"), ".npz")
+                exc.saved.append(str(part.to_npz(path, meta={**(meta or {}), "partial": note})))
+            exc.saved += [f for f in exc.diagnostics.pop("complete", []) if Path(f).is_file()]
             files = sorted(q.name for q in d.iterdir() if q.name != "INTERRUPTED.txt")
             nf = d / "INTERRUPTED.txt"
             nf.write_text(f"PARTIAL RESULTS: {note}\nfiles present: {', '.join(files) or 'none'}\n")

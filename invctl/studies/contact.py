@@ -28,7 +28,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ..errors import ParameterError, SceneError
+from ..errors import ParameterError, RunInterrupted, SceneError
 from ..scenes import CommandResult
 from .reports import run_reports
 
@@ -345,9 +345,8 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
 def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
              quiet=False, animate=True, record_every: int | None = None, record: str = "steps") -> CommandResult:
     """Every declared controller of a contact scene that fits the given values (``Contact.requires``):
-    runs, reports, figures (one per controller); the others are listed as skipped, with the reason."""
-    from ..plot import close
-
+    runs, reports, figures (one per controller); the others are listed as skipped, with the reason.
+    Ctrl-C keeps the complete runs and the prefix of the one under way (``run_<name>.partial.npz``)."""
     values = _values(scene, params, settings)
     names = list(scene.contact.controllers) or ["none"]
     skipped = {k: why for k in names if (why := scene.contact.unmet(k, values))}
@@ -359,26 +358,47 @@ def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end
     lines = [f"skipped {why}" for why in skipped.values()] + ([""] if skipped else [])
     data = {"runs": {}, "skipped": skipped}
     for name in names:
-        run = run_contact(contact_setup(scene, params, settings, controller=name, plant_params=plant_params),
-                          t_end=t_end, progress=False, record_every=record_every, record=record)
-        ls, d = _summary(run)
-        rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
-                                   controller=name)
-        if rtext:
-            ls.append(rtext)
-            d["reports"] = rdata
-        run.trajectory.to_npz(out / f"run_{name}.npz", meta=run.meta())
-        close(run.trajectory.plot(out / f"run_{name}.png", title=f"{scene.name} ({name})"))
-        if animate and scene.drawing is not None:
-            from ..plot.animate import animate_result
-
-            animate_result(run.trajectory, out / f"anim_{name}.gif", scene=scene, params=params, fps=20,
-                           title=f"{scene.name} ({name})")
-        lines += ls + [""]
-        data["runs"][name] = d
+        try:
+            lines += _pipeline_run(scene, name, params, settings, out, data, t_end=t_end, plant_params=plant_params,
+                                   animate=animate, record_every=record_every, record=record)
+        except KeyboardInterrupt as exc:  # the runs before are on disk; the prefix of this one is exc.partial
+            ri = exc if isinstance(exc, RunInterrupted) else RunInterrupted("interrupted")
+            ri.args = (f"{ri} (controller {name}); complete runs: {', '.join(data['runs']) or 'none'}",)
+            ri.diagnostics.update(run_file=f"run_{name}.npz",
+                                  complete=[str(out / f"run_{k}.npz") for k in data["runs"]])
+            raise ri from None
     files = sorted(p.name for p in out.iterdir())
     lines.append(f"runs and figures in {out}/ ({', '.join(files)})")
     return CommandResult("\n".join(lines), {**data, "out_dir": str(out), "files": files})
+
+
+def _pipeline_run(scene, name, params, settings, out, data, *, t_end, plant_params, animate, record_every,
+                  record) -> list:
+    """One controller's run of a pipeline: report (into ``data["runs"]``), ``run_<name>.npz``, figures."""
+    from ..plot import close
+
+    setup = contact_setup(scene, params, settings, controller=name, plant_params=plant_params)
+    try:
+        run = run_contact(setup, t_end=t_end, progress=False, record_every=record_every, record=record)
+    except RunInterrupted as exc:
+        if exc.partial is not None:
+            exc.partial.meta = {**exc.partial.meta, **setup.meta()}
+        raise
+    ls, d = _summary(run)
+    rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
+                               controller=name)
+    if rtext:
+        ls.append(rtext)
+        d["reports"] = rdata
+    run.trajectory.to_npz(out / f"run_{name}.npz", meta=run.meta())
+    close(run.trajectory.plot(out / f"run_{name}.png", title=f"{scene.name} ({name})"))
+    if animate and scene.drawing is not None:
+        from ..plot.animate import animate_result
+
+        animate_result(run.trajectory, out / f"anim_{name}.gif", scene=scene, params=params, fps=20,
+                       title=f"{scene.name} ({name})")
+    data["runs"][name] = d
+    return ls + [""]
 
 
 def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:
