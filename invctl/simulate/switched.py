@@ -331,6 +331,7 @@ class _Engine:
         t_events = sorted({x for x in ref.switch_times() + ref.input_breaks(t0, t_end) if t0 < x < t_end})
         t_events.append(t_end)
         T, X_all, M = self.T, self.X, self.M = [], [], []  # kept on the engine: an interruption keeps the prefix
+        self.start = (t, S.copy(), self.mode_id((bits, phase, sliding)))
         events = self.events = []
         contact_starts = {a for a, _ in ref.contact_intervals}
         last_report = time.perf_counter()
@@ -427,11 +428,12 @@ class _Engine:
         return np.concatenate(T), np.vstack(X_all), np.concatenate(M), events
 
     def _partial(self, T, X_all, M):
-        if not T:
+        if getattr(self, "start", None) is None:
             return None
         k = min(len(T), len(X_all), len(M))  # an interruption may land between the appends of one window
-        if k == 0:
-            return None
+        if k == 0:  # interrupted in the first window: the initial state
+            t, S, m = self.start
+            return {"t": np.array([t]), "S": S[None, :], "mode": np.array([m])}
         return {"t": np.concatenate(T[:k]), "S": np.vstack(X_all[:k]), "mode": np.concatenate(M[:k])}
 
 
