@@ -208,4 +208,3 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
             raise RunInterrupted(f"event-driven simulation interrupted at t = {ts[k - 1]:.6g} of {t_end:g}; the "
                                  "simulated prefix is in exc.partial", partial=part) from None
     return package(ts, qs, vs)
-

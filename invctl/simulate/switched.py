@@ -478,7 +478,7 @@ def simulate_switched(loop: ClosedLoop, t_end: float, *, t0: float = 0.0, h_max:
             T, S, Mi, events = eng.run(t0, t_end)
             return _result(loop, eng, T, S, Mi, events, t_end, w0, label, meta)
     except INTERRUPT_LIKE as exc:
-        if not (is_interrupt(exc) or eng.sigint.seen):
+        if not (is_interrupt(exc) or getattr(eng.sigint, "seen", False)):
             raise
         part = eng._partial(getattr(eng, "T", []), getattr(eng, "X", []), getattr(eng, "M", []))
         sim, t_now = None, t0
