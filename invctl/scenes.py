@@ -162,6 +162,10 @@ class Contact:
     clearance : callable, optional
         ``clearance(model, settings) -> float``: the free room of the joints (the scale a run's
         penetration is judged against); default: the largest gap at the start of the run.
+    requires : dict, optional
+        ``name -> {parameter or setting: value}``: the values a controller needs (e.g.
+        ``{"juggling": {"actuators": 2}}``); ``invctl pipeline`` runs the controllers whose
+        requirements the given values meet and reports the others as skipped.
     """
 
     controllers: Mapping[str, Callable] = field(default_factory=dict)
@@ -170,9 +174,18 @@ class Contact:
     potential: Callable | None = None
     exact_impacts: Callable | None = None
     clearance: Callable | None = None
+    requires: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
     def _check(self, scene: str) -> None:
         object.__setattr__(self, "controllers", _frozen(self.controllers, "contact.controllers", scene))
+        object.__setattr__(self, "requires", _frozen(self.requires, "contact.requires", scene))
+        for k, req in self.requires.items():
+            if k not in self.controllers:
+                raise SceneError(f"scene {scene!r}: contact.requires names {k!r}, which is not one of its "
+                                 f"controllers {sorted(self.controllers)}")
+            if not isinstance(req, Mapping) or not all(isinstance(v, (int, float)) for v in req.values()):
+                raise SceneError(f"scene {scene!r}: contact.requires[{k!r}] must map parameter or setting names "
+                                 f"to numbers, got {req!r}")
         for k, v in self.controllers.items():
             _callable(v, f"contact.controllers[{k!r}]", scene, optional=False)
         _callable(self.initial_state, "contact.initial_state", scene, optional=False)
@@ -197,6 +210,15 @@ class Contact:
             raise SceneError(f"unknown controller {name!r}; this scene offers: "
                              f"{', '.join(sorted(self.controllers)) or 'none'} (and 'none': no input)")
         return name
+
+    def unmet(self, name: str, values: Mapping) -> str | None:
+        """Why controller ``name`` cannot run with the parameter and setting ``values`` (None: it can)."""
+        bad = {k: v for k, v in self.requires.get(name, {}).items() if float(values.get(k, math.nan)) != float(v)}
+        if not bad:
+            return None
+        return (f"controller {name!r} needs {', '.join(f'{k}={v:g}' for k, v in bad.items())} (here "
+                f"{', '.join(f'{k}={float(values.get(k, math.nan)):g}' for k in bad)}); use "
+                f"{' '.join(f'--set {k}={v:g}' for k, v in bad.items())}")
 
 
 @dataclass(frozen=True)

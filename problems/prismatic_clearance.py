@@ -182,6 +182,11 @@ def juggling_design_analysis(ctx) -> dict:
     return out
 
 
+#: the actuators each controller needs (the pipeline runs those that fit ``--set actuators=...``)
+REQUIRES = {"pd": {"actuators": 1}, "switching": {"actuators": 1}, "juggling": {"actuators": 2},
+            "juggling_design": {"actuators": 1}}
+
+
 def _need(model, act, name, why):
     if model.m != act:
         from invctl.errors import SceneError
@@ -263,7 +268,7 @@ SCENE = Scene(
     contact=Contact(controllers={"pd": _pd, "preload": _preload, "switching": _switching, "juggling": _juggling,
                                  "juggling_design": _juggling_design},
                     initial_state=_initial, clearance=lambda model, s: model.values["L"] - 2 * model.values["l"],
-                    default_controller=lambda model, s: "pd" if model.m == 1 else "preload"),
+                    default_controller=lambda model, s: "pd" if model.m == 1 else "preload", requires=REQUIRES),
     reports=(Report("Remark 4 switching modes", modes_report, controllers=("switching",)),
              Report("000 (29)-(33): planned and simulated impacts", juggling_report, controllers=("juggling_design",)),
              Report("000 (29)-(33): recursive juggling design", juggling_design_analysis, command="analyze")),

@@ -264,3 +264,36 @@ def test_contact_system_rejects_models_without_gaps():
     q, v = ca.SX.sym("q", 1), ca.SX.sym("v", 1)
     with pytest.raises(ModelError):
         ContactSystem(Model("free", q, v, P, {"m": 1.0}, M=ca.SX.eye(1), f=ca.SX.zeros(1), B=ca.SX.zeros(1, 0)))
+
+
+# ------------------------------------------------------------ default records of long runs
+@pytest.mark.parametrize("scene, values, controller", [
+    ("bouncing_ball", {"h": 1e-5, "t_end": 2.0}, None),        # 200000 steps, energy balance
+    ("prismatic_clearance", {"h": 1e-5, "t_end": 1.0}, "pd"),  # 100000 steps, V (37) of PD (36)
+])
+def test_long_contact_runs_are_saved_decimated_by_default(scene, values, controller, tmp_path, capsys):
+    """A long run's saved file holds at most DEFAULT_SAMPLES (+1) samples by default and every step with
+    --record-every 1; impacts, largest penetration and the energy / V increases agree between both."""
+    from invctl.cli import main
+    from invctl.simulate.contact_record import ContactTrajectory
+    from invctl.studies.contact import DEFAULT_SAMPLES
+
+    sets = [a for k, v in values.items() for a in ("--set", f"{k}={v}")] + (["--controller", controller]
+                                                                            if controller else [])
+    runs = {}
+    for tag, extra in (("default", []), ("full", ["--record-every", "1"])):
+        out = tmp_path / f"{tag}.npz"
+        assert main(["simulate", scene, *sets, *extra, "--quiet", "--out", str(out)]) == 0
+        runs[tag] = ContactTrajectory.load(out)
+    text = capsys.readouterr().out
+    steps = round(values["t_end"] / values["h"])
+    d, f = runs["default"], runs["full"]
+    assert f.t.size == steps + 1 and f.complete
+    assert d.t.size <= DEFAULT_SAMPLES + 2 and not d.complete and d.t.size > DEFAULT_SAMPLES / 2
+    assert "--record-every 1 records all" in text
+    np.testing.assert_array_equal(d.impact_times, f.impact_times)
+    assert d.impact_times.size >= 2
+    assert d.max_gap_violation == f.max_gap_violation
+    assert d.max_energy_increase == f.max_energy_increase and d.max_V_increase == f.max_V_increase
+    np.testing.assert_array_equal(d.q[:, -1], f.q[:, -1])
+    np.testing.assert_array_equal(d.q, f.q[:, d.stats["step_index"]])  # recorded samples are steps of the run

@@ -630,3 +630,116 @@ def test_fuzz_bounds_hold_between_the_nodes(fuzz_dir, data):
         assert np.max(saved - b_hi) <= tol and np.max(b_lo - saved) <= tol, f"{argv}: saved samples violate {spec}"
     assert 0.0 <= report["max_violation_between_nodes"] <= tol
     assert report["max_violation_between_nodes"] == pytest.approx(measured, rel=1e-9, abs=1e-15), argv
+
+
+# ------------------------------------------------------------- Ctrl-C in every simulator
+#: long runs of every simulator kind (each would take a minute or more): the command line and the
+#: end time of its run; ``None``: the event-driven reference, which no command runs (a Python call)
+_SIGINT_RUNS = {
+    "moreau-jean simulate": (["simulate", "bouncing_ball", "--set", "h=1e-7", "--set", "t_end=30", "--quiet"], 30.0),
+    "moreau-jean pipeline": (["pipeline", "prismatic_clearance", "--set", "h=1e-7", "--no-animation", "--quiet"], 2.0),
+    "switched simulate": (["simulate", "stiff_wall", "--set", "h_max=1e-6", "--t-end", "3"], 3.0),
+    "switched simulate (wrist)": (["simulate", "compliant_wrist", "--set", "h_max=1e-6", "--t-end", "3"], 3.0),
+    "switched pipeline": (["pipeline", "stiff_wall", "--set", "h_max=1e-6", "--t-end", "3", "--no-animation"], 3.0),
+    "event-driven": (None, 1e5),
+}
+
+
+def _interrupt_once_stepping(monkeypatch, delay: float):
+    """Send SIGINT to this process ``delay`` s after a simulator has made its first steps (a Moreau-Jean
+    chunk recorded, a switched window propagated, an event-driven phase integrated); returns the timers."""
+    import threading
+
+    from invctl.simulate import contact_record, event_driven, switched
+
+    timers = []
+
+    def wrap(owner, name):
+        fn = getattr(owner, name)
+
+        def stepping(*a, **k):
+            if not timers:
+                timers.append(threading.Timer(delay, os.kill, (os.getpid(), signal.SIGINT)))
+                timers[0].start()
+            return fn(*a, **k)
+
+        monkeypatch.setattr(owner, name, stepping)
+
+    wrap(contact_record.ChunkRecorder, "consume")
+    wrap(switched, "powers_apply")
+    wrap(event_driven, "solve_ivp")
+    return timers
+
+
+def _check_prefix(path: Path, t_end: float, complete_ok: bool) -> None:
+    """``path`` loads and holds a run from its start: finite, time ordered, within the horizon."""
+    from invctl.simulate.contact_record import ContactTrajectory
+    from invctl.simulate.switched import SwitchedSimulation
+
+    if path.suffix == ".txt":
+        assert path.read_text().startswith("PARTIAL RESULTS"), path
+        return
+    if path.suffix == ".csv":
+        t = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)[:, 0]
+        status = "interrupted"
+    else:
+        try:
+            run = ContactTrajectory.load(path)
+        except errors.ResultFileError:
+            run = SwitchedSimulation.load(path)
+        t, status = run.t, run.status
+        assert np.all(np.isfinite(run.x if hasattr(run, "x") else run.q)), path
+    assert t.size >= 1 and np.all(np.isfinite(t)) and np.all(np.diff(t) >= 0) and t[0] == 0.0, path
+    assert t[-1] <= t_end * (1 + 1e-12), path
+    assert status == "interrupted" or (complete_ok and status == "ok"), (path, status)
+
+
+@pytest.mark.parametrize("kind", list(_SIGINT_RUNS))
+@settings(max_examples=3, deadline=None, database=None, derandomize=not os.environ.get("INVCTL_FUZZ_RANDOM"),
+          suppress_health_check=list(HealthCheck))
+@given(data=st.data())
+def test_fuzz_sigint_in_every_simulator_keeps_a_loadable_prefix(kind, data, tmp_path_factory):
+    """A Ctrl-C at a random moment of a long run of each simulator: exit 130 with a RunInterrupted JSON
+    that lists the files kept; the prefix of the interrupted run is among them (``x.partial.npz``/``.csv``,
+    ``run_<controller>.partial.npz``) and every file listed loads as a run from its start."""
+    argv, t_end = _SIGINT_RUNS[kind]
+    delay = data.draw(st.floats(0.0, 0.8), label="delay")
+    cwd = tmp_path_factory.mktemp("sigint")
+    with pytest.MonkeyPatch.context() as mp:
+        timers = _interrupt_once_stepping(mp, delay)
+        try:
+            if argv is None:
+                import problems.bouncing_ball as bb
+                from invctl.simulate.event_driven import simulate_event_driven
+
+                model = bb.build(e=data.draw(st.sampled_from([0.8, 1.0]), label="e"))
+                with pytest.raises(errors.RunInterrupted) as exc:
+                    simulate_event_driven(model, [1.0], [0.0], t_end, potential=bb.potential(model),
+                                          max_events=10**7, v_rest=1e-300)
+                path = cwd / "x.partial.npz"
+                exc.value.partial.to_npz(path)
+                _check_prefix(path, t_end, complete_ok=False)
+                return
+            argv = list(argv)
+            if argv[0] == "pipeline":
+                argv += ["--out-dir", "out"]
+            else:
+                argv += ["--out", "x." + data.draw(st.sampled_from(["npz", "csv"] if "switched" in kind else ["npz"]),
+                                                   label="suffix")]
+            if kind.startswith("moreau"):
+                k = data.draw(st.sampled_from([None, 1000, 30000]), label="record_every")
+                argv += ["--record-every", str(k)] if k else []
+            rc, out, err = run_case(argv + ["--json"], cwd)
+        finally:
+            for t in timers:
+                t.cancel()
+    assert rc == 130, f"{argv}: exit {rc}\n{err[-2000:]}"
+    d = _strict_json(out.strip().splitlines()[-1])
+    assert d["error"] == "RunInterrupted" and d["partial"], (argv, d)
+    files = [cwd / f for f in d["partial"]]
+    expected = ({"x.partial.npz", "x.partial.csv"} if argv[0] == "simulate" else
+                {"run.partial.npz", "run_pd.partial.npz", "run_preload.partial.npz"})
+    assert any(f.name in expected for f in files), (argv, d["partial"])
+    for f in files:
+        assert f.is_file(), f
+        _check_prefix(f, t_end, complete_ok=argv[0] == "pipeline")

@@ -64,6 +64,47 @@ def test_contact_and_switched_pipelines(tmp_path, capsys):
     assert {"design.png", "run.png", "run.npz"} <= set(data["files"])
 
 
+@pytest.mark.parametrize("actuators, ran, skipped", [
+    (1, ["pd", "preload", "switching", "juggling_design"], ["juggling"]),
+    (2, ["preload", "juggling"], ["pd", "switching", "juggling_design"])])
+def test_a_contact_pipeline_runs_the_controllers_that_fit(actuators, ran, skipped, tmp_path, capsys):
+    """Each controller declares the actuators it needs (``Contact.requires``): the pipeline runs those that
+    fit the values given and says which it skipped and why (JSON and text)."""
+    argv = ["pipeline", "prismatic_clearance", "--set", f"actuators={actuators}", "--t-end", "0.05",
+            "--no-animation", "--quiet", "--out-dir", str(tmp_path)]
+    assert main(argv + ["--json"]) == 0
+    data = _json(capsys)
+    assert list(data["runs"]) == ran and sorted(data["skipped"]) == sorted(skipped)
+    for name in skipped:
+        assert f"needs actuators={3 - actuators}" in data["skipped"][name]
+        assert f"--set actuators={3 - actuators}" in data["skipped"][name]
+        assert not (tmp_path / f"run_{name}.npz").exists()
+    assert all((tmp_path / f"run_{name}.npz").exists() for name in ran)
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert all(f"skipped controller '{name}' needs actuators" in text for name in skipped)
+
+
+def test_a_contact_requirement_is_checked_by_the_library(tmp_path):
+    from invctl.errors import SceneError
+    from invctl.scenes import Contact, Scene
+    from invctl.studies import commands
+    from problems import prismatic_clearance as pc
+
+    c = pc.SCENE.contact
+    with pytest.raises(SceneError, match="not one of its controllers"):
+        Scene("x", pc.build, params=pc.SCENE.params, settings=pc.SCENE.settings,
+              contact=Contact(controllers=dict(c.controllers), initial_state=c.initial_state, requires={"pid": {}}))
+    # the library refuses before the law is built (the law's own check is never reached)
+    only_two = Contact(controllers={"pd": c.controllers["pd"]}, initial_state=c.initial_state,
+                       requires={"pd": {"actuators": 2, "Kp": 100}})
+    scene = Scene("two", pc.build, params=pc.SCENE.params, settings=pc.SCENE.settings, contact=only_two)
+    with pytest.raises(SceneError, match=r"needs actuators=2 \(here actuators=1\); use --set actuators=2"):
+        commands.simulate(scene, t_end=0.01, quiet=True)
+    with pytest.raises(SceneError, match="no controller fits"):
+        commands.pipeline(scene, t_end=0.01, quiet=True, out_dir=str(tmp_path), no_animation=True)
+
+
 def test_a_scene_file_given_by_path_works_like_the_shipped_one(tmp_path, capsys):
     import problems
 

@@ -426,6 +426,116 @@ def test_sigint_during_a_contact_run_is_an_interruption(tmp_path):
     assert _last_json(out)["error"] == "RunInterrupted" and "internal error" not in err
 
 
+def test_sigint_during_a_contact_run_keeps_the_simulated_prefix(tmp_path):
+    from invctl.simulate.contact_record import ContactTrajectory
+
+    # 3e8 steps, recorded decimated by default: the signal lands inside the compiled loop
+    p = _child(["simulate", "bouncing_ball", "--set", "h=1e-7", "--set", "t_end=30", "--out", "b.npz", "--quiet",
+                "--json"], code=_MARKED_CONTACT, cwd=tmp_path)
+    rc, out, err = _interrupt_when(p, "CONTACT RUN STARTED", delay=1.0)
+    assert rc == 130, err[-2000:]
+    d = _last_json(out)
+    assert d["error"] == "RunInterrupted" and d["partial"] == ["b.partial.npz"], d
+    part = ContactTrajectory.load(tmp_path / "b.partial.npz")
+    assert part.status == "interrupted" and 0 < part.t[-1] < 30 and np.all(np.diff(part.t) > 0)
+    assert "interrupted" in part.meta["partial"] and np.all(np.isfinite(part.q))
+    # the prefix is the run itself: its impacts are those of the closed form t1 (1 + 2 e + 2 e^2 + ...)
+    t1, e = np.sqrt(2 / 9.81), 0.8
+    exact = t1 + 2 * t1 * np.r_[0.0, np.cumsum(e ** np.arange(1, 40))]
+    ti = part.impact_times
+    assert ti.size == np.count_nonzero(exact < part.t[-1] - 1e-5)
+    np.testing.assert_allclose(ti, exact[:ti.size], rtol=0, atol=1e-5)
+
+
+_MARKED_SWITCHED = textwrap.dedent("""
+    import sys
+    from invctl.simulate import switched
+    run = switched._Engine.run
+    def marked_run(self, *a, **k):
+        print("SWITCHED RUN STARTED", file=sys.stderr, flush=True)
+        return run(self, *a, **k)
+    switched._Engine.run = marked_run
+    from invctl.cli import main
+    sys.exit(main(sys.argv[1:]))
+    """)
+
+
+def test_sigint_during_a_switched_run_keeps_the_simulated_prefix(tmp_path):
+    from invctl.simulate.switched import SwitchedSimulation
+    from invctl.studies.switched import simulate_scenario
+
+    p = _child(["simulate", "stiff_wall", "--set", "h_max=1e-6", "--t-end", "3", "--out", "run.npz", "--json"],
+               code=_MARKED_SWITCHED, cwd=tmp_path)
+    rc, out, err = _interrupt_when(p, "SWITCHED RUN STARTED", delay=1.0)
+    assert rc == 130, err[-2000:]
+    d = _last_json(out)
+    assert d["error"] == "RunInterrupted" and d["partial"] == ["run.partial.npz"], d
+    assert not (tmp_path / "run.npz").exists()
+    part = SwitchedSimulation.load(tmp_path / "run.partial.npz")
+    assert part.status == "interrupted" and 0 < part.t[-1] < 3 and np.all(np.diff(part.t) >= 0)
+    assert part.t.size > 1000 and "interrupted" in part.meta["partial"]
+    # the prefix is the exact solution: a run at the default sampling passes through the same states
+    p_ = load_scene("stiff_wall").model({}).params
+    t_cut = min(part.t[-1], 0.5)
+    ref = simulate_scenario(p_, t_end=t_cut)
+    inside = (ref.t < t_cut) & ~np.isin(ref.t, ref.event_t)  # away from the duplicated event instants
+    np.testing.assert_allclose(part.sample(ref.t[inside])["x"], ref.x[inside], rtol=0, atol=1e-9)
+    assert part.event_t.size == ref.event_t[ref.event_t <= part.t[-1]].size
+
+
+def test_sigint_during_a_contact_pipeline_keeps_the_runs_and_the_prefix(tmp_path):
+    from invctl.simulate.contact_record import ContactTrajectory
+
+    # h = 2e-7: 1e7 steps per controller; the signal lands inside the second run (preload)
+    p = _child(["pipeline", "prismatic_clearance", "--set", "h=2e-7", "--no-animation", "--out-dir", "out", "--json"],
+               code=_MARKED_CONTACT, cwd=tmp_path)
+    lines, seen = [], 0
+    for line in p.stderr:
+        lines.append(line)
+        seen += "CONTACT RUN STARTED" in line
+        if seen == 2:
+            time.sleep(0.5)
+            p.send_signal(signal.SIGINT)
+            break
+    else:
+        raise AssertionError("".join(lines)[-2000:])
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 130, err[-2000:]
+    d = _last_json(out)
+    assert d["error"] == "RunInterrupted" and "complete runs: pd" in d["message"]
+    assert {str(Path("out") / "run_pd.npz"), str(Path("out") / "run_preload.partial.npz")} <= set(d["partial"])
+    pd_run = ContactTrajectory.load(tmp_path / "out" / "run_pd.npz")
+    assert pd_run.status == "ok" and pd_run.t[-1] == pytest.approx(2.0)
+    part = ContactTrajectory.load(tmp_path / "out" / "run_preload.partial.npz")
+    assert part.status == "interrupted" and 0 < part.t[-1] < 2.0 and part.meta["controller"] == "preload"
+    assert "PARTIAL" in (tmp_path / "out" / "INTERRUPTED.txt").read_text()
+
+
+def test_sigint_during_an_event_driven_run_keeps_the_simulated_prefix():
+    """A real SIGINT to this process during the event-driven reference (a Python loop around DOP853)."""
+    import threading
+
+    import problems.bouncing_ball as bb
+    from invctl.simulate.contact_record import ContactTrajectory
+    from invctl.simulate.event_driven import simulate_event_driven
+
+    model = bb.build(e=1.0)  # elastic: it bounces for ever, one impact every 2 t1
+    timer = threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        with pytest.raises(RunInterrupted) as exc:
+            simulate_event_driven(model, [1.0], [0.0], 1e5, potential=bb.potential(model), max_events=10**7)
+    finally:
+        timer.cancel()
+    part = exc.value.partial
+    assert isinstance(part, ContactTrajectory) and part.status == "interrupted" and 0 < part.t[-1] < 1e5
+    t1 = np.sqrt(2 / 9.81)
+    ti = part.stats["impact_t"]
+    assert ti.size >= 2 and ti[-1] <= part.t[-1]
+    np.testing.assert_allclose(ti, t1 * (1 + 2 * np.arange(ti.size)), rtol=1e-8)
+    assert part.q.shape == (1, part.t.size) and np.all(np.isfinite(part.q))
+
+
 def test_sigint_during_sweeps_and_tradeoffs_in_process():
     """A real SIGINT to this process while a sweep / trade-off runs (the library entry points)."""
     from invctl.studies.sweep import sweep
@@ -526,11 +636,12 @@ def test_wall_time_limit_is_reported_as_such():
 
 
 # ------------------------------------------------------------- resources
-@pytest.mark.parametrize("argv", [["simulate", "bouncing_ball", "--set", "t_end=1e6"],
-                                  ["simulate", "bouncing_ball", "--set", "h=1e-9"]])
+@pytest.mark.parametrize("argv", [["simulate", "bouncing_ball", "--set", "t_end=1e6", "--record-every", "1"],
+                                  ["simulate", "bouncing_ball", "--set", "h=1e-9", "--record-every", "1"]])
 def test_large_contact_runs_are_refused_with_the_recording_that_fits(capsys, argv):
-    """The Moreau-Jean run estimates its record before it starts (every step by default) and names the
-    decimation, the event record and the horizon that fit; the decimated run then goes through."""
+    """The Moreau-Jean run estimates its record before it starts (here every step, --record-every 1; the
+    default is decimated) and names the decimation, the event record and the horizon that fit; the
+    decimated run then goes through."""
     rc, d, _ = run_cli(capsys, *argv)
     assert rc == 2 and d["error"] == "ResourceLimitError"
     assert "--record-every" in d["message"] and "--record events" in d["message"] and "--t-end" in d["message"]

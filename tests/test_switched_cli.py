@@ -157,3 +157,26 @@ def test_reduction_check_poles():
 def test_analyze_wrist_warns_when_reduction_is_poor(capsys):
     rc, d, out = _run(capsys, "analyze", "compliant_wrist", "--set", "bt=500", "--json", "--samples", "16")
     assert rc == 0 and d["reduction_ok"] is False and "WARNING" in out.out
+
+
+def test_ctrl_c_in_the_reduced_run_of_a_wrist_keeps_the_full_run(tmp_path, monkeypatch, capsys):
+    """The compliant wrist simulates the full loop, then its reduced model (27)-(28): a Ctrl-C in the
+    second run writes the complete first one as the partial result (exit 130, listed in the JSON)."""
+    from invctl.errors import RunInterrupted
+    from invctl.studies import switched_report
+
+    real = switched_report.simulate_scenario
+
+    def interrupted_reduced(p, *, reduced=False, **kw):
+        if reduced:
+            raise RunInterrupted("switched simulation interrupted", partial=None)
+        return real(p, reduced=reduced, **kw)
+
+    monkeypatch.setattr(switched_report, "simulate_scenario", interrupted_reduced)
+    out = tmp_path / "w.npz"
+    rc = main(["simulate", "compliant_wrist", "--t-end", "0.2", "--out", str(out), "--json"])
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert rc == 130 and d["error"] == "RunInterrupted" and "reduced model" in d["message"], d
+    assert d["partial"] == [str(tmp_path / "w.partial.npz")] and not out.exists()
+    full = SwitchedSimulation.load(tmp_path / "w.partial.npz")
+    assert full.status == "ok" and full.t[-1] == pytest.approx(0.2) and full.xt.size == full.t.size

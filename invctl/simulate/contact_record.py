@@ -498,6 +498,16 @@ class ChunkRecorder:
         out["impact_t"] = (self.t0 + out["impact_step"] * self.h) + 0.5 * self.h  # as t[k] + h/2 of a full record
         return out
 
+    def settle(self) -> None:
+        """Drop what an interruption left half recorded (the lists of one chunk appended in turn)."""
+        k = min(len(self.blocks), len(self.steps))
+        del self.blocks[k:], self.steps[k:]
+        self.n_event_rows = sum(b.shape[0] for b in self.blocks)
+        k = min(len(v) for v in self.imp.values())
+        for v in self.imp.values():
+            del v[k:]
+        self.n_imp_rows = sum(a.size for a in self.imp["contact"])
+
     def rows(self):
         """``(R, S)``: recorded rows so far and their step indices (views)."""
         if self.events and self.blocks:

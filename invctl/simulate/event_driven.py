@@ -31,7 +31,7 @@ from scipy.optimize import brentq
 from ..contact.mechanics import ContactSystem
 from ..contact.lcp import solve_lcp
 from ..control.pdplus import FeedbackLaw, zero_input
-from ..errors import SimulationFailed
+from ..errors import INTERRUPT_LIKE, RunInterrupted, SimulationFailed, is_interrupt, watch_sigint
 from .timestepping import ContactTrajectory
 
 __all__ = ["simulate_event_driven"]
@@ -111,119 +111,138 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
     ts, qs, vs = [t], [q.copy()], [v.copy()]
     events = []
     imp = {"t": [], "i": [], "pre": [], "post": [], "vplus": []}
-    for _ in range(max_events):
-        if t >= t_end:
-            break
-        act = active.copy()
 
-        def rhs(tt, x, act=act):
-            a, _ = accel(tt, x[:n], x[n:], act)
-            return np.r_[x[n:], a]
+    def package(ts, qs, vs):
+        """The trajectory of the samples so far (impacts and events up to the last sample)."""
+        T, Q, Vv = np.array(ts), np.array(qs), np.array(vs)
+        Pz = np.zeros((mu, T.size - 1))
+        gaps = np.array([cs.gaps(qq, th) for qq in Q]).reshape(T.size, mu).T
+        Un = np.array([cs.gradients(qq, th).T @ vv for qq, vv in zip(Q, Vv)]).reshape(T.size, mu).T
+        En, Vl = [], []
+        for tt, qq, vv in zip(T, Q, Vv):
+            M, _, Vk = forces(tt, qq, vv)
+            En.append(0.5 * vv @ M @ vv)
+            Vl.append(Vk)
+        k = int(np.searchsorted(imp["t"], T[-1], side="right"))
+        stats = {"events": [e for e in events if e[0] <= T[-1]], "impact_t": np.array(imp["t"][:k]),
+                 "impact_contact": np.array(imp["i"][:k], int), "impact_pre": np.array(imp["pre"][:k]),
+                 "impact_post": np.array(imp["post"][:k]), "impact_v_plus": np.array(imp["vplus"][:k]).reshape(-1, n),
+                 "Un": Un, "backend": "event-driven"}
+        # time along the last axis, as every result type
+        return ContactTrajectory(T, Q.T, Vv.T, Pz, np.zeros((mu, T.size - 1), bool), gaps, np.array(En),
+                                 np.array(Vl), float("nan"), {"q": list(model.q_names), "gaps": list(cs.names)}, stats)
 
-        g_start = cs.gaps(q, th)
-        evs, kinds = [], []
-        for i in range(mu):
-            if act[i]:
-                def ev(tt, x, i=i, act=act):
-                    return accel(tt, x[:n], x[n:], act)[1][i]
-                watch = [(ev, -1, "release")]
-            elif armed[i]:
-                def ev(tt, x, i=i):
-                    return float(cs.gaps(x[:n], th)[i])
-                watch = [(ev, -1, "close")]
+    with watch_sigint() as sigint:  # notes a Ctrl-C that a compiled callee swallows
+        try:
+            for _ in range(max_events):
+                if sigint.seen:  # a Ctrl-C that CasADi's argument conversion swallowed
+                    raise KeyboardInterrupt
+                if t >= t_end:
+                    break
+                act = active.copy()
+
+                def rhs(tt, x, act=act):
+                    a, _ = accel(tt, x[:n], x[n:], act)
+                    return np.r_[x[n:], a]
+
+                g_start = cs.gaps(q, th)
+                evs, kinds = [], []
+                for i in range(mu):
+                    if act[i]:
+                        def ev(tt, x, i=i, act=act):
+                            return accel(tt, x[:n], x[n:], act)[1][i]
+                        watch = [(ev, -1, "release")]
+                    elif armed[i]:
+                        def ev(tt, x, i=i):
+                            return float(cs.gaps(x[:n], th)[i])
+                        watch = [(ev, -1, "close")]
+                    else:
+                        up, down = max(g_start[i], 0.0) + gap_tol, min(g_start[i], 0.0) - gap_tol
+
+                        def ev_up(tt, x, i=i, c=up):
+                            return float(cs.gaps(x[:n], th)[i]) - c
+
+                        def ev_down(tt, x, i=i, c=down):
+                            return float(cs.gaps(x[:n], th)[i]) - c
+                        watch = [(ev_up, 1, "arm"), (ev_down, -1, "close")]
+                    for fn, direction, kind in watch:
+                        fn.terminal, fn.direction = True, direction
+                        evs.append(fn)
+                        kinds.append((kind, i))
+                t_eval = None
+                if dt_out:
+                    t_eval = np.arange(t, t_end, dt_out)[1:]
+                leaving = ~act & ~armed
+                sol = solve_ivp(rhs, (t, t_end), np.r_[q, v], method="DOP853", rtol=rtol, atol=atol, events=evs,
+                                t_eval=t_eval, dense_output=bool(leaving.any()))
+                if sol.status == -1:
+                    raise SimulationFailed(f"event-driven: integrator failed at t = {sol.t[-1]:.6g}: {sol.message}")
+                t_seg = np.asarray(sol.t, float).ravel()
+                if t_seg.size:  # (scipy returns lists when t_eval has no point in a short segment)
+                    y_seg = np.asarray(sol.y, float).reshape(2 * n, t_seg.size)
+                    ts.extend(t_seg.tolist())
+                    qs.extend(y_seg[:n].T)
+                    vs.extend(y_seg[n:].T)
+                if sol.status == 0:
+                    t = t_end
+                    break
+                fired = [k for k in range(len(evs)) if sol.t_events[k].size]
+                if not fired:
+                    raise SimulationFailed(f"event-driven: terminated at t = {sol.t[-1]:.6g} without an event")
+                k_ev = min(fired, key=lambda k: sol.t_events[k][0])
+                kind, i_ev = kinds[k_ev]
+                t, ye = float(sol.t_events[k_ev][0]), sol.y_events[k_ev][0]
+                if kind == "close" and leaving[i_ev]:
+                    t, ye = _first_closing(sol, i_ev, t, lambda x, i=i_ev: float(cs.gaps(x[:n], th)[i]))
+                q, v = ye[:n].copy(), ye[n:].copy()
+                if kind == "arm":
+                    armed[i_ev] = True
+                    continue
+                if kind == "release":
+                    active[i_ev] = False
+                    events.append((t, "release", i_ev, 0.0, 0.0))
+                    continue
+                # impact(s)
+                g = cs.gaps(q, th)
+                W = cs.gradients(q, th)
+                U = W.T @ v
+                closed = g <= gap_tol + 1e-9 * np.abs(U)
+                closed[i_ev] = True
+                inv = closed & (U <= 1e-14)
+                ee = e.copy()
+                slow = inv & (np.abs(U) < v_rest)
+                ee[slow] = 0.0
+                res = cs.impact(q, v, theta=th, e=ee, involved=inv)
+                Up = W.T @ res.v_plus
+                for i in np.flatnonzero(inv):
+                    events.append((t, "impact", int(i), float(U[i]), float(Up[i])))
+                    if res.p[i] > 0 and U[i] < -v_rest:
+                        imp["t"].append(t)
+                        imp["i"].append(int(i))
+                        imp["pre"].append(float(U[i]))
+                        imp["post"].append(float(Up[i]))
+                        imp["vplus"].append(res.v_plus.copy())
+                v = res.v_plus
+                ts.append(t)
+                qs.append(q.copy())
+                vs.append(v.copy())
+                Up = W.T @ v
+                active = settle(t, q, v, closed & (np.abs(Up) <= max(1e-12, 1e-9 * np.abs(U).max(initial=0))))
+                armed[closed | active] = False
+                if max_impacts is not None and len(imp["t"]) >= max_impacts:
+                    break
             else:
-                up, down = max(g_start[i], 0.0) + gap_tol, min(g_start[i], 0.0) - gap_tol
-
-                def ev_up(tt, x, i=i, c=up):
-                    return float(cs.gaps(x[:n], th)[i]) - c
-
-                def ev_down(tt, x, i=i, c=down):
-                    return float(cs.gaps(x[:n], th)[i]) - c
-                watch = [(ev_up, 1, "arm"), (ev_down, -1, "close")]
-            for fn, direction, kind in watch:
-                fn.terminal, fn.direction = True, direction
-                evs.append(fn)
-                kinds.append((kind, i))
-        t_eval = None
-        if dt_out:
-            t_eval = np.arange(t, t_end, dt_out)[1:]
-        leaving = ~act & ~armed
-        sol = solve_ivp(rhs, (t, t_end), np.r_[q, v], method="DOP853", rtol=rtol, atol=atol, events=evs,
-                        t_eval=t_eval, dense_output=bool(leaving.any()))
-        if sol.status == -1:
-            raise SimulationFailed(f"event-driven: integrator failed at t = {sol.t[-1]:.6g}: {sol.message}")
-        t_seg = np.asarray(sol.t, float).ravel()
-        if t_seg.size:  # (scipy returns lists when t_eval has no point in a short segment)
-            y_seg = np.asarray(sol.y, float).reshape(2 * n, t_seg.size)
-            ts.extend(t_seg.tolist())
-            qs.extend(y_seg[:n].T)
-            vs.extend(y_seg[n:].T)
-        if sol.status == 0:
-            t = t_end
-            break
-        fired = [k for k in range(len(evs)) if sol.t_events[k].size]
-        if not fired:
-            raise SimulationFailed(f"event-driven: terminated at t = {sol.t[-1]:.6g} without an event")
-        k_ev = min(fired, key=lambda k: sol.t_events[k][0])
-        kind, i_ev = kinds[k_ev]
-        t, ye = float(sol.t_events[k_ev][0]), sol.y_events[k_ev][0]
-        if kind == "close" and leaving[i_ev]:
-            t, ye = _first_closing(sol, i_ev, t, lambda x, i=i_ev: float(cs.gaps(x[:n], th)[i]))
-        q, v = ye[:n].copy(), ye[n:].copy()
-        if kind == "arm":
-            armed[i_ev] = True
-            continue
-        if kind == "release":
-            active[i_ev] = False
-            events.append((t, "release", i_ev, 0.0, 0.0))
-            continue
-        # impact(s)
-        g = cs.gaps(q, th)
-        W = cs.gradients(q, th)
-        U = W.T @ v
-        closed = g <= gap_tol + 1e-9 * np.abs(U)
-        closed[i_ev] = True
-        inv = closed & (U <= 1e-14)
-        ee = e.copy()
-        slow = inv & (np.abs(U) < v_rest)
-        ee[slow] = 0.0
-        res = cs.impact(q, v, theta=th, e=ee, involved=inv)
-        Up = W.T @ res.v_plus
-        for i in np.flatnonzero(inv):
-            events.append((t, "impact", int(i), float(U[i]), float(Up[i])))
-            if res.p[i] > 0 and U[i] < -v_rest:
-                imp["t"].append(t)
-                imp["i"].append(int(i))
-                imp["pre"].append(float(U[i]))
-                imp["post"].append(float(Up[i]))
-                imp["vplus"].append(res.v_plus.copy())
-        v = res.v_plus
-        ts.append(t)
-        qs.append(q.copy())
-        vs.append(v.copy())
-        Up = W.T @ v
-        active = settle(t, q, v, closed & (np.abs(Up) <= max(1e-12, 1e-9 * np.abs(U).max(initial=0))))
-        armed[closed | active] = False
-        if max_impacts is not None and len(imp["t"]) >= max_impacts:
-            break
-    else:
-        raise SimulationFailed(f"event-driven: more than {max_events} events before t_end = {t_end}",
-                               partial=(np.array(ts), np.array(qs).T, np.array(vs).T))
-    T, Q, Vv = np.array(ts), np.array(qs), np.array(vs)
-    Pz = np.zeros((mu, T.size - 1))
-    gaps = np.array([cs.gaps(qq, th) for qq in Q]).reshape(T.size, mu).T
-    Un = np.array([cs.gradients(qq, th).T @ vv for qq, vv in zip(Q, Vv)]).reshape(T.size, mu).T
-    En, Vl = [], []
-    for tt, qq, vv in zip(T, Q, Vv):
-        M, _, Vk = forces(tt, qq, vv)
-        En.append(0.5 * vv @ M @ vv)
-        Vl.append(Vk)
-    stats = {"events": events, "impact_t": np.array(imp["t"]), "impact_contact": np.array(imp["i"], int),
-             "impact_pre": np.array(imp["pre"]), "impact_post": np.array(imp["post"]),
-             "impact_v_plus": np.array(imp["vplus"]).reshape(-1, n), "Un": Un, "backend": "event-driven"}
-    # time along the last axis, as every result type
-    return ContactTrajectory(T, Q.T, Vv.T, Pz, np.zeros((mu, T.size - 1), bool), gaps, np.array(En), np.array(Vl),
-                             float("nan"), {"q": list(model.q_names), "gaps": list(cs.names)}, stats)
+                raise SimulationFailed(f"event-driven: more than {max_events} events before t_end = {t_end}",
+                                       partial=(np.array(ts), np.array(qs).T, np.array(vs).T))
+        except INTERRUPT_LIKE as exc:
+            if not (is_interrupt(exc) or sigint.seen):
+                raise
+            k = min(len(ts), len(qs), len(vs))  # up to the last event or smooth phase completed
+            part = package(ts[:k], qs[:k], vs[:k])
+            part.status, part.message = "interrupted", f"interrupted at t = {ts[k - 1]:.6g} of {t_end:g}"
+            raise RunInterrupted(f"event-driven simulation interrupted at t = {ts[k - 1]:.6g} of {t_end:g}; the "
+                                 "simulated prefix is in exc.partial", partial=part) from None
+    return package(ts, qs, vs)
 
 
 def _first_closing(sol, i, te, gap, samples: int = 64):

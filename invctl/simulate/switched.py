@@ -32,7 +32,7 @@ from scipy.linalg import expm
 from scipy.optimize import brentq, minimize_scalar
 
 from ..control.switched import ClosedLoop
-from ..errors import ParameterError, SimulationFailed
+from ..errors import INTERRUPT_LIKE, ParameterError, RunInterrupted, SimulationFailed, is_interrupt, watch_sigint
 from ..io import file_loader
 from ..reference.gluing import powers_apply
 
@@ -178,6 +178,7 @@ class _Engine:
         self.state0 = state0
         self.x_tol = x_tol
         self.loop = loop
+        self.sigint = None  # watch_sigint() of simulate_switched
         self.h_max = h_max
         self.spp = samples_per_period
         self.max_events = max_events
@@ -329,13 +330,16 @@ class _Engine:
                 sliding = sl if sl >= 0 else sliding
         t_events = sorted({x for x in ref.switch_times() + ref.input_breaks(t0, t_end) if t0 < x < t_end})
         t_events.append(t_end)
-        T, X_all, M = [], [], []
-        events = []
+        T, X_all, M = self.T, self.X, self.M = [], [], []  # kept on the engine: an interruption keeps the prefix
+        self.start = (t, S.copy(), self.mode_id((bits, phase, sliding)))
+        events = self.events = []
         contact_starts = {a for a, _ in ref.contact_intervals}
         last_report = time.perf_counter()
         stalled = 0
         for te in t_events:
             while t < te:
+                if getattr(self.sigint, "seen", False):  # a Ctrl-C swallowed by a compiled callee
+                    raise KeyboardInterrupt
                 A = loop.matrix(bits, phase, sliding)
                 h = self.step(bits, phase, sliding)
                 K = int(min(4096, max(1, math.ceil((te - t) / h - 1e-9))))
@@ -424,9 +428,13 @@ class _Engine:
         return np.concatenate(T), np.vstack(X_all), np.concatenate(M), events
 
     def _partial(self, T, X_all, M):
-        if not T:
+        if getattr(self, "start", None) is None:
             return None
-        return {"t": np.concatenate(T), "S": np.vstack(X_all), "mode": np.concatenate(M)}
+        k = min(len(T), len(X_all), len(M))  # an interruption may land between the appends of one window
+        if k == 0:  # interrupted in the first window: the initial state
+            t, S, m = self.start
+            return {"t": np.array([t]), "S": S[None, :], "mode": np.array([m])}
+        return {"t": np.concatenate(T[:k]), "S": np.vstack(X_all[:k]), "mode": np.concatenate(M[:k])}
 
 
 def simulate_switched(loop: ClosedLoop, t_end: float, *, t0: float = 0.0, h_max: float = 2e-4,
@@ -465,7 +473,26 @@ def simulate_switched(loop: ClosedLoop, t_end: float, *, t0: float = 0.0, h_max:
             raise ParameterError(f"state0 must be {loop.np} finite numbers {loop.plant.names}, got {state0}")
     eng = _Engine(loop, h_max=h_max, samples_per_period=samples_per_period, max_events=max_events,
                   slide_tol=slide_tol, progress=progress, state0=state0, x_tol=x_tol)
-    T, S, Mi, events = eng.run(t0, t_end)
+    try:
+        with watch_sigint() as eng.sigint:
+            T, S, Mi, events = eng.run(t0, t_end)
+            return _result(loop, eng, T, S, Mi, events, t_end, w0, label, meta)
+    except INTERRUPT_LIKE as exc:
+        if not (is_interrupt(exc) or getattr(eng.sigint, "seen", False)):
+            raise
+        part = eng._partial(getattr(eng, "T", []), getattr(eng, "X", []), getattr(eng, "M", []))
+        sim, t_now = None, t0
+        if part is not None:
+            t_now = float(part["t"][-1])
+            kept = [e for e in getattr(eng, "events", []) if e[0] <= t_now]
+            sim = _result(loop, eng, part["t"], part["S"], part["mode"], kept, t_now, w0, label, meta)
+            sim.status, sim.message = "interrupted", f"interrupted at t = {t_now:.6g} s of {t_end:g} s"
+        raise RunInterrupted(f"switched simulation{' ' + label if label else ''} interrupted at t = {t_now:.6g} s "
+                             f"of {t_end:g} s; the simulated prefix is in exc.partial", partial=sim) from None
+
+
+def _result(loop, eng, T, S, Mi, events, t_end, w0, label, meta) -> SwitchedSimulation:
+    """The outputs and scores of the samples ``T, S, Mi`` up to ``t_end``."""
     out = _outputs(loop, eng, T, S, Mi)
     wall, intended = out["wall"], out["intended"]
     peak = _peak_force(loop, eng, T, S, Mi, out["Fe"])

@@ -537,8 +537,13 @@ class MoreauJean:
                 raise
             from ..errors import RunInterrupted
 
+            rec.settle()
+            if not rec.rows()[0].shape[0]:  # interrupted before the first row was kept: the initial state
+                rec.finish(self._final_row(meta["x_init"]), 0)
+            part = self._package(rec, None, done, time.perf_counter() - tic, meta)
+            part.status, part.message = "interrupted", f"interrupted after {done} of {N} steps"
             raise RunInterrupted(f"Moreau-Jean interrupted after {done} of {N} steps (t = {t0 + done * h:.6g})",
-                                 partial=self._package(rec, None, done, time.perf_counter() - tic, meta)) from None
+                                 partial=part) from None
         wall = time.perf_counter() - tic
         if progress:
             print(file=sys.stderr)

@@ -94,7 +94,8 @@ OPTIONS: dict[str, Option] = {
     "force": Option(bool, "replace existing output files", ("invert", "simulate", "design"), False, flag=True),
     "quiet": Option(bool, "no progress output", ("invert", "simulate", "pipeline", "study"), False, flag=True),
     "no_animation": Option(bool, "do not write animations of the runs", ("pipeline",), False, flag=True),
-    "record_every": Option(int, "contact runs: keep every k-th step (the run's statistics stay exact)",
+    "record_every": Option(int, "contact runs: keep every k-th step (default: at most 20000 samples per run; "
+                           "1: every step; the run's statistics and impacts stay exact)",
                            ("simulate", "pipeline"), None, _at_least(1)),
     "record": Option(str, "contact runs: record every step ('steps') or only impacts and contact changes "
                           "('events')", ("simulate", "pipeline"), None, choices=("steps", "events")),
@@ -551,6 +552,10 @@ def _save_partial(exc: RunInterrupted, *, out=None, out_dir=None, meta=None, dt=
                     part.info["partial"] = note
                     part.save(d, meta=meta)
                     exc.saved += [str(d / f"run_{k}.npz") for k in part.runs] + [str(d / "study.json")]
+            elif part is not None and hasattr(part, "to_npz"):  # the simulated prefix of the run under way
+                path = _partial_name(d / exc.diagnostics.pop("run_file", "run.npz"), ".npz")
+                exc.saved.append(str(part.to_npz(path, meta={**(meta or {}), "partial": note})))
+            exc.saved += [f for f in exc.diagnostics.pop("complete", []) if Path(f).is_file()]
             files = sorted(q.name for q in d.iterdir() if q.name != "INTERRUPTED.txt")
             nf = d / "INTERRUPTED.txt"
             nf.write_text(f"PARTIAL RESULTS: {note}\nfiles present: {', '.join(files) or 'none'}\n")

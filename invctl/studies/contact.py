@@ -20,6 +20,7 @@ plus the scene's own :class:`~invctl.scenes.Report` entries.
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,15 +28,18 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ..errors import DimensionError, ParameterError, SceneError
+from ..errors import DimensionError, ParameterError, RunInterrupted, SceneError
 from ..scenes import CommandResult
 from .reports import run_reports
 
 __all__ = ["ContactRun", "contact_setup", "run_contact", "simulate", "pipeline", "analyze", "law_report",
-           "DEFAULT_SETTINGS"]
+           "DEFAULT_SETTINGS", "DEFAULT_SAMPLES"]
 
 #: settings of the time-stepping scheme a scene may leave out
 DEFAULT_SETTINGS = {"theta": 0.5, "projection": 0.0, "activation_tol": 1e-12}
+#: samples a contact command (simulate, pipeline) records per run by default: a longer run keeps every
+#: k-th step (its statistics and impact table stay exact); ``record_every=1`` (``--record-every 1``) keeps all
+DEFAULT_SAMPLES = 20000
 
 
 @dataclass
@@ -69,6 +73,11 @@ def _setting(settings, name):
     raise SceneError(f"a contact scene needs the setting {name!r} (time step h, horizon t_end)")
 
 
+def _values(scene, params, settings) -> dict:
+    """Every parameter and setting of a run (the scene's defaults, then the given values)."""
+    return {**scene.params, **scene.settings, **params, **settings}
+
+
 def contact_setup(scene, params=None, settings=None, *, controller=None, plant_params=None) -> ContactRun:
     """Model, plant, law and initial state of a contact scene's run."""
     from ..control.pdplus import zero_input
@@ -89,6 +98,9 @@ def contact_setup(scene, params=None, settings=None, *, controller=None, plant_p
         validate_plant(plant, plant_params)
     c = scene.contact
     name = c.controller_for(model, settings, controller)
+    why = c.unmet(name, _values(scene, params, settings))
+    if why:
+        raise SceneError(f"scene {scene.name!r}: {why}")
     potential = c.potential(model) if c.potential is not None else None
     law = zero_input(potential) if name == "none" else c.controllers[name](model, settings)
     q0, v0 = c.initial_state(model, settings, name)
@@ -99,10 +111,11 @@ def contact_setup(scene, params=None, settings=None, *, controller=None, plant_p
     return ContactRun(scene, model, plant, name, law, q0, v0, settings, params)
 
 
-def run_contact(run: ContactRun, *, t_end=None, progress=None, record_every: int = 1,
+def run_contact(run: ContactRun, *, t_end=None, progress=None, record_every: int | None = 1,
                 record: str = "steps") -> ContactRun:
     """Simulate ``run`` with the compiled Moreau-Jean scheme; fills ``run.trajectory`` (``record_every``,
-    ``record="events"``: a reduced record, the statistics exact)."""
+    ``record="events"``: a reduced record, the statistics exact; ``record_every=None``: every k-th step,
+    at most :data:`DEFAULT_SAMPLES` samples of a step record)."""
     from ..simulate.timestepping import MoreauJean
 
     s = run.settings
@@ -110,6 +123,9 @@ def run_contact(run: ContactRun, *, t_end=None, progress=None, record_every: int
     h = _setting(s, "h")
     if not (t_end > 0 and h > 0):
         raise ParameterError(f"need t_end > 0 and h > 0, got t_end = {t_end}, h = {h}")
+    if record_every is None:
+        steps = math.ceil(t_end / h - 1e-9)
+        record_every = 1 if record == "events" else max(1, math.ceil(steps / DEFAULT_SAMPLES))
     potential = run.scene.contact.potential(run.model) if run.scene.contact.potential is not None else None
     mj = MoreauJean(run.model, run.law, potential=potential, projection=bool(_setting(s, "projection")))
     tic = time.perf_counter()
@@ -181,7 +197,9 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
                      "tracking_error_last_half": float(np.max(np.abs(err[:, half])))})
         lines.append(f"tracking error of {[run.model.q_names[i] for i in idx]}: max {data['tracking_error_max']:.3e}, "
                      f"last half {data['tracking_error_last_half']:.3e}")
-        if law.name == "pd_plus" and tr.complete:
+        if law.name == "pd_plus" and not tr.complete:
+            lines.append("(52)/(54) not checked: they need every step (--record-every 1)")
+        elif law.name == "pd_plus":
             data.update(_prop3_conditions(run, idx, q_d))
             lines.append(f"(52) violated at {data['impacts_violating_52']} of {data['impacts_checked']} impacts "
                          f"(largest V jump where it holds {data['max_V_jump_where_52_holds']:.2e}, where violated "
@@ -292,14 +310,20 @@ def _summary(run: ContactRun) -> tuple[list, dict]:
                           if run.scene.contact.clearance is not None else None),
             "steps_per_s": tr.stats["steps_per_s"],
             "backend": tr.stats["backend"], "steps": tr.stats["steps"], "q_final": tr.q[:, -1].tolist(),
-            "v_final": tr.v[:, -1].tolist(), "settings": dict(run.settings)}
+            "v_final": tr.v[:, -1].tolist(), "settings": dict(run.settings),
+            "record": tr.stats.get("record", "steps"), "record_every": int(tr.stats.get("record_every", 1)),
+            "samples": int(tr.t.size)}
+    if not tr.complete:
+        lines.append(f"recorded {tr.t.size} of {tr.stats['steps'] + 1} steps ({data['record']}, every "
+                     f"{data['record_every']}; statistics and impacts exact; --record-every 1 records all)")
     law_lines, law_data = law_report(run)
     return lines + law_lines, {**data, **law_data}
 
 
 def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
-             plot=None, quiet=False, record_every: int = 1, record: str = "steps") -> CommandResult:
-    """Run one controller of a contact scene and report (module docstring)."""
+             plot=None, quiet=False, record_every: int | None = None, record: str = "steps") -> CommandResult:
+    """Run one controller of a contact scene and report (module docstring); a long run is recorded
+    decimated unless ``record_every`` is given (:data:`DEFAULT_SAMPLES`)."""
     run = run_contact(contact_setup(scene, params, settings, controller=controller, plant_params=plant_params),
                       t_end=t_end, progress=None if not quiet else False, record_every=record_every, record=record)
     lines, data = _summary(run)
@@ -321,35 +345,62 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
 
 
 def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
-             quiet=False, animate=True, record_every: int = 1, record: str = "steps") -> CommandResult:
-    """Every declared controller of a contact scene: runs, reports, figures (one per controller)."""
-    from ..plot import close
-
+             quiet=False, animate=True, record_every: int | None = None, record: str = "steps") -> CommandResult:
+    """Every declared controller of a contact scene that fits the given values (``Contact.requires``):
+    runs, reports, figures (one per controller); the others are listed as skipped, with the reason.
+    Ctrl-C keeps the complete runs and the prefix of the one under way (``run_<name>.partial.npz``)."""
+    values = _values(scene, params, settings)
+    names = list(scene.contact.controllers) or ["none"]
+    skipped = {k: why for k in names if (why := scene.contact.unmet(k, values))}
+    names = [k for k in names if k not in skipped]
+    if not names:
+        raise SceneError(f"scene {scene.name!r}: no controller fits these values: " + "; ".join(skipped.values()))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    names = list(scene.contact.controllers) or ["none"]
-    lines, data = [], {"runs": {}}
+    lines = [f"skipped {why}" for why in skipped.values()] + ([""] if skipped else [])
+    data = {"runs": {}, "skipped": skipped}
     for name in names:
-        run = run_contact(contact_setup(scene, params, settings, controller=name, plant_params=plant_params),
-                          t_end=t_end, progress=False, record_every=record_every, record=record)
-        ls, d = _summary(run)
-        rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
-                                   controller=name)
-        if rtext:
-            ls.append(rtext)
-            d["reports"] = rdata
-        run.trajectory.to_npz(out / f"run_{name}.npz", meta=run.meta())
-        close(run.trajectory.plot(out / f"run_{name}.png", title=f"{scene.name} ({name})"))
-        if animate and scene.drawing is not None:
-            from ..plot.animate import animate_result
-
-            animate_result(run.trajectory, out / f"anim_{name}.gif", scene=scene, params=params, fps=20,
-                           title=f"{scene.name} ({name})")
-        lines += ls + [""]
-        data["runs"][name] = d
+        try:
+            lines += _pipeline_run(scene, name, params, settings, out, data, t_end=t_end, plant_params=plant_params,
+                                   animate=animate, record_every=record_every, record=record)
+        except KeyboardInterrupt as exc:  # the runs before are on disk; the prefix of this one is exc.partial
+            ri = exc if isinstance(exc, RunInterrupted) else RunInterrupted("interrupted")
+            ri.args = (f"{ri} (controller {name}); complete runs: {', '.join(data['runs']) or 'none'}",)
+            ri.diagnostics.update(run_file=f"run_{name}.npz",
+                                  complete=[str(out / f"run_{k}.npz") for k in data["runs"]])
+            raise ri from None
     files = sorted(p.name for p in out.iterdir())
     lines.append(f"runs and figures in {out}/ ({', '.join(files)})")
     return CommandResult("\n".join(lines), {**data, "out_dir": str(out), "files": files})
+
+
+def _pipeline_run(scene, name, params, settings, out, data, *, t_end, plant_params, animate, record_every,
+                  record) -> list:
+    """One controller's run of a pipeline: report (into ``data["runs"]``), ``run_<name>.npz``, figures."""
+    from ..plot import close
+
+    setup = contact_setup(scene, params, settings, controller=name, plant_params=plant_params)
+    try:
+        run = run_contact(setup, t_end=t_end, progress=False, record_every=record_every, record=record)
+    except RunInterrupted as exc:
+        if exc.partial is not None:
+            exc.partial.meta = {**exc.partial.meta, **setup.meta()}
+        raise
+    ls, d = _summary(run)
+    rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
+                               controller=name)
+    if rtext:
+        ls.append(rtext)
+        d["reports"] = rdata
+    run.trajectory.to_npz(out / f"run_{name}.npz", meta=run.meta())
+    close(run.trajectory.plot(out / f"run_{name}.png", title=f"{scene.name} ({name})"))
+    if animate and scene.drawing is not None:
+        from ..plot.animate import animate_result
+
+        animate_result(run.trajectory, out / f"anim_{name}.gif", scene=scene, params=params, fps=20,
+                       title=f"{scene.name} ({name})")
+    data["runs"][name] = d
+    return ls + [""]
 
 
 def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:

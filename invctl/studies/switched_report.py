@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import OptionError, SceneError, StabilityError
+from ..errors import OptionError, RunInterrupted, SceneError, StabilityError
 from ..scenes import CommandResult
 from .switched import (design_bf_min, design_bt_min, design_bt_visible, design_kt_max, effective_wall, error_system,
                        is_wrist, lambda_map, lambda_point, lambda_sweep, reduction_check, simulate_scenario)
@@ -64,7 +64,13 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
     text = sim.summary()
     data = sim.to_dict()
     if is_wrist(p):
-        red = simulate_scenario(p, reduced=True, t_end=t_end, label=f"{name} (reduced model)")
+        try:
+            red = simulate_scenario(p, reduced=True, t_end=t_end, label=f"{name} (reduced model)")
+        except RunInterrupted as exc:  # the full model's run is complete: that is what --out writes
+            exc.args = (f"{name}: the run of the reduced model was interrupted; the full model's run is complete "
+                        "and in exc.partial",)
+            exc.partial = sim
+            raise
         data["reduced"] = red.to_dict()
         text += "\n" + red.summary()
     if out:
