@@ -743,3 +743,37 @@ def test_fuzz_sigint_in_every_simulator_keeps_a_loadable_prefix(kind, data, tmp_
     for f in files:
         assert f.is_file(), f
         _check_prefix(f, t_end, complete_ok=argv[0] == "pipeline")
+
+
+# ------------------------------------------------------------ references with constant components
+_SLIDER = Path(__file__).resolve().parent / "scenes" / "cart_pole_and_slider.py"
+
+
+@st.composite
+def constant_components(draw):
+    """A cart-pole-and-slider scene file whose rest-to-rest reference holds a random subset of its two
+    components constant (at a random value; possibly both), and a controller to simulate after ``design``."""
+    moves = draw(st.sampled_from([(True, False), (False, True), (False, False)]))
+    start = [draw(st.sampled_from([0.0, 0.1, -0.2])) for _ in range(2)]
+    end = [s + (draw(st.sampled_from([0.3, -0.4])) if m else 0.0) for s, m in zip(start, moves)]
+    return start, end, draw(st.sampled_from(["C1", "C2", "C3"]))
+
+
+@settings(max_examples=4 if not LONG else 30, deadline=None, database=None,
+          derandomize=not (LONG or os.environ.get("INVCTL_FUZZ_RANDOM")), suppress_health_check=list(HealthCheck))
+@given(case=constant_components())
+def test_fuzz_constant_reference_components_design_and_simulate(fuzz_dir, case):
+    """Structurally zero derivatives of constant components never become an internal error (they did:
+    ``Sparsities of v and vdef must match``): exit 0 or a documented error."""
+    start, end, controller = case
+    text = _SLIDER.read_text().replace("rest_to_rest([0.0, 0.0], [0.5, 0.0]",
+                                       f"rest_to_rest({start!r}, {end!r}")
+    assert text != _SLIDER.read_text()
+    path = fuzz_dir / f"slider_{abs(hash((tuple(start), tuple(end)))):x}.py"
+    path.write_text(text)
+    for argv in (["design", str(path), "--json"],
+                 ["simulate", str(path), "--controller", controller, "--t-end", "2.5", "--json"]):
+        rc, out, err = run_case(argv, fuzz_dir / "cwd")
+        label = check_property(argv, rc, out, err)
+        if start != end:  # a reference that does not move at all asks for Tracking(expected_error=...)
+            assert label == "ok", (argv, out[-800:])
