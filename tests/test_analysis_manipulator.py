@@ -21,7 +21,7 @@ from invctl.analysis import (
 from invctl.studies import commands
 from invctl.studies.tracking import tracking_linearization
 from invctl.cli import main
-from invctl.errors import CoordinateError, SceneError
+from invctl.errors import CoordinateError, OptionError, SceneError
 
 
 def det_gamma_printed(q, p, x3_power=2):
@@ -258,7 +258,7 @@ def test_analyze_command_json(capsys):
 
 
 def test_analyze_rejects_unknown_option():
-    with pytest.raises(SceneError, match="does not take"):
+    with pytest.raises(OptionError, match="does not take"):
         commands.analyze("manipulator", samples=10, controller="C1")
 
 
