@@ -43,6 +43,16 @@ class OperatingRegion:
             return False
         return all(c(q) > 0 for c in self.constraints)
 
+    def _inside(self, Q: np.ndarray) -> np.ndarray:
+        """:meth:`contains` for the rows of ``Q``: the box test on all rows at once, the constraints (scalar
+        callables) only on the rows inside the box."""
+        lo, hi = np.asarray(self.q_lower, float), np.asarray(self.q_upper, float)
+        ok = np.all((Q > lo) & (Q < hi), axis=1)
+        if self.constraints:
+            for k in np.flatnonzero(ok):
+                ok[k] = all(c(Q[k]) > 0 for c in self.constraints)
+        return ok
+
     def sample(self, count: int, rng: np.random.Generator | int | None = 0, *, max_tries: int = 100):
         """Sample ``count`` points ``(q, v)`` of the region by rejection."""
         rng = np.random.default_rng(rng)
@@ -54,13 +64,16 @@ class OperatingRegion:
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise ModelError("region has infinite bounds: give sample_bounds to sample it")
         qs: list[np.ndarray] = []
+        got = 0
         for _ in range(max_tries):
             cand = rng.uniform(lo, hi, size=(4 * count, lo.size))
-            qs.extend(c for c in cand if self.contains(c))
-            if len(qs) >= count:
+            acc = cand[self._inside(cand)]
+            qs.append(acc)
+            got += acc.shape[0]
+            if got >= count:
                 break
-        if len(qs) < count:
+        if got < count:
             raise ModelError(f"could not sample {count} points of region {self.description!r}")
-        q = np.array(qs[:count])
+        q = np.concatenate(qs)[:count]
         v = rng.uniform(-self.v_scale, self.v_scale, size=q.shape)
         return q, v
