@@ -10,10 +10,10 @@ Rows (each with a peer measured in the same run):
 3. a bounded-memory long run (elastic bouncing ball, decimated and event records) with its peak RSS,
    measured in a child process, against a short run of the same kind.
 
-``python benchmarks/bench_contacts.py [--quick] [--smoke] [--long-steps 1e8]``
+``python benchmarks/bench_contacts.py [--smoke] [--long-steps 1e8]``
 
-``--quick``: small sizes and short runs; ``--smoke``: the same rows at tiny sizes (checks that the
-benchmark runs; its numbers are not the benchmark's).
+``--smoke`` (alias ``--quick``): the same rows at tiny sizes and short runs (checks that the benchmark
+runs; its numbers are not the benchmark's).
 """
 from __future__ import annotations
 
@@ -214,8 +214,7 @@ def long_rows(long_steps: int, h=1e-4, short_steps: int = 10**6):
 
 def main(argv=None):
     ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true", help="small sizes and short runs")
-    ap.add_argument("--smoke", action="store_true", help="tiny sizes: checks that the benchmark runs")
+    ap.add_argument("--smoke", "--quick", action="store_true", help="tiny sizes: checks that the benchmark runs")
     ap.add_argument("--long-steps", type=float, default=1e8)
     ap.add_argument("--json", type=str, default=None, help="also write the rows to this file")
     args = ap.parse_args(argv)
@@ -225,9 +224,6 @@ def main(argv=None):
     if args.smoke:
         res = {"contacts": contacts_rows([1, 2], 2_000, 100), "bodies": bodies_rows([2], 2, 2_000, 100),
                "long": long_rows(int(min(args.long_steps, 2e4)), short_steps=10**4)}
-    elif args.quick:
-        res = {"contacts": contacts_rows([1, 2, 4], 20_000, 300), "bodies": bodies_rows([4, 8], 4, 20_000, 300),
-               "long": long_rows(int(min(args.long_steps, 1e6)))}
     else:
         res = {"contacts": contacts_rows([1, 2, 4, 8, 16], 100_000, 2_000),
                "bodies": bodies_rows([4, 8, 16, 32], 4, 100_000, 2_000),

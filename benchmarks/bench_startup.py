@@ -7,10 +7,10 @@ to the peer baseline measured in the same run: a fresh Python importing numpy
 (the least any numerical command line pays).  ``import casadi`` is printed too,
 as the floor of anything built on CasADi.
 
-Run: python benchmarks/bench_startup.py [--repeat 3] [--quick] [--smoke]
+Run: python benchmarks/bench_startup.py [--repeat 3] [--smoke]
 
-``--quick``: five commands; ``--smoke``: two commands, one run each (checks that the benchmark runs;
-its numbers are not the benchmark's).
+``--smoke`` (alias ``--quick``): two commands, one run each (checks that the benchmark runs; its numbers
+are not the benchmark's).
 """
 from __future__ import annotations
 
@@ -41,8 +41,6 @@ COMMANDS = [
     ("simulate", "manipulator", ["--controller", "C2"]),
 ]
 SMOKE = {("analyze", "cartpole"), ("simulate", "bouncing_ball")}
-QUICK = {("analyze", "cartpole"), ("analyze", "manipulator"), ("invert", "manipulator"),
-         ("simulate", "bouncing_ball"), ("simulate", "stiff_wall")}
 
 
 def first_output(argv, timeout=300.0) -> tuple[float, float, int]:
@@ -81,8 +79,8 @@ def best(argv, repeat):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--quick", action="store_true", help="five commands only")
-    ap.add_argument("--smoke", action="store_true", help="two commands, one run: checks that the benchmark runs")
+    ap.add_argument("--smoke", "--quick", action="store_true",
+                    help="two commands, one run: checks that the benchmark runs")
     args = ap.parse_args(argv)
     if args.smoke:
         args.repeat = 1
@@ -96,7 +94,7 @@ def main(argv=None) -> int:
     print("best baseline of the same window, so load from other processes hits both alike)")
     print(f"{'command':<36} {'first output':>14} {'x numpy':>8} {'total':>10} {'x numpy':>8} {'numpy':>9}  rc")
     for cmd, scene, extra in COMMANDS:
-        if (args.smoke and (cmd, scene) not in SMOKE) or (args.quick and (cmd, scene) not in QUICK):
+        if args.smoke and (cmd, scene) not in SMOKE:
             continue
         b, runs = [], []
         for _ in range(args.repeat):
