@@ -37,7 +37,8 @@ def main():
     print(f"build                        {1e3 * (time.perf_counter() - t0):8.2f} ms")
     t = time.perf_counter()
     relative_degree(model, samples=SAMPLES)
-    print(f"relative degree ({SAMPLES} pts)    {1e3 * (time.perf_counter() - t):8.2f} ms (first call, derivation included)")
+    print(f"relative degree ({SAMPLES} pts)    {1e3 * (time.perf_counter() - t):8.2f} ms "
+          "(first call, derivation included)")
     routes = {}
     for method in ("sect3", "sect2"):
         t = time.perf_counter()

@@ -29,7 +29,7 @@ EXPECTED = {
                         rf"repeated solve >= 10x faster than scipy: Newton {NUM}x", r"Pareto plot: "],
     "bench_ocp": [r"formulation +total_s +solve_s", rf"^   Opti expand=True +{NUM} +{NUM} +\d+ +{NUM}x +{NUM}x",
                   r"cart-pole time-energy trade"],
-    "bench_references": [rf"coefficient selection +\d+ instructions +{NUM} us/time", rf"if_else chain +\d+ instr",
+    "bench_references": [rf"coefficient selection +\d+ instructions +{NUM} us/time", r"if_else chain +\d+ instr",
                          rf"from_samples N= +400: +{NUM} ms", rf"{NUM} ms/frame"],
     "bench_scaling": [rf"^ +angles +2 +{NUM} +{NUM}", rf"^ +cartesian +2 +{NUM} +{NUM}",
                       rf"n = +2: +{NUM} s / +{NUM} s = +{NUM}"],
@@ -55,7 +55,8 @@ def test_smoke_mode_runs(path, tmp_path):
     proc = subprocess.run([sys.executable, str(path), "--smoke"], cwd=ROOT, env=env, capture_output=True, text=True,
                           timeout=240)
     out = proc.stdout
-    assert proc.returncode == 0, f"{path.name} --smoke: exit code {proc.returncode}\n{out[-2000:]}\n{proc.stderr[-3000:]}"
+    assert proc.returncode == 0, (f"{path.name} --smoke: exit code {proc.returncode}\n{out[-2000:]}\n"
+                                  f"{proc.stderr[-3000:]}")
     assert "Traceback" not in out and not re.search(r"failed: \w+(Error|Failed)", out), out[-3000:]
     missing = [rx for rx in EXPECTED[path.stem] if not re.search(rx, out, re.MULTILINE)]
     assert not missing, f"{path.name} --smoke: no line matches {missing}\n{out[-3000:]}"
