@@ -181,8 +181,8 @@ def main():
         print(f"  {meth:7s} {(time.perf_counter() - t) * 1e3:7.1f} ms  error {rep['error']:.4e}")
 
     # IPOPT (default backend): solve-only on the built problem, before/after the square-system settings
-    print("\nIPOPT solve-only on the built problem, HS N = 100 (error <= 1e-6), median of 5; re-solve = m3 x "
-          "(1.01, 1.02, 0.99, 1.01, 0.98) with warm start; cb = time in NLP callbacks:")
+    print(f"\nIPOPT solve-only on the built problem, HS N = 100 (error <= 1e-6), median of {ROUNDS}; re-solve = m3 x "
+          f"{(1.01, 1.02, 0.99, 1.01, 0.98)[:ROUNDS]} with warm start; cb = time in NLP callbacks:")
     old = {"ipopt.hessian_approximation": "limited-memory", "ipopt.mumps_scaling": 77,
            "ipopt.mumps_permuting_scaling": 7, "ipopt.mumps_pivot_order": 7, "ipopt.constr_mult_init_max": 1000.0,
            "ipopt.nlp_scaling_method": "gradient-based", "ipopt.mu_strategy": "adaptive", "ipopt.mu_init": 0.1}
@@ -243,7 +243,7 @@ def main():
             tr._lu = None
         colds.append(invert_tracking(scene.SCENE, model, ref, N=100, backend="newton").diagnostics["solve_s"])
     newton_cold = float(np.median(colds))
-    print(f"  solve only on the built problem (quasi-static guess, fresh factorizations), median of 5: "
+    print(f"  solve only on the built problem (quasi-static guess, fresh factorizations), median of {ROUNDS}: "
           f"{newton_cold * 1e3:.1f} ms")
     newton_resolve = []
     for f in (1.01, 1.02, 0.99)[:ROUNDS]:
