@@ -2,8 +2,12 @@
 (Newton on the full state), and the cost of each analysis step.
 
 Both routes give the same numbers (tests/test_analysis_manipulator.py); this measures what the
-Sect. 3 coordinates save (003 Remark 3.4).  Run: python benchmarks/bench_analysis.py
+Sect. 3 coordinates save (003 Remark 3.4).  Run: python benchmarks/bench_analysis.py [--smoke]
+
+``--smoke`` (alias ``--quick``): the same steps on few samples and points, one round (checks that the
+benchmark runs; its numbers are not the benchmark's).
 """
+import sys
 import time
 
 import numpy as np
@@ -11,8 +15,12 @@ import numpy as np
 import problems.manipulator as scene
 from invctl.analysis import internal_dynamics, linearize_internal, relative_degree
 
+SMOKE = bool({"--smoke", "--quick"} & set(sys.argv[1:]))
+REPEAT = 1 if SMOKE else 5
+SAMPLES = 20 if SMOKE else 200
 
-def timeit(fn, repeat=5):
+
+def timeit(fn, repeat=REPEAT):
     best = np.inf
     for _ in range(repeat):
         t = time.perf_counter()
@@ -28,14 +36,15 @@ def main():
     ref = scene.reference(model)
     print(f"build                        {1e3 * (time.perf_counter() - t0):8.2f} ms")
     t = time.perf_counter()
-    relative_degree(model, samples=200)
-    print(f"relative degree (200 pts)    {1e3 * (time.perf_counter() - t):8.2f} ms (first call, derivation included)")
+    relative_degree(model, samples=SAMPLES)
+    print(f"relative degree ({SAMPLES} pts)    {1e3 * (time.perf_counter() - t):8.2f} ms "
+          "(first call, derivation included)")
     routes = {}
     for method in ("sect3", "sect2"):
         t = time.perf_counter()
-        routes[method] = internal_dynamics(model, method, scene.paper_internal_coordinates, point=q0, samples=200)
+        routes[method] = internal_dynamics(model, method, scene.paper_internal_coordinates, point=q0, samples=SAMPLES)
         print(f"internal dynamics {method}      {1e3 * (time.perf_counter() - t):8.2f} ms (derivation + checks)")
-    N = 400
+    N = 40 if SMOKE else 400
     ts = np.linspace(ref.t0, ref.tf, N)
     Y = ref(ts)
     Yd = ref(ts, 1)

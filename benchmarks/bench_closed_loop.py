@@ -5,7 +5,10 @@ one CasADi graph driving CVODES (exact Jacobian by AD).  Peer: scipy ``solve_ivp
 method of the reference prototype) on a Python right-hand side that calls the model's index-1
 function and the controller's compiled output per evaluation.  Both in the same run, same tolerances.
 
-    python benchmarks/bench_closed_loop.py [--repeat 5] [--no-ff]
+    python benchmarks/bench_closed_loop.py [--repeat 5] [--no-ff] [--smoke]
+
+``--smoke`` (alias ``--quick``): one run of each loop (checks that the benchmark runs; its numbers
+are not the benchmark's).
 
 Target (issue 4): C1 in <= 0.1 s wall (the prototype: 0.53 s C1, 0.15 s C2 with LSODA).
 """
@@ -32,7 +35,10 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--no-ff", action="store_true", help="skip C1 (no inversion)")
     ap.add_argument("--rtol", type=float, default=1e-6)
+    ap.add_argument("--smoke", "--quick", action="store_true", help="one run each: checks that the benchmark runs")
     args = ap.parse_args(argv)
+    if args.smoke:
+        args.repeat = 1
     controllers = ["C2"] if args.no_ff else ["C1", "C2"]
     t0 = time.perf_counter()
     setup = setup_tracking(scene.SCENE, invert=not args.no_ff, progress=True)

@@ -17,7 +17,10 @@ Timings are the best of two runs (the machine is shared; the load average is pri
 points over the wall time of the library; ``CPU traj/s`` points over the CPU time the solving processes
 spent on them (what an otherwise idle core would deliver; less sensitive to the other load).
 
-    python benchmarks/bench_generate.py [--quick]
+    python benchmarks/bench_generate.py [--smoke]
+
+``--smoke`` (alias ``--quick``): a 2 x 2 grid, one run each (checks that the benchmark runs; its
+numbers are not the benchmark's).
 """
 from __future__ import annotations
 
@@ -31,8 +34,9 @@ import problems.manipulator as scene
 from invctl.inversion import forward_check, invert
 from invctl.studies.library import generate
 
-QUICK = "--quick" in sys.argv
-GRID = ["rf[0]=0.8:1.0:10", "rf[1]=-0.9:-0.7:10"] if not QUICK else ["rf[0]=0.8:1.0:4", "rf[1]=-0.9:-0.7:4"]
+SMOKE = bool({"--smoke", "--quick"} & set(sys.argv[1:]))
+GRID = ["rf[0]=0.8:1.0:10", "rf[1]=-0.9:-0.7:10"] if not SMOKE else ["rf[0]=0.8:1.0:2", "rf[1]=-0.9:-0.7:2"]
+ROUNDS = 1 if SMOKE else 2
 TOL = 1e-6
 
 
@@ -48,9 +52,9 @@ def best_of(k, fn):
 def main():
     print(f"load average at start: {', '.join(f'{x:.2f}' for x in os.getloadavg())} (2 cores, shared)")
     common = dict(tol=TOL, verify="none", progress=False)
-    _, warm = best_of(2, lambda: generate("manipulator", GRID, executor="serial", **common))
-    _, cold = best_of(2, lambda: generate("manipulator", GRID, executor="serial", continuation=False, **common))
-    _, warm_vm = best_of(2, lambda: generate("manipulator", GRID, executor="serial", compiled=False, **common))
+    _, warm = best_of(ROUNDS, lambda: generate("manipulator", GRID, executor="serial", **common))
+    _, cold = best_of(ROUNDS, lambda: generate("manipulator", GRID, executor="serial", continuation=False, **common))
+    _, warm_vm = best_of(ROUNDS, lambda: generate("manipulator", GRID, executor="serial", compiled=False, **common))
     P = len(warm.status)
     b = warm.info["base"]
     print(f"{P} points, grid {' x '.join(GRID)}; base: {b['scheme']} N = {b['N']} (refined to forward-check error "

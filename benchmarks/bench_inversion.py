@@ -6,12 +6,17 @@ scipy.integrate.solve_bvp (same 14-state ODE, same boundary conditions) with our
 error as ratios to scipy's; a single-shooting attempt on the unstable internal dynamics;
 and draws the Pareto plot (time vs error) to benchmarks/inversion_pareto.png.
 
-    MPLBACKEND=Agg python benchmarks/bench_inversion.py [--quick]
+    MPLBACKEND=Agg python benchmarks/bench_inversion.py [--smoke]
+
+``--smoke`` (alias ``--quick``): the same steps at tiny meshes, one round each, the plot to a
+temporary file (checks that the benchmark runs; its numbers are not the benchmark's).
 """
 from __future__ import annotations
 
+import os
 import resource
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -23,7 +28,8 @@ from invctl.studies.tracking import invert_tracking
 from invctl.inversion import compiled as _compiled_mod
 from invctl.inversion import solve as _solve_mod
 
-QUICK = "--quick" in sys.argv
+SMOKE = bool({"--smoke", "--quick"} & set(sys.argv[1:]))
+ROUNDS = 1 if SMOKE else 5
 
 
 def rss_mb() -> float:
@@ -118,7 +124,7 @@ def single_shooting(model, ref, inv):
 
     X0 = inv.X(inv.T0).ravel()
     out = {}
-    for span in (0.5, 1.0, 1.5, 2.0):
+    for span in ((0.25, 0.5) if SMOKE else (0.5, 1.0, 1.5, 2.0)):
         sol = solve_ivp(f, (inv.T0, inv.T0 + span), X0, method="DOP853", rtol=1e-12, atol=1e-14, dense_output=True)
         tt = np.linspace(inv.T0, sol.t[-1], 400)
         out[span] = float(np.max(np.abs(sol.sol(tt)[:5] - inv.q(tt)))) if sol.success else float("inf")
@@ -129,7 +135,7 @@ def main():
     model = scene.build()
     ref = scene.reference(model)
     schemes = ["hermite-simpson", "legendre3", "radau3"]
-    Ns = [40, 80, 160] if QUICK else [40, 80, 160, 320, 640]
+    Ns = [20, 40] if SMOKE else [40, 80, 160, 320, 640]
     rows = []
     print("stable inversion of the manipulator, uniform meshes (Newton backend on the square system)")
     print(f"{'scheme':16s} {'N':>5s} {'build_s':>8s} {'solve_s':>8s} {'iter':>4s} {'rss_MB':>7s} {'fwd_err':>9s}")
@@ -175,8 +181,8 @@ def main():
         print(f"  {meth:7s} {(time.perf_counter() - t) * 1e3:7.1f} ms  error {rep['error']:.4e}")
 
     # IPOPT (default backend): solve-only on the built problem, before/after the square-system settings
-    print("\nIPOPT solve-only on the built problem, HS N = 100 (error <= 1e-6), median of 5; re-solve = m3 x "
-          "(1.01, 1.02, 0.99, 1.01, 0.98) with warm start; cb = time in NLP callbacks:")
+    print(f"\nIPOPT solve-only on the built problem, HS N = 100 (error <= 1e-6), median of {ROUNDS}; re-solve = m3 x "
+          f"{(1.01, 1.02, 0.99, 1.01, 0.98)[:ROUNDS]} with warm start; cb = time in NLP callbacks:")
     old = {"ipopt.hessian_approximation": "limited-memory", "ipopt.mumps_scaling": 77,
            "ipopt.mumps_permuting_scaling": 7, "ipopt.mumps_pivot_order": 7, "ipopt.constr_mult_init_max": 1000.0,
            "ipopt.nlp_scaling_method": "gradient-based", "ipopt.mu_strategy": "adaptive", "ipopt.mu_init": 0.1}
@@ -186,14 +192,14 @@ def main():
         clear_caches()
         base = invert_tracking(scene.SCENE, model, ref, N=100, ipopt_options=opts)
         colds, cbs = [], []
-        for _ in range(5):
+        for _ in range(ROUNDS):
             b = invert_tracking(scene.SCENE, model, ref, N=100, ipopt_options=opts)
             colds.append(b.diagnostics["solve_s"])
         tr = next(iter(_solve_mod._TRANS_CACHE.values()))
         st = list(tr._solvers.values())[-1].stats()
         cb_cold = sum(v for k, v in st.items() if k.startswith("t_wall_nlp"))
         res, its = [], []
-        for f in (1.01, 1.02, 0.99, 1.01, 0.98):
+        for f in (1.01, 1.02, 0.99, 1.01, 0.98)[:ROUNDS]:
             other = model.with_params(m3=f * model.values["m3"])
             b2 = invert_tracking(scene.SCENE, other, ref, N=100, warm_start=base, ipopt_options=opts)
             res.append(b2.diagnostics["solve_s"])
@@ -209,7 +215,7 @@ def main():
 
     print("\nIPOPT (default backend) first call per mesh, VM vs compiled functions:")
     for comp in (False, True):
-        for N in ([160] if QUICK else [160, 320]):
+        for N in ([40] if SMOKE else [160, 320]):
             clear_caches()
             t = time.perf_counter()
             inv = invert_tracking(scene.SCENE, model, ref, N=N, backend="ipopt", compiled=comp)
@@ -232,15 +238,15 @@ def main():
     print(f"  first: build {d['build_s']:.3f} s, solve {d['solve_s'] * 1e3:.1f} ms ({d['iterations']} it, "
           f"{d['factorizations']} factorizations, compiled={d['compiled']}), error {err:.2e}")
     colds = []
-    for _ in range(5):  # solve only on the built problem, from the quasi-static guess, no factorization kept
+    for _ in range(ROUNDS):  # solve only on the built problem, from the quasi-static guess, no factorization kept
         for tr in _solve_mod._TRANS_CACHE.values():
             tr._lu = None
         colds.append(invert_tracking(scene.SCENE, model, ref, N=100, backend="newton").diagnostics["solve_s"])
     newton_cold = float(np.median(colds))
-    print(f"  solve only on the built problem (quasi-static guess, fresh factorizations), median of 5: "
+    print(f"  solve only on the built problem (quasi-static guess, fresh factorizations), median of {ROUNDS}: "
           f"{newton_cold * 1e3:.1f} ms")
     newton_resolve = []
-    for f in (1.01, 1.02, 0.99):
+    for f in (1.01, 1.02, 0.99)[:ROUNDS]:
         other = model.with_params(m3=f * model.values["m3"])
         inv2 = invert_tracking(scene.SCENE, other, ref, N=100, backend="newton", warm_start=inv)
         e2 = forward_check(other, inv2, ref)["error"]
@@ -280,14 +286,15 @@ def main():
               f"wall {wall:.3f} s (build {d['total_build_s']:.3f} s, solve {d['total_solve_s']:.3f} s, "
               f"rest = guesses + forward checks)")
         other = model.with_params(m3=1.01 * model.values["m3"])
-        again = invert_tracking(scene.SCENE, other, ref, mesh=inv.t_mesh, N=inv.N, warm_start=inv)
+        # the automatic horizon moves with m3: keep the refined mesh's horizon fixed for the re-solve
+        again = invert_tracking(scene.SCENE, other, ref, mesh=inv.t_mesh, T0=inv.T0, Tf=inv.Tf, warm_start=inv)
         ours[tol]["resolve"] = again.diagnostics["solve_s"]
         print(f"    re-solve with m3 + 1 % on the built problem (warm start): "
               f"{again.diagnostics['solve_s'] * 1e3:.1f} ms, {again.diagnostics['iterations']} it")
 
     print("\nscipy.integrate.solve_bvp on the same 14-state BVP (same ODE, same boundary conditions):")
     peers = []
-    for tol in ((1e-4, 1e-6) if QUICK else (1e-3, 1e-4, 1e-5, 1e-6)):
+    for tol in ((1e-4,) if SMOKE else (1e-3, 1e-4, 1e-5, 1e-6)):
         r = scipy_bvp(model, ref, tol)
         peers.append(r)
         print(f"  tol {tol:.0e}: success {r['success']}, nodes {r['nodes']}, time {r['time_s']:.3f} s, "
@@ -342,8 +349,9 @@ def main():
         ax.legend()
         ax.set_title("manipulator stable inversion: speed vs accuracy")
         fig.tight_layout()
-        fig.savefig("benchmarks/inversion_pareto.png", dpi=120)
-        print("\nPareto plot: benchmarks/inversion_pareto.png")
+        path = os.path.join(tempfile.mkdtemp(), "inversion_pareto.png") if SMOKE else "benchmarks/inversion_pareto.png"
+        fig.savefig(path, dpi=120)
+        print(f"\nPareto plot: {path}")
     except Exception as exc:  # noqa: BLE001
         print(f"(no plot: {exc})")
 

@@ -17,7 +17,10 @@ scaling invctl ended with).  Opti differentiates its graph by AD (exact Hessian)
 (SX) is the usual speed-up and is timed as well.  Reported: the optimum (objective, duration),
 the largest state difference, iterations, build and solve time, and the time ratios.
 
-    python benchmarks/bench_ocp.py [--quick]        (output: benchmarks/bench_ocp_output.txt)
+    python benchmarks/bench_ocp.py [--smoke]        (output: benchmarks/bench_ocp_output.txt)
+
+``--smoke`` (alias ``--quick``): the same problems on coarse meshes, one value per trade-off, output
+not written (checks that the benchmark runs; its numbers are not the benchmark's).
 """
 from __future__ import annotations
 
@@ -36,8 +39,14 @@ from invctl.inversion.bounded import IPOPT_BOUNDED_DEFAULTS
 from invctl.inversion.mintime import minimum_time
 from invctl.inversion.ocp import relaxed_rhs, slack_scale
 
-QUICK = "--quick" in sys.argv
-N_MANIP = 60 if QUICK else 100
+SMOKE = bool({"--smoke", "--quick"} & set(sys.argv[1:]))
+N_MANIP = 20 if SMOKE else 100
+N_CART = 30 if SMOKE else 100
+
+
+def values(*vs):
+    """The trade-off values of a run (the first one only in smoke mode)."""
+    return vs[:1] if SMOKE else vs
 
 
 def clear_caches():
@@ -195,13 +204,14 @@ def bench_min_time(lines):
     ref = cp.reference(md)
     clear_caches()
     t0 = time.perf_counter()
-    inv = minimum_time(md, ref, bounds=Bounds(u=1.0), N=100)
+    inv = minimum_time(md, ref, bounds=Bounds(u=1.0), N=N_CART)
     cold = time.perf_counter() - t0
     t0 = time.perf_counter()
-    inv = minimum_time(md, ref, bounds=Bounds(u=1.0), N=100)
+    inv = minimum_time(md, ref, bounds=Bounds(u=1.0), N=N_CART)
     warm = time.perf_counter() - t0
     d, ft = inv.diagnostics, inv.diagnostics["free_time"]
-    lines.append("2. cart-pole, |F| <= 1 N, minimum duration of the reference's shape (exact tracking), HS N = 100")
+    lines.append("2. cart-pole, |F| <= 1 N, minimum duration of the reference's shape (exact tracking), "
+                 f"HS N = {N_CART}")
     lines.append(f"   invctl: {d['status']}, {d['iterations']} iterations (structured exact Hessian), duration "
                  f"{ft['duration']:.10f} s; first call {cold:.2f} s, repeated call {warm:.2f} s (solve "
                  f"{d['solve_s']:.2f} s)")
@@ -228,21 +238,21 @@ def tradeoffs(lines):
     lines.append(f"3. trade-offs (manipulator HS N = {N_MANIP}; the exact inverse: |u2| <= {peak:.2f} N, "
                  f"pre-actuation {exact.t0 - exact.T0:.3f} s, solve {exact.diagnostics['solve_s']:.3f} s)")
     lines.append("   bound |u2| <= U: least-squares tracking       U [N]   max|e|      RMS e      iter  wall_s")
-    for U in (9.5, 9.0, 8.0, 7.0, 6.0):
+    for U in values(9.5, 9.0, 8.0, 7.0, 6.0):
         t0 = time.perf_counter()
         inv = invert(md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(u={"u2": U}))
         tr = inv.diagnostics["tracking"]
         lines.append(f"   {'':44s} {U:5.1f}  {tr['max_output_error']:.3e}  {tr['rms_output_error']:.3e}  "
                      f"{inv.diagnostics['iterations']:4d}  {time.perf_counter() - t0:6.2f}")
     lines.append("   pre-actuation <= p: start at rest at t0 - p    p [s]   max|e|      RMS e      iter  wall_s")
-    for pre in (0.05, 0.1, 0.2, 0.3, 0.4):
+    for pre in values(0.05, 0.1, 0.2, 0.3, 0.4):
         t0 = time.perf_counter()
         inv = invert(md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(max_pre_actuation=pre))
         tr = inv.diagnostics["tracking"]
         lines.append(f"   {'':44s} {pre:5.2f}  {tr['max_output_error']:.3e}  {tr['rms_output_error']:.3e}  "
                      f"{inv.diagnostics['iterations']:4d}  {time.perf_counter() - t0:6.2f}")
     lines.append("   minimum duration of the shape, |u| <= U       U [N]   tau [s]     energy     iter  wall_s")
-    for U in (12.0, 10.0, 8.0, 6.0):
+    for U in values(12.0, 10.0, 8.0, 6.0):
         t0 = time.perf_counter()
         inv = minimum_time(md, ref, bounds=Bounds(u=U), q_guess=q0, N=N_MANIP)
         ft = inv.diagnostics["free_time"]
@@ -251,9 +261,9 @@ def tradeoffs(lines):
     c = cp.build()
     cref = cp.reference(c)
     lines.append("   cart-pole time-energy trade tau + w int F^2    w       tau [s]     energy     iter  wall_s")
-    for w in (0.01, 0.1, 1.0):
+    for w in values(0.01, 0.1, 1.0):
         t0 = time.perf_counter()
-        inv = minimum_time(c, cref, energy=w, N=100)
+        inv = minimum_time(c, cref, energy=w, N=N_CART)
         ft = inv.diagnostics["free_time"]
         lines.append(f"   {'':44s} {w:5.2f}  {ft['duration']:.6f}  {ft['energy']:9.4f}  "
                      f"{inv.diagnostics['iterations']:4d}  {time.perf_counter() - t0:6.2f}")
@@ -270,7 +280,7 @@ def table(lines, title, rows):
 
 def main():
     lines = [f"bench_ocp: invctl bounded inversion / minimum time vs the same problems in CasADi Opti "
-             f"(casadi {ca.__version__}; {'quick' if QUICK else 'full'} run)", ""]
+             f"(casadi {ca.__version__}; {'smoke' if SMOKE else 'full'} run)", ""]
     rows = bench_bounded(lines)
     table(lines, "times (invctl first call includes setup and the exact inverse; Opti total = build + solve)", rows)
     lines.append("")
@@ -280,7 +290,7 @@ def main():
     tradeoffs(lines)
     text = "\n".join(lines)
     print(text)
-    if not QUICK:
+    if not SMOKE:
         with open(__file__.replace(".py", "_output.txt"), "w") as fh:
             fh.write(text + "\n")
 

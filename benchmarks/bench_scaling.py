@@ -27,7 +27,10 @@ and 3 SCOTCH when MUMPS was built with them; 6 QAMD; 7 automatic).
 
     python benchmarks/bench_scaling.py [--n 2 4 8] [--repeat 2] [--timeout 600]
                                        [--coordinates angles|cartesian|both] [--pivot-order K]
-                                       [--max-memory-gb 8]
+                                       [--max-memory-gb 8] [--smoke]
+
+``--smoke`` (alias ``--quick``): n = 2, both formulations, one run each (checks that the benchmark runs;
+its numbers are not the benchmark's).
 """
 from __future__ import annotations
 
@@ -166,7 +169,10 @@ def main() -> None:
                     help="address-space limit of each worker process (0: none); a formulation that exceeds it "
                          "skips its larger n")
     ap.add_argument("--worker", type=int, default=None)
+    ap.add_argument("--smoke", "--quick", action="store_true", help="n = 2, one run: checks that the benchmark runs")
     args = ap.parse_args()
+    if args.smoke:
+        args.n, args.repeat = [2], 1
     if args.worker is not None:
         coords = "angles" if args.coordinates == "both" else args.coordinates
         print("RESULT " + json.dumps(worker(args.worker, coords, args.pivot_order)))

@@ -18,7 +18,10 @@ internal modes are fixed), at Tf the unstable mode is zero at the end equilibriu
 horizon is the one invctl's plan derives for the angle model (same tails); the mesh is uniform with
 N intervals.  IPOPT solves the square system with a zero Hessian (Newton), the project's options.
 
-    python benchmarks/bench_sparse_dae.py [--n 2 4 8 16 32] [--N 200]
+    python benchmarks/bench_sparse_dae.py [--n 2 4 8 16 32] [--N 200] [--smoke]
+
+``--smoke`` (alias ``--quick``): n = 2, 3 and N = 20 (checks that the benchmark runs; its numbers are
+not the benchmark's).
 
 Prints per n: build and IPOPT time, iterations, unknowns, Jacobian nonzeros per node, and the largest
 difference of u to invctl's inverse of the angle model on the same horizon (accuracy check), then the
@@ -173,7 +176,10 @@ def main():
     ap.add_argument("--N", type=int, default=200)
     ap.add_argument("--pivot-order", type=int, default=None,
                     help="ipopt.mumps_pivot_order (0 AMD, the project default; 2 AMF; 4 PORD; 6 QAMD; 7 auto)")
+    ap.add_argument("--smoke", "--quick", action="store_true", help="tiny sizes: checks that the benchmark runs")
     args = ap.parse_args()
+    if args.smoke:
+        args.n, args.N = [2, 3], 20
     rows = []
     print(f"prototype sparse DAE transcription of the Cartesian flexible arm (HS separated, uniform N = {args.N}); "
           f"horizon of invctl's plan for the angle model; mumps_pivot_order = "

@@ -4,7 +4,10 @@ Same closed loop (002 (1)-(3) + App. A reference), same horizon; the peer restar
 explicit (DOP853) or implicit (Radau) integrator at every wall crossing.  Prints wall
 times, the ratio, and the largest difference of the event times.
 
-    /work/venv/bin/python benchmarks/bench_switched.py
+    python benchmarks/bench_switched.py [--smoke]
+
+``--smoke`` (alias ``--quick``): the same four cases up to just past the first contact (checks that the
+benchmark runs; its numbers are not the benchmark's).
 """
 from __future__ import annotations
 
@@ -21,9 +24,12 @@ from test_switched_sim import ivp_reference  # noqa: E402  (the independent inte
 import problems.stiff_wall as wall  # noqa: E402
 from invctl.studies.switched import build_loop, simulate_scenario  # noqa: E402
 
+SMOKE = bool({"--smoke", "--quick"} & set(sys.argv[1:]))
+
 
 def run(label, t_end=0.35, method="DOP853", rtol=1e-10, **overrides):
     p = wall.build(**overrides).params
+    t_end = min(t_end, 0.158) if SMOKE else t_end  # smoke: to just past the first contact (0.1567 s)
     simulate_scenario(p, t_end=0.01)  # warm-up (imports)
     t0 = time.perf_counter()
     sim = simulate_scenario(p, t_end=t_end)
