@@ -480,12 +480,12 @@ _TRACKING = [s for s in SCENES if load_scene(s).kind == "tracking" and "invert" 
 @st.composite
 def huge_size(draw):
     """A size far beyond the budgets (the default INVCTL_MAX_TIME and any machine's memory): the grid of
-    ``generate`` (10^8 .. 10^15 points over 1-3 axes), ``analyze --samples`` (>= 10^7: >= 50 min),
+    ``generate`` (10^8 .. 10^15 points over 1-3 axes), ``analyze --samples`` (>= 10^9: >= 16 h),
     ``invert``/``generate --N`` (>= 10^8 intervals: terabytes); returns (argv, option)."""
     scene = draw(st.sampled_from(_TRACKING))
     what = draw(st.sampled_from(["grid", "samples", "invert-N", "generate-N"]))
     if what == "samples":
-        return ["analyze", scene, "--samples", str(draw(st.integers(10**7, 10**12)))], "--samples"
+        return ["analyze", scene, "--samples", str(draw(st.integers(10**9, 10**12)))], "--samples"
     if what == "invert-N":
         return ["invert", scene, "--N", str(draw(st.integers(10**8, 10**12)))], "--N"
     refargs = sorted(k for k, v in reference_arguments(load_scene(scene)).items() if isinstance(v, float))

@@ -299,7 +299,7 @@ def test_sizes_are_refused_before_any_work(capsys, monkeypatch):
              (["generate", "cartpole", "--grid", "xf=0.3:0.5:4000", "--grid", "x0=0:0.1:4000"], r"4000 x 4000"),
              (["generate", "cartpole", "--grid", "xf=0.3:0.5:3", "--N", "100000000"], r"generate --N 100000000.*"
                                                                                         r"use --N \d+ or less"),
-             (["analyze", "cartpole", "--samples", "10000000"], r"--samples 10000000.*use --samples \d+ or less"),
+             (["analyze", "cartpole", "--samples", "1000000000"], r"--samples 1000000000.*use --samples \d+ or less"),
              (["invert", "cartpole", "--N", "10000000"], r"invert --N 10000000 .*would take about")]
     for argv, pattern in cases:
         t = time.perf_counter()
@@ -308,11 +308,13 @@ def test_sizes_are_refused_before_any_work(capsys, monkeypatch):
         d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
         assert rc == 2 and d["error"] == "ResourceLimitError" and re.search(pattern, d["message"]), d
         assert wall < 10.0, (argv, wall)  # refused at once (measured 0.1-0.4 s; generous for a loaded machine)
-    # the time budget alone: 5000 samples take ~1.5 s, more than a budget of one second
+    # the time budget alone: 50000 samples take ~3 s (estimate), more than a budget of one second
     monkeypatch.setenv("INVCTL_MAX_TIME", "1")
-    rc = main(["analyze", "cartpole", "--samples", "5000", "--json"])
+    rc = main(["analyze", "cartpole", "--samples", "50000", "--json"])
     d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert rc == 2 and d["diagnostics"]["seconds_budget"] == 1.0 and "use --samples 3333 or less" in d["message"]
+    fit = d["diagnostics"]["count_that_fits"]
+    assert rc == 2 and d["diagnostics"]["seconds_budget"] == 1.0 and f"use --samples {fit} or less" in d["message"]
+    assert fit * d["diagnostics"]["seconds_estimated"] / 50000 <= 1.0 < (fit + 1) * d["diagnostics"]["seconds_estimated"] / 50000
     with pytest.raises(ResourceLimitError, match="--grid"):  # the Python call checks too
         generate("cartpole", ["xf=0.3:0.5:100000"], executor="serial", progress=False)
     monkeypatch.setenv("INVCTL_MAX_TIME", "soon")
@@ -327,7 +329,7 @@ def test_ordinary_sizes_pass_the_checks(monkeypatch):
     from invctl.studies.library import check_library_size
 
     sc = load_scene("cartpole")
-    commands._check_samples(sc, {}, 100000)  # 30 s
+    commands._check_samples(sc, {}, 100000)  # ~6 s
     commands._check_inversion(sc, {}, {"N": 20000})  # measured 12 s
     check_library_size(sc, {}, [100, 100], 200, None, 1)  # 10^4 points: 100 s, 350 MB at the least
 
