@@ -279,21 +279,23 @@ def _check_format(path: Path) -> None:
 
 
 def _renderer(fig, ax, artists, update):
-    """``render(f)``: frame ``f`` as an RGB array ``(h, w, 3)``.  The static part of the figure (axes,
+    """``render(f)``: frame ``f`` as an RGB image (Pillow).  The static part of the figure (axes,
     fixed segments, title, layout) is drawn once; each frame restores that image and draws only the
     moving ``artists`` after ``update(f)`` (blitting)."""
+    from PIL import Image
+
     canvas = fig.canvas
     for artist in artists:
         artist.set_animated(True)
     canvas.draw()  # skips the animated artists
     background = canvas.copy_from_bbox(fig.bbox)
 
-    def render(f: int) -> np.ndarray:
+    def render(f: int):
         update(f)
         canvas.restore_region(background)
         for artist in artists:
             ax.draw_artist(artist)
-        return np.asarray(canvas.buffer_rgba())[:, :, :3].copy()
+        return Image.fromarray(np.asarray(canvas.buffer_rgba())).convert("RGB")
 
     return render
 
@@ -303,10 +305,9 @@ def _write_gif(path: Path, render, n_frames: int, fps: float) -> None:
     artist and the whole trails); each frame is mapped to it without dithering."""
     from PIL import Image
 
-    ends = np.vstack([render(0), render(n_frames - 1)])
+    ends = np.vstack([np.asarray(render(0)), np.asarray(render(n_frames - 1))])
     palette = Image.fromarray(ends).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
-    images = [Image.fromarray(render(f)).quantize(palette=palette, dither=Image.Dither.NONE)
-              for f in range(n_frames)]
+    images = [render(f).quantize(palette=palette, dither=Image.Dither.NONE) for f in range(n_frames)]
     images[0].save(path, save_all=True, append_images=images[1:], duration=int(round(1000 / fps)), loop=0,
                    optimize=False)
 
@@ -319,7 +320,7 @@ def _write_mp4(path: Path, frames, fps: float) -> None:
     try:
         for rgb in frames:
             if proc is None:
-                h, w = rgb.shape[:2]
+                w, h = rgb.size
                 proc = subprocess.Popen([shutil.which("ffmpeg"), "-y", "-loglevel", "error", "-f", "rawvideo",
                                          "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{fps:g}", "-i", "-",
                                          "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-vcodec", "h264",
