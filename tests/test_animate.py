@@ -267,3 +267,17 @@ def test_mp4_pipes_raw_frames_to_ffmpeg(cartpole, tmp_path, monkeypatch):
         animate(cartpole, cartpole_drawing(cartpole), t, motion(t), tmp_path / "bad.mp4", fps=10,
                 figsize=(4, 3), dpi=50)
     assert not (tmp_path / "bad.mp4").exists()
+
+
+def test_clock_is_stamped_at_the_upper_left_of_the_axes(cartpole):
+    from invctl.plot.animate import _clock, _figure
+
+    fig, ax = _figure(cartpole_drawing(cartpole), ((-1, 1), (-1, 1)), (6.0, 4.5), 80, "title")
+    fig.canvas.draw()
+    stamp = _clock(fig, ax)
+    images = [np.asarray(stamp(Image.new("RGB", (480, 360), "white"), f"t = {x:7.3f} s")) for x in (0.0, 1.25)]
+    dark = np.argwhere(images[0].sum(axis=2) < 200)
+    x0, y1 = ax.transAxes.transform((0.0, 1.0))
+    assert dark.size and np.all(dark[:, 1] > x0) and np.all(dark[:, 1] < x0 + 0.5 * ax.bbox.width)
+    assert np.all(dark[:, 0] > 360 - y1) and np.all(dark[:, 0] < 360 - y1 + 30)  # within 30 px of the top
+    assert np.abs(images[0].astype(int) - images[1]).sum() > 0  # the digits change
