@@ -262,11 +262,13 @@ def test_mp4_pipes_raw_frames_to_ffmpeg(cartpole, tmp_path, monkeypatch):
     args = (tmp_path / "cp.mp4.args").read_text().split()
     assert args[args.index("-s") + 1] == "200x150" and args[args.index("-r") + 1] == "10"
     # a failing ffmpeg: a specific error naming the GIF alternative, and no partial file left behind
-    fake.write_text('#!/bin/sh\ncat > /dev/null\necho "Unknown encoder" >&2\nexit 1\n')
-    with pytest.raises(AnimationError, match=r"ffmpeg could not write .*Unknown encoder.*bad\.gif"):
-        animate(cartpole, cartpole_drawing(cartpole), t, motion(t), tmp_path / "bad.mp4", fps=10,
-                figsize=(4, 3), dpi=50)
-    assert not (tmp_path / "bad.mp4").exists()
+    # (one that reads all frames first, one that stops reading at once)
+    for script in ('cat > /dev/null\necho "Unknown encoder" >&2\nexit 1', 'echo "Unknown encoder" >&2\nexit 1'):
+        fake.write_text(f"#!/bin/sh\n{script}\n")
+        with pytest.raises(AnimationError, match=r"ffmpeg could not write .*Unknown encoder.*bad\.gif"):
+            animate(cartpole, cartpole_drawing(cartpole), t, motion(t), tmp_path / "bad.mp4", fps=10,
+                    figsize=(4, 3), dpi=50)
+        assert not (tmp_path / "bad.mp4").exists()
 
 
 def test_clock_is_stamped_at_the_upper_left_of_the_axes(cartpole):

@@ -352,8 +352,14 @@ def _write_mp4(path: Path, frames, fps: float) -> None:
                                          "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-vcodec", "h264",
                                          "-pix_fmt", "yuv420p", str(path)],
                                         stdin=subprocess.PIPE, stderr=subprocess.PIPE)
-            proc.stdin.write(rgb.tobytes())
-        proc.stdin.close()
+            try:
+                proc.stdin.write(rgb.tobytes())
+            except BrokenPipeError:  # ffmpeg stopped reading: its message says why
+                break
+        try:
+            proc.stdin.close()
+        except BrokenPipeError:
+            pass
         err = proc.stderr.read().decode(errors="replace").strip()
         if proc.wait() != 0:
             raise AnimationError(f"ffmpeg could not write {path}: {err or 'exit code ' + str(proc.returncode)}; "
