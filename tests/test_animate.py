@@ -207,3 +207,79 @@ def test_bad_inputs(cartpole, tmp_path):
             animate(cartpole, dr, t, motion(t), tmp_path / "a.mp4")
     else:
         assert animate(cartpole, dr, t, motion(t), tmp_path / "a.mp4", fps=10, dpi=40).stat().st_size > 0
+
+
+def test_gif_draws_the_figure_once_and_quantizes_one_palette(cartpole, tmp_path, monkeypatch):
+    # frames are blitted (the static figure is drawn once, each frame redraws only the moving artists) and
+    # every frame is mapped to one palette computed once per animation (not one adaptive palette per frame)
+    from matplotlib.figure import Figure
+
+    counts = {"draw": 0, "palette": 0, "mapped": 0}
+    draw, quantize, convert = Figure.draw, Image.Image.quantize, Image.Image.convert
+
+    def counted_draw(self, renderer):
+        counts["draw"] += 1
+        return draw(self, renderer)
+
+    def counted_quantize(self, *args, palette=None, **kwargs):
+        counts["palette" if palette is None else "mapped"] += 1
+        return quantize(self, *args, palette=palette, **kwargs)
+
+    def counted_convert(self, mode=None, *args, **kwargs):
+        counts["palette"] += mode == "P" and self.mode != "P" and kwargs.get("palette") == Image.Palette.ADAPTIVE
+        return convert(self, mode, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "draw", counted_draw)
+    monkeypatch.setattr(Image.Image, "quantize", counted_quantize)
+    monkeypatch.setattr(Image.Image, "convert", counted_convert)
+    t = np.linspace(0.0, 2.0, 81)
+    path = animate(cartpole, cartpole_drawing(cartpole), t, motion(t), tmp_path / "cp.gif", fps=10, trail="tip",
+                   figsize=(4, 3), dpi=50)
+    assert counts == {"draw": 1, "palette": 1, "mapped": 21}
+    with Image.open(path) as im:
+        assert im.n_frames == 21 and im.mode == "P"
+        first = im.getpalette()
+        im.seek(20)
+        last = np.asarray(im.convert("RGB"))
+    assert first is not None and len(first) >= 3 * 8
+    # the trail's color is in the palette: the last frame shows the trail in its own color
+    trail_rgb = np.array([int(plt.matplotlib.colors.to_hex("C0")[i:i + 2], 16) for i in (1, 3, 5)])
+    assert (np.abs(last.astype(int) - trail_rgb).sum(axis=2) < 30).sum() > 10
+
+
+def test_mp4_pipes_raw_frames_to_ffmpeg(cartpole, tmp_path, monkeypatch):
+    # a stand-in ffmpeg that stores what it is given: 21 raw RGB frames of 200 x 150 pixels
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    fake = bin_dir / "ffmpeg"
+    fake.write_text('#!/bin/sh\nfor a; do last="$a"; done\necho "$@" > "$last.args"\ncat > "$last"\n')
+    fake.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bin_dir}:/usr/bin:/bin")
+    t = np.linspace(0.0, 2.0, 81)
+    path = animate(cartpole, cartpole_drawing(cartpole), t, motion(t), tmp_path / "cp.mp4", fps=10,
+                   figsize=(4, 3), dpi=50)
+    assert path.stat().st_size == 21 * 200 * 150 * 3
+    args = (tmp_path / "cp.mp4.args").read_text().split()
+    assert args[args.index("-s") + 1] == "200x150" and args[args.index("-r") + 1] == "10"
+    # a failing ffmpeg: a specific error naming the GIF alternative, and no partial file left behind
+    # (one that reads all frames first, one that stops reading at once)
+    for script in ('cat > /dev/null\necho "Unknown encoder" >&2\nexit 1', 'echo "Unknown encoder" >&2\nexit 1'):
+        fake.write_text(f"#!/bin/sh\n{script}\n")
+        with pytest.raises(AnimationError, match=r"ffmpeg could not write .*Unknown encoder.*bad\.gif"):
+            animate(cartpole, cartpole_drawing(cartpole), t, motion(t), tmp_path / "bad.mp4", fps=10,
+                    figsize=(4, 3), dpi=50)
+        assert not (tmp_path / "bad.mp4").exists()
+
+
+def test_clock_is_stamped_at_the_upper_left_of_the_axes(cartpole):
+    from invctl.plot.animate import _clock, _figure
+
+    fig, ax = _figure(cartpole_drawing(cartpole), ((-1, 1), (-1, 1)), (6.0, 4.5), 80, "title")
+    fig.canvas.draw()
+    stamp = _clock(fig, ax)
+    images = [np.asarray(stamp(Image.new("RGB", (480, 360), "white"), f"t = {x:7.3f} s")) for x in (0.0, 1.25)]
+    dark = np.argwhere(images[0].sum(axis=2) < 200)
+    x0, y1 = ax.transAxes.transform((0.0, 1.0))
+    assert dark.size and np.all(dark[:, 1] > x0) and np.all(dark[:, 1] < x0 + 0.5 * ax.bbox.width)
+    assert np.all(dark[:, 0] > 360 - y1) and np.all(dark[:, 0] < 360 - y1 + 30)  # within 30 px of the top
+    assert np.abs(images[0].astype(int) - images[1]).sum() > 0  # the digits change

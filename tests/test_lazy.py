@@ -130,3 +130,36 @@ def test_commands_offered_follow_from_the_declaration():
     assert "analyze" in load_scene("gear_backlash").commands  # it declares an analyze report
     assert "analyze" not in load_scene("bouncing_ball").commands
     assert load_scene("stiff_wall").commands == ("analyze", "simulate", "design", "pipeline", "study")
+
+
+#: heavy modules that neither ``import invctl`` nor loading a shipped scene may import (a command imports
+#: what it uses when it runs)
+HEAVY_MODULES = ("scipy", "scipy.interpolate", "scipy.linalg", "scipy.optimize", "scipy.special", "scipy.sparse",
+                 "matplotlib", "matplotlib.pyplot", "control", "PIL")
+
+
+@pytest.mark.timeout(60)
+def test_importing_invctl_and_the_scenes_imports_no_heavy_module():
+    code = textwrap.dedent("""
+        import json, sys
+        import invctl, invctl.reference, problems.manipulator
+        first = [m for m in HEAVY if m in sys.modules]
+        from invctl.scenes import available_scenes, load_scene
+        for name in available_scenes():
+            load_scene(name)
+        print(json.dumps([first, [m for m in HEAVY if m in sys.modules]]))
+    """).replace("HEAVY", repr(HEAVY_MODULES))
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=50,
+                          env={"MPLBACKEND": "Agg", "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 0, proc.stderr
+    first, after_all = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert first == [] and after_all == [], (first, after_all)
+
+
+def test_lazy_reference_attribute_is_the_public_function():
+    import invctl.reference as ref
+    from invctl.reference.samples import from_samples
+
+    assert ref.from_samples is from_samples and "from_samples" in ref.__all__
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        ref.nope  # noqa: B018

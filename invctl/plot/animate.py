@@ -251,22 +251,6 @@ def _figure(drawing: Drawing, limits, figsize, dpi, title):
     return fig, ax
 
 
-def _freeze_background(fig, ax) -> None:
-    """Render the static part (axes, ticks, fixed segments, title) once into an image behind an
-    otherwise empty axes, so that every frame draws only the moving artists (~10x faster)."""
-    fig.canvas.draw()
-    background = np.asarray(fig.canvas.buffer_rgba()).copy()
-    fig.set_layout_engine("none")
-    ax.set_position(ax.get_position(original=False))
-    for artist in [*ax.lines, *ax.texts]:
-        artist.remove()
-    ax.set_title("")
-    ax.set_axis_off()
-    ax.patch.set_visible(False)
-    fig.patch.set_visible(False)
-    fig.figimage(background, origin="upper", zorder=-10)
-
-
 class _Pose:
     """The artists of one pose, updated in place from positions ``(npoints, 2)``."""
 
@@ -276,6 +260,7 @@ class _Pose:
         fade = lambda st: {**st, "alpha": alpha * st.get("alpha", 1.0)}  # noqa: E731
         self.lines = [ax.plot([], [], **fade(style))[0] for _, _, style in drawing.links]
         self.points = ax.plot([], [], **fade(drawing.point_style))[0] if drawing.point_style else None
+        self.artists = [*self.lines, *([self.points] if self.points is not None else [])]
 
     def update(self, p: np.ndarray):
         for (a, b), line in zip(self.pairs, self.lines):
@@ -284,18 +269,107 @@ class _Pose:
             self.points.set_data(p[:, 0], p[:, 1])
 
 
-def _writer(path: Path, fps: float):
-    from matplotlib import animation
-
+def _check_format(path: Path) -> None:
     suffix = path.suffix.lower()
-    if suffix == ".gif":
-        return animation.PillowWriter(fps=fps)
-    if suffix == ".mp4":
-        if not (animation.writers.is_available("ffmpeg") and shutil.which("ffmpeg")):
-            raise AnimationError(f"writing {path.name} needs ffmpeg, which is not installed on this machine; "
+    if suffix == ".mp4" and not shutil.which("ffmpeg"):
+        raise AnimationError(f"writing {path.name} needs ffmpeg, which is not installed on this machine; "
+                             f"write a GIF instead: {path.with_suffix('.gif')}")
+    if suffix not in (".gif", ".mp4"):
+        raise AnimationError(f"cannot write animation {path.name!r}: use a .gif or .mp4 file name")
+
+
+def _renderer(fig, ax, artists, update):
+    """``render(f)``: frame ``f`` as an RGB image (Pillow).  The static part of the figure (axes,
+    fixed segments, title, layout) is drawn once; each frame restores that image and draws only the
+    moving ``artists`` after ``update(f)`` (blitting)."""
+    from PIL import Image
+
+    canvas = fig.canvas
+    for artist in artists:
+        artist.set_animated(True)
+    canvas.draw()  # skips the animated artists
+    background = canvas.copy_from_bbox(fig.bbox)
+
+    def render(f: int):
+        update(f)
+        canvas.restore_region(background)
+        for artist in artists:
+            ax.draw_artist(artist)
+        return Image.fromarray(np.asarray(canvas.buffer_rgba())).convert("RGB")
+
+    return render
+
+
+def _clock(fig, ax):
+    """``stamp(image, text)``: ``text`` in the upper left corner of the axes, black monospace on a white
+    box, drawn by Pillow (a matplotlib text artist is laid out anew for every new string: ~3 ms, most of
+    a frame's time)."""
+    from matplotlib import font_manager, rcParams
+    from PIL import ImageDraw, ImageFont
+
+    size = rcParams["font.size"] * fig.dpi / 72
+    try:
+        font = ImageFont.truetype(font_manager.findfont("monospace"), size=max(1, round(size)))
+    except (OSError, ImportError):  # a Pillow without FreeType
+        font = ImageFont.load_default()
+    x, y = ax.transAxes.transform((0.02, 0.96))
+    y = fig.bbox.height - y
+    pad = max(1, round(size / 10))
+
+    def stamp(image, text: str):
+        draw = ImageDraw.Draw(image, "RGBA")
+        x0, y0, x1, y1 = draw.textbbox((x, y), text, font=font)
+        draw.rectangle((x0 - pad, y0 - pad, x1 + pad, y1 + pad), fill=(255, 255, 255, 204))
+        draw.text((x, y), text, font=font, fill=(0, 0, 0, 255))
+        return image
+
+    return stamp
+
+
+def _write_gif(path: Path, render, n_frames: int, fps: float) -> None:
+    """GIF with one palette for all frames, made once from the first and last frames (which show every
+    artist and the whole trails); each frame is mapped to it without dithering."""
+    from PIL import Image
+
+    ends = np.vstack([np.asarray(render(0)), np.asarray(render(n_frames - 1))])
+    palette = Image.fromarray(ends).quantize(colors=255, method=Image.Quantize.MEDIANCUT)
+    images = [render(f).quantize(palette=palette, dither=Image.Dither.NONE) for f in range(n_frames)]
+    images[0].save(path, save_all=True, append_images=images[1:], duration=int(round(1000 / fps)), loop=0,
+                   optimize=False)
+
+
+def _write_mp4(path: Path, frames, fps: float) -> None:
+    """MP4 (H.264) by piping raw RGB frames to ffmpeg; an incomplete file is removed."""
+    import subprocess
+
+    proc = None
+    try:
+        for rgb in frames:
+            if proc is None:
+                w, h = rgb.size
+                proc = subprocess.Popen([shutil.which("ffmpeg"), "-y", "-loglevel", "error", "-f", "rawvideo",
+                                         "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{fps:g}", "-i", "-",
+                                         "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-vcodec", "h264",
+                                         "-pix_fmt", "yuv420p", str(path)],
+                                        stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+            try:
+                proc.stdin.write(rgb.tobytes())
+            except BrokenPipeError:  # ffmpeg stopped reading: its message says why
+                break
+        try:
+            proc.stdin.close()
+        except BrokenPipeError:
+            pass
+        err = proc.stderr.read().decode(errors="replace").strip()
+        if proc.wait() != 0:
+            raise AnimationError(f"ffmpeg could not write {path}: {err or 'exit code ' + str(proc.returncode)}; "
                                  f"write a GIF instead: {path.with_suffix('.gif')}")
-        return animation.FFMpegWriter(fps=fps)
-    raise AnimationError(f"cannot write animation {path.name!r}: use a .gif or .mp4 file name")
+    except BaseException:
+        if proc is not None:
+            proc.kill()
+            proc.wait()
+        path.unlink(missing_ok=True)
+        raise
 
 
 def animate(model, drawing: Drawing, t, q, path, *, fps: float = 25, speed: float = 1.0, trail=None,
@@ -344,7 +418,7 @@ def animate(model, drawing: Drawing, t, q, path, *, fps: float = 25, speed: floa
     path = Path(path)
     if not (np.isfinite(fps) and fps > 0 and np.isfinite(speed) and speed > 0):
         raise AnimationError(f"fps and speed must be positive, got fps={fps}, speed={speed}")
-    writer = _writer(path, fps)
+    _check_format(path)
     t = _times(t)
     n_frames = max(2, int(round((t[-1] - t[0]) * fps / speed)) + 1)
     if n_frames > max_frames:
@@ -354,19 +428,25 @@ def animate(model, drawing: Drawing, t, q, path, *, fps: float = 25, speed: floa
     P = _positions(model, drawing, _sample(model, t, q, times), theta)
     trails = _trail_index(drawing, trail)
     fig, ax = _figure(drawing, _limits(drawing, P), figsize, dpi, title)
-    _freeze_background(fig, ax)
     pose = _Pose(ax, drawing)
     paths = [ax.plot([], [], **TRAIL_STYLE)[0] for _ in trails]
-    clock = ax.text(0.02, 0.96, "", transform=ax.transAxes, va="top", family="monospace",
-                    bbox={"fc": "white", "ec": "none", "alpha": 0.8, "pad": 1.0})
+
+    def update(f):
+        pose.update(P[f])
+        for j, line in zip(trails, paths):
+            line.set_data(P[:f + 1, j, 0], P[:f + 1, j, 1])
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    with writer.saving(fig, str(path), dpi):
-        for f in range(n_frames):
-            pose.update(P[f])
-            for j, line in zip(trails, paths):
-                line.set_data(P[:f + 1, j, 0], P[:f + 1, j, 1])
-            clock.set_text(f"t = {times[f]:7.3f} s")
-            writer.grab_frame()
+    render = _renderer(fig, ax, [*pose.artists, *paths], update)
+    stamp = _clock(fig, ax)  # after the layout: the axes are where they stay
+
+    def frame(f):
+        return stamp(render(f), f"t = {times[f]:7.3f} s")
+
+    if path.suffix.lower() == ".mp4":
+        _write_mp4(path, map(frame, range(n_frames)), fps)
+    else:
+        _write_gif(path, frame, n_frames, fps)
     return path
 
 

@@ -5,7 +5,6 @@ import math
 
 import casadi as ca
 import numpy as np
-from scipy.interpolate import make_interp_spline
 
 from ..errors import ReferenceSignalError
 from .piecewise import check_continuity, ppoly_expr, select_rows, smoothstep
@@ -127,6 +126,8 @@ def waypoints(times, values, smoothness: int = 4, *, stop: bool = False, name: s
         S = smoothstep((t - sel[0]) * sel[1], k)
         expr = ca.vertcat(*[sel[2 + r] + sel[2 + m + r] * S for r in range(m)])
     else:
+        from scipy.interpolate import make_interp_spline
+
         if k == 0:
             spl = make_interp_spline(tb, v, k=1)
         else:
