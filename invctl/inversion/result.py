@@ -90,13 +90,17 @@ class Inverse:
         return slice(starts[block], starts[block] + lens[block])
 
     # ------------------------------------------------------------ interpolation
-    def X(self, t) -> np.ndarray:
-        """All unknowns at times ``t``: shape ``(nx, len(t))``."""
-        t = np.atleast_1d(np.asarray(t, float))
-        tc = np.clip(t, self.T0, self.Tf)
+    def _locate(self, t):
+        """Interval index ``k``, its length ``h`` and the local coordinate ``s`` in [0, 1] of the times ``t``
+        (clipped to ``[T0, Tf]``)."""
+        tc = np.clip(np.atleast_1d(np.asarray(t, float)), self.T0, self.Tf)
         k = np.clip(np.searchsorted(self.t_mesh, tc, side="right") - 1, 0, self.N - 1)
         h = self.t_mesh[k + 1] - self.t_mesh[k]
-        s = (tc - self.t_mesh[k]) / h
+        return k, h, (tc - self.t_mesh[k]) / h
+
+    def X(self, t) -> np.ndarray:
+        """All unknowns at times ``t``: shape ``(nx, len(t))``."""
+        k, h, s = self._locate(t)
         if self._scheme.is_hs:
             s2, s3 = s * s, s * s * s
             h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
@@ -111,10 +115,7 @@ class Inverse:
     def dX(self, t) -> np.ndarray:
         """Time derivative of :meth:`X` (of the same polynomials; zero outside ``[T0, Tf]``)."""
         t = np.atleast_1d(np.asarray(t, float))
-        tc = np.clip(t, self.T0, self.Tf)
-        k = np.clip(np.searchsorted(self.t_mesh, tc, side="right") - 1, 0, self.N - 1)
-        h = self.t_mesh[k + 1] - self.t_mesh[k]
-        s = (tc - self.t_mesh[k]) / h
+        k, h, s = self._locate(t)
         if self._scheme.is_hs:
             s2 = s * s
             out = ((self.X_mesh[:, k + 1] - self.X_mesh[:, k]) * (6 * s - 6 * s2) / h
