@@ -388,7 +388,7 @@ class Transcription:
         rows = np.concatenate([a.ravel() for a in rows] + [bc_rows])
         cols = np.concatenate([a.ravel() for a in cols] + [bc_cols])
         A = sp.csc_matrix((np.arange(1, rows.size + 1, dtype=float), (rows, cols)), shape=(self.ng, self.nX))
-        A.sort_indices()  # CasADi needs sorted rows per column; scipy < 1.15 leaves them in COO order
+        A.sort_indices()  # CasADi needs sorted rows per column; scipy 1.13 leaves them in COO order
         if A.nnz != rows.size:
             raise AssertionError("collocation Jacobian pattern has duplicate entries")
         perm = A.data.astype(np.int64) - 1
