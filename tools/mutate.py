@@ -1,0 +1,384 @@
+"""Plant one-line mutations in the numerical core and check the mapped tests catch them.
+
+Slow and not part of CI. Run from the repository root, e.g.
+
+    python tools/mutate.py --modules invctl/contact/lcp.py --max-mutants 20 --out report.txt
+
+Each mutant rewrites one token on one source line, runs the mapped test files with
+``pytest -x -q -p no:cacheprovider`` and restores the file byte-identical afterwards (also
+after Ctrl-C). The target files must be committed first, so a crash can never leave a planted
+bug unnoticed.
+"""
+from __future__ import annotations
+
+import argparse
+import ast
+import io
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import tokenize
+from dataclasses import dataclass
+from pathlib import Path
+
+# Module -> test files that cover it. Modules not listed fall back to name heuristics
+# (tests/test_*<stem>*.py), then to FALLBACK_TESTS.
+TEST_MAP = {
+    "invctl/contact/lcp.py": ["tests/test_lcp_compiled.py", "tests/test_contact.py"],
+    "invctl/contact/mechanics.py": ["tests/test_contact.py", "tests/test_chain.py"],
+    "invctl/analysis/relative_degree.py": ["tests/test_analysis_linear.py",
+                                           "tests/test_analysis_textbook.py",
+                                           "tests/test_normal_form.py"],
+    "invctl/analysis/zeros.py": ["tests/test_zeros.py", "tests/test_analysis_linear.py"],
+    "invctl/analysis/statespace.py": ["tests/test_statespace.py"],
+    "invctl/inversion/backends.py": ["tests/test_inversion.py", "tests/test_ocp.py"],
+    "invctl/inversion/normal_form.py": ["tests/test_normal_form.py"],
+    "invctl/inversion/sensitivity.py": ["tests/test_sensitivity.py"],
+    "invctl/control/funnel.py": ["tests/test_funnel.py"],
+    "invctl/control/funnel_design.py": ["tests/test_funnel_design.py"],
+    "invctl/control/switched.py": ["tests/test_switched_sim.py", "tests/test_switched_stability.py"],
+    "invctl/simulate/timestepping.py": ["tests/test_timestepping.py"],
+}
+FALLBACK_TESTS = ["tests/test_inversion.py", "tests/test_model.py", "tests/test_contact.py"]
+CORE = ["invctl/model", "invctl/analysis", "invctl/inversion", "invctl/control",
+        "invctl/contact", "invctl/simulate"]
+
+SWAP_NAMES = {"argmax": "argmin", "argmin": "argmax", "max": "min", "min": "max",
+              "maximum": "minimum", "minimum": "maximum", "nanmax": "nanmin", "nanmin": "nanmax"}
+CMP_SWAPS = {ast.Lt: ["<=", ">"], ast.LtE: ["<", ">="], ast.Gt: [">=", "<"],
+             ast.GtE: [">", "<="], ast.Eq: ["!="], ast.NotEq: ["=="]}
+MESSAGE_CALLS = {"print", "warn", "debug", "info", "warning", "error", "exception",
+                 "write"}
+
+
+@dataclass
+class Mutant:
+    path: str     # relative to the root, forward slashes
+    line: int     # 1-based
+    col: int      # 0-based column of the replaced text
+    old: str
+    new: str
+    nth: int = 1  # which occurrence of the same mutation on this line
+
+    @property
+    def key(self):
+        more = f" ({self.nth})" if self.nth > 1 else ""
+        return f"{self.path}:{self.line}:{self.old} -> {self.new}{more}"
+
+    def apply(self, source):
+        lines = source.splitlines(keepends=True)
+        text = lines[self.line - 1]
+        assert text[self.col:self.col + len(self.old)] == self.old, self.key
+        lines[self.line - 1] = text[:self.col] + self.new + text[self.col + len(self.old):]
+        return "".join(lines)
+
+
+class _Finder(ast.NodeVisitor):
+    """Collect one-token mutations outside docstrings, strings, messages and raise statements."""
+
+    def __init__(self, path, source):
+        self.path, self.source = path, source
+        self.lines = source.splitlines(keepends=True)
+        self.ops = [t for t in tokenize.generate_tokens(io.StringIO(source).readline)
+                    if t.type == tokenize.OP or t.string in ("and", "or")]
+        self.found = []
+
+    def add(self, line, col, old, new):
+        if self.lines[line - 1][col:col + len(old)] == old:
+            self.found.append(Mutant(self.path, line, col, old, new))
+
+    def op_between(self, left, right, texts):
+        """The operator token in ``texts`` between two nodes on the same line, or None."""
+        if left.end_lineno != right.lineno:
+            return None
+        for tok in self.ops:
+            (ln, c), s = tok.start, tok.string
+            if ln == left.end_lineno and left.end_col_offset <= c < right.col_offset and s in texts:
+                return tok
+        return None
+
+    # subtrees that are never mutated
+    def visit_Raise(self, node):
+        pass
+
+    def visit_JoinedStr(self, node):
+        pass
+
+    def visit_Assert(self, node):
+        pass
+
+    def visit_Expr(self, node):
+        if not (isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)):
+            self.generic_visit(node)
+
+    def visit_Call(self, node):
+        f = node.func
+        name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else None
+        if name in MESSAGE_CALLS or (name or "").endswith("Error"):
+            return
+        if name == "abs" and f.lineno == f.end_lineno:
+            seg = ast.get_source_segment(self.source, f)
+            if seg in ("abs", "np.abs", "numpy.abs", "ca.fabs", "np.fabs"):
+                self.add(f.lineno, f.col_offset, seg, "")
+        for kw in node.keywords:
+            self.bool_const(kw.value)
+        self.generic_visit(node)
+
+    def visit_Name(self, node):
+        if node.id in SWAP_NAMES and isinstance(node.ctx, ast.Load):
+            self.add(node.lineno, node.col_offset, node.id, SWAP_NAMES[node.id])
+
+    def visit_Attribute(self, node):
+        if node.attr in SWAP_NAMES and node.end_lineno == node.lineno:
+            col = node.end_col_offset - len(node.attr)
+            self.add(node.lineno, col, node.attr, SWAP_NAMES[node.attr])
+        self.generic_visit(node)
+
+    def visit_Compare(self, node):
+        nodes = [node.left] + node.comparators
+        for op, a, b in zip(node.ops, nodes, nodes[1:]):
+            for new in CMP_SWAPS.get(type(op), []):
+                tok = self.op_between(a, b, {"<", "<=", ">", ">=", "==", "!="})
+                if tok:
+                    self.add(tok.start[0], tok.start[1], tok.string, new)
+        self.generic_visit(node)
+
+    def visit_BinOp(self, node):
+        pairs = {ast.Add: ("+", "-"), ast.Sub: ("-", "+")}
+        num = [isinstance(x, ast.Constant) and type(x.value) in (int, float)
+               for x in (node.left, node.right)]
+        if any(num):
+            pairs.update({ast.Mult: ("*", "/"), ast.Div: ("/", "*")})
+        if type(node.op) in pairs:
+            old, new = pairs[type(node.op)]
+            tok = self.op_between(node.left, node.right, {old})
+            if tok:
+                self.add(tok.start[0], tok.start[1], old, new)
+        for x, is_num in zip((node.left, node.right), num):
+            if is_num and x.lineno == x.end_lineno:
+                seg = ast.get_source_segment(self.source, x)
+                self.add(x.lineno, x.col_offset, seg, _bump(x.value))
+        self.generic_visit(node)
+
+    def visit_BoolOp(self, node):
+        old, new = ("and", "or") if isinstance(node.op, ast.And) else ("or", "and")
+        tok = self.op_between(node.values[0], node.values[1], {old})
+        if tok:
+            self.add(tok.start[0], tok.start[1], old, new)
+        self.generic_visit(node)
+
+    def visit_FunctionDef(self, node):
+        for d in node.args.defaults + [d for d in node.args.kw_defaults if d is not None]:
+            self.bool_const(d)
+        self.generic_visit(node)
+
+    visit_AsyncFunctionDef = visit_FunctionDef
+
+    def bool_const(self, node):
+        if isinstance(node, ast.Constant) and isinstance(node.value, bool):
+            old = str(node.value)
+            self.add(node.lineno, node.col_offset, old, str(not node.value))
+
+
+def _bump(value):
+    """A different numeric literal: 0 -> 1, 1 <-> 2, other ints + 1, other floats * 10."""
+    if value in (0, 1, 2):
+        return repr(type(value)({0: 1, 1: 2, 2: 1}[value]))
+    return repr(value + 1) if isinstance(value, int) else repr(float(f"{value * 10:.12g}"))
+
+
+def find_mutants(root, path):
+    source = (root / path).read_text()
+    finder = _Finder(path, source)
+    finder.visit(ast.parse(source))
+    seen, out = set(), []
+    for m in sorted(finder.found, key=lambda m: (m.line, m.col, m.new)):
+        if (m.line, m.col, m.old, m.new) in seen:
+            continue
+        seen.add((m.line, m.col, m.old, m.new))
+        m.nth = 1 + sum((o.line, o.old, o.new) == (m.line, m.old, m.new) for o in out)
+        try:
+            ast.parse(m.apply(source))
+        except SyntaxError:
+            continue
+        out.append(m)
+    return out
+
+
+def tests_for(root, path):
+    if path in TEST_MAP:
+        return TEST_MAP[path]
+    stem = Path(path).stem.lstrip("_")
+    guess = sorted(str(p.relative_to(root)) for p in (root / "tests").glob(f"test_*{stem}*.py"))
+    return guess or [t for t in FALLBACK_TESTS if (root / t).exists()]
+
+
+def expand(root, paths):
+    out = []
+    for p in paths:
+        full = root / p
+        files = sorted(full.rglob("*.py")) if full.is_dir() else [full]
+        out += [f.relative_to(root).as_posix() for f in files]
+    return out
+
+
+def uncommitted(root, paths):
+    r = subprocess.run(["git", "status", "--porcelain", "--", *paths], cwd=root,
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        return r.stderr.strip() or "not a git repository"
+    return r.stdout.strip()
+
+
+def read_equivalent(path):
+    """Lines ``file:line:old -> new  # reason``; blank lines and ``#`` comments are skipped."""
+    out = {}
+    if path:
+        for raw in Path(path).read_text().splitlines():
+            if raw.strip() and not raw.lstrip().startswith("#"):
+                key, _, reason = raw.partition("#")
+                out[key.strip()] = reason.strip() or "no reason given"
+    return out
+
+
+def run_tests(root, tests, timeout):
+    """'passed', 'failed' or 'timeout' for one pytest run in its own process group."""
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", MPLBACKEND="Agg",
+               PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
+    proc = subprocess.Popen([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
+                             *tests], cwd=root, env=env, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        rc = proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        return "timeout"
+    except BaseException:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        raise
+    return "passed" if rc == 0 else "failed"
+
+
+def run_mutant(root, mutant, tests, timeout, backup_dir):
+    target = root / mutant.path
+    backup = Path(backup_dir) / mutant.path.replace("/", "__")
+    shutil.copy2(target, backup)
+    try:
+        target.write_text(mutant.apply(backup.read_text()))
+        outcome = run_tests(root, tests, timeout)
+    finally:
+        shutil.copy2(backup, target)
+    return {"passed": "survived", "failed": "killed", "timeout": "timeout"}[outcome]
+
+
+def report(results, equivalent, baseline_failed):
+    lines, survivors, equiv = [], [], []
+    by_module = {}
+    for m, status in results:
+        if status == "survived" and m.key in equivalent:
+            status = "equivalent"
+            equiv.append(f"  {m.key}  # {equivalent[m.key]}")
+        elif status == "survived":
+            survivors.append(f"  {m.key}")
+        by_module.setdefault(m.path, {"killed": 0, "survived": 0, "timeout": 0,
+                                      "equivalent": 0})[status] += 1
+    lines.append(f"{'module':45s} killed survived timeout equivalent  kill rate")
+    total = {"killed": 0, "survived": 0, "timeout": 0, "equivalent": 0}
+    for path, c in sorted(by_module.items()):
+        for k in total:
+            total[k] += c[k]
+        lines.append(_row(path, c))
+    lines.append(_row("total", total))
+    lines.append("kill rate = (killed + timeout) / (mutants - equivalent)")
+    for path in baseline_failed:
+        lines.append(f"skipped {path}: its tests fail without any mutation")
+    lines.append(f"survivors ({len(survivors)}):")
+    lines += survivors or ["  none"]
+    lines.append(f"equivalent mutants that survived ({len(equiv)}):")
+    lines += equiv or ["  none"]
+    return "\n".join(lines)
+
+
+def _row(name, c):
+    counted = c["killed"] + c["survived"] + c["timeout"]
+    rate = f"{100 * (c['killed'] + c['timeout']) / counted:5.1f}%" if counted else "    -"
+    return (f"{name:45s} {c['killed']:6d} {c['survived']:8d} {c['timeout']:7d} "
+            f"{c['equivalent']:10d}  {rate}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--modules", nargs="+", default=CORE, metavar="PATHS",
+                    help="files or folders to mutate, relative to --root (default: the core)")
+    ap.add_argument("--max-mutants", type=int, default=None, metavar="N")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--timeout", type=float, default=300.0, metavar="S",
+                    help="seconds per mutant's test run; longer counts as killed (timeout)")
+    ap.add_argument("--list", action="store_true", help="print the mutants, run nothing")
+    ap.add_argument("--out", metavar="FILE", help="write the report here as well")
+    ap.add_argument("--equivalent", metavar="FILE",
+                    help="known equivalent mutants, lines 'file:line:old -> new  # reason'")
+    ap.add_argument("--root", default=".", help="repository root (default: current folder)")
+    args = ap.parse_args(argv)
+
+    root = Path(args.root).resolve()
+    missing = [p for p in args.modules if not (root / p).exists()]
+    if missing:
+        ap.error(f"no such file or folder under {root}: {', '.join(missing)}")
+    files = expand(root, args.modules)
+    mutants = [m for f in files for m in find_mutants(root, f)]
+    if args.max_mutants is not None and len(mutants) > args.max_mutants:
+        mutants = random.Random(args.seed).sample(mutants, args.max_mutants)
+        mutants.sort(key=lambda m: (m.path, m.line, m.col, m.new))
+    if args.list:
+        for m in mutants:
+            print(f"{m.key}    [{', '.join(tests_for(root, m.path))}]")
+        print(f"{len(mutants)} mutants")
+        return 0
+
+    dirty = uncommitted(root, sorted({m.path for m in mutants}))
+    if dirty:
+        print("refusing to mutate files with uncommitted changes (or outside git):\n" + dirty +
+              "\nrun `git status`, then commit or stash these changes and start again.",
+              file=sys.stderr)
+        return 2
+    equivalent = read_equivalent(args.equivalent)
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+
+    results, baseline, failed_baseline = [], {}, []
+    interrupted = False
+    with tempfile.TemporaryDirectory(prefix="mutate-") as backup_dir:
+        try:
+            for i, m in enumerate(mutants, 1):
+                tests = tests_for(root, m.path)
+                if m.path not in baseline:
+                    baseline[m.path] = run_tests(root, tests, args.timeout) == "passed"
+                    if not baseline[m.path]:
+                        failed_baseline.append(m.path)
+                if not baseline[m.path]:
+                    continue
+                t0 = time.monotonic()
+                status = run_mutant(root, m, tests, args.timeout, backup_dir)
+                results.append((m, status))
+                print(f"[{i}/{len(mutants)}] {status:8s} {time.monotonic() - t0:6.1f}s  {m.key}",
+                      flush=True)
+        except KeyboardInterrupt:
+            interrupted = True
+            print("interrupted; the mutated file was restored; partial report follows",
+                  file=sys.stderr)
+    text = report(results, equivalent, failed_baseline)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+    return 130 if interrupted else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
