@@ -32,6 +32,10 @@ def message(x):
     if x:
         raise ValueError(f"x > 0: {x < 1}")  # raise lines are skipped
     return x
+
+
+def label(x):
+    return "x=" + str(x)  # string building is skipped
 '''
 
 TEST = '''import time
@@ -84,7 +88,8 @@ def test_list_runs_nothing_and_skips_docstrings_and_raise(repo):
     keys = [line.split()[0] for line in r.stdout.splitlines() if line.startswith("pkg/")]
     assert "pkg/tiny.py:6:<" in keys            # `if x < lo:`
     assert "pkg/tiny.py:12:+" in keys           # `return a + b`
-    assert not any(k.startswith(("pkg/tiny.py:1:", "pkg/tiny.py:5:", "pkg/tiny.py:21:"))
+    assert not any(k.startswith(("pkg/tiny.py:1:", "pkg/tiny.py:5:", "pkg/tiny.py:21:",
+                                   "pkg/tiny.py:26:"))
                    for k in keys)               # docstrings and the raise line
     assert not (repo / "report.txt").exists()   # nothing was run, no report
 

@@ -149,6 +149,10 @@ class _Finder(ast.NodeVisitor):
         self.generic_visit(node)
 
     def visit_BinOp(self, node):
+        if any(isinstance(x, ast.JoinedStr) or (isinstance(x, ast.Constant) and
+                                                isinstance(x.value, str))
+               for x in (node.left, node.right)):
+            return  # string building, not arithmetic
         pairs = {ast.Add: ("+", "-"), ast.Sub: ("-", "+")}
         num = [isinstance(x, ast.Constant) and type(x.value) in (int, float)
                for x in (node.left, node.right)]
@@ -313,6 +317,10 @@ def _row(name, c):
             f"{c['equivalent']:10d}  {rate}")
 
 
+def _interrupt(*_):
+    raise KeyboardInterrupt
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--modules", nargs="+", default=CORE, metavar="PATHS",
@@ -350,7 +358,7 @@ def main(argv=None):
               file=sys.stderr)
         return 2
     equivalent = read_equivalent(args.equivalent)
-    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    signal.signal(signal.SIGTERM, _interrupt)
 
     results, baseline, failed_baseline = [], {}, []
     interrupted = False
