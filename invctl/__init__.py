@@ -7,9 +7,10 @@ Data flow: ``invctl.model`` -> ``invctl.analysis`` -> ``invctl.inversion`` ->
 from .errors import *  # noqa: F401,F403
 from .errors import __all__ as _errors_all
 from .model import Gap, Model, OperatingRegion, ParamSet
+from .results import Status, Trajectory, load
 from .scenes import CommandResult, available_scenes, load_scene
 
 __version__ = "0.1.0"
 
-__all__ = ["Gap", "Model", "OperatingRegion", "ParamSet", "CommandResult", "available_scenes",
-           "load_scene", "__version__", *_errors_all]
+__all__ = ["Gap", "Model", "OperatingRegion", "ParamSet", "CommandResult", "Status", "Trajectory", "available_scenes",
+           "load", "load_scene", "__version__", *_errors_all]

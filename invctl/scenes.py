@@ -26,7 +26,7 @@ import math
 import pkgutil
 import sys
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from types import MappingProxyType, ModuleType
 from typing import Any, Callable, Mapping
@@ -599,14 +599,79 @@ class Scene:
             raise SceneError(f"scene {self.name!r}: build() returned {type(obj).__name__}; a switched scene "
                              f"must return an invctl.studies.switched.SwitchedProblem{at}")
 
+    # ------------------------------------------------------------ the Python front door
+    def bind(self, preset: str | None = None, **values) -> "Scene":
+        """This scene with parameter/setting values (and a preset) used by its run methods below;
+        ``load_scene(name, **values)`` is the short form. Checked now: unknown names or bad values raise
+        :class:`~invctl.errors.ParameterError`."""
+        self.split(values, preset=preset)
+        bound = Scene(**{f.name: getattr(self, f.name) for f in fields(self)})
+        object.__setattr__(bound, "_bound", (preset, dict(values)))
+        return bound
+
+    @property
+    def values(self) -> dict:
+        """The values bound by :meth:`bind` (``{}`` for the declared defaults)."""
+        return dict(self.__dict__.get("_bound", (None, {}))[1])
+
+    def run(self, command: str, **options) -> "CommandResult":
+        """``invctl <command>`` on this scene with its bound values: the report (``text``, ``data``) and the
+        typed ``result``. Options are the command's, as keywords (``N=200``, ``controller="C2"``, ...)."""
+        from .studies.commands import run_command
+
+        preset, values = self.__dict__.get("_bound", (None, {}))
+        if preset is not None and options.get("preset") is None and command != "generate":
+            options["preset"] = preset
+        return run_command(command, self, values, **options)
+
+    def analyze(self, **options) -> "CommandResult":
+        """The scene's analysis (``invctl analyze``): a report with ``text`` and ``data``."""
+        return self.run("analyze", **options)
+
+    def invert(self, *, throw: bool = True, **options):
+        """The stable inverse (``invctl invert``) as an :class:`~invctl.inversion.Inverse`; with ``throw=False``
+        a failed inversion returns its last iterate (``status`` FAILED) instead of raising."""
+        return self._typed("invert", throw, options)
+
+    def design(self, **options):
+        """The feedback design (``invctl design``): the design object (tracking: the funnel design with
+        ``describe()``), or the report for kinds whose design is a report."""
+        res = self.run("design", **options)
+        return res if res.result is None else res.result
+
+    def simulate(self, controller: str | None = None, *, throw: bool = True, **options):
+        """One run (``invctl simulate``) as a :class:`~invctl.results.Trajectory`; with ``throw=False`` an
+        interrupted or failed run returns what was computed (its ``status`` says why)."""
+        return self._typed("simulate", throw, {**options, "controller": controller})
+
+    def pipeline(self, out_dir="invctl-out", *, throw: bool = True, **options) -> dict:
+        """The scene's whole job (``invctl pipeline``) written to ``out_dir``: the runs by controller, each a
+        :class:`~invctl.results.Trajectory` (the report is ``invctl.load(out_dir)`` for tracking scenes, or
+        :meth:`run` ``("pipeline", ...)``)."""
+        return self._typed("pipeline", throw, {**options, "out_dir": str(out_dir)})
+
+    def _typed(self, command: str, throw: bool, options: dict):
+        from .errors import InvctlError
+
+        try:
+            return self.run(command, **options).result
+        except InvctlError as exc:
+            partial = getattr(exc, "partial", None)
+            if throw or partial is None:
+                raise
+            return partial
+
 
 # ---------------------------------------------------------------- results
 @dataclass
 class CommandResult:
-    """What a command returns: a readable report and JSON-able data (see :func:`jsonable`)."""
+    """What a command returns: a readable report, JSON-able data (see :func:`jsonable`) and the typed result
+    the command computed (an :class:`~invctl.inversion.Inverse`, a run's :class:`~invctl.results.Trajectory`, a
+    pipeline's runs by controller, a design; ``None`` for reports that are text and data only)."""
 
     text: str
     data: dict[str, Any] = field(default_factory=dict)
+    result: Any = field(default=None, repr=False, compare=False)
 
 
 def jsonable(obj):
@@ -681,8 +746,14 @@ def _is_path(text: str) -> bool:
     return text.endswith(".py") or "/" in text or "\\" in text or text.startswith(".")
 
 
-def load_scene(name_or_path) -> Scene:
-    """The :class:`Scene` of a shipped scene (``"manipulator"``) or of a scene file (``"./mine.py"``).
+def load_scene(name_or_path, preset: str | None = None, **values) -> Scene:
+    """The :class:`Scene` of a shipped scene (``"manipulator"``) or of a scene file (``"./mine.py"``), with
+    ``values`` (and a ``preset``) bound for its run methods (:meth:`Scene.bind`)::
+
+        scene = invctl.load_scene("cartpole", mp=0.25)
+        inv = scene.invert(N=200)          # an Inverse
+        run = scene.simulate("C1")         # a ClosedLoopResult (a Trajectory)
+        run.plot()
 
     Raises
     ------
@@ -716,7 +787,8 @@ def load_scene(name_or_path) -> Scene:
         except Exception as exc:
             raise SceneError(f"shipped scene {text!r} failed to import: {type(exc).__name__}: {exc}") from None
         source = getattr(module, "__file__", "") or ""
-    return scene_of(module, source)
+    scene = scene_of(module, source)
+    return scene.bind(preset, **values) if values or preset is not None else scene
 
 
 def scene_reference(scene: Scene) -> str:

@@ -324,8 +324,8 @@ def test_result_save_load_and_plot(tmp_path):
     back = SwitchedSimulation.load(path)
     assert np.array_equal(back.x, sim.x) and back.bounces == sim.bounces and back.label == "fig3"
     assert back.meta["bf"] == 5.0
-    axes = sim.plot()
-    assert len(axes) == 2
+    fig = sim.plot()
+    assert len(fig.axes) == 2 and fig.axes[0].get_ylabel() == "position [mm]"
     assert "peak contact force" in sim.summary()
 
 

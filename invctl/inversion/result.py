@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io import file_loader
+from ..results import Curve, Status, Trajectory
 from ..scenes import jsonable
 from .collocation import get_scheme
 
@@ -13,8 +14,11 @@ _BLOCKS = ("q", "v", "lam", "mu", "u")
 
 
 @dataclass
-class Inverse:
+class Inverse(Trajectory):
     """Feedforward and state trajectories of a stable inversion (003 Sect. 4).
+
+    A :class:`~invctl.results.Trajectory` on the mesh: ``t`` is ``t_mesh`` and ``q, v, lam, mu, u``
+    are the mesh values, each also callable at any times (``inv.u(t)`` evaluates the polynomial).
 
     The trajectories are the collocation polynomials themselves: cubic Hermite
     pieces through ``X_mesh`` with slopes ``dX_mesh`` (Hermite-Simpson) or the
@@ -152,25 +156,30 @@ class Inverse:
     def _block(self, block, t):
         return self.X(t)[self._slice(block)]
 
-    def q(self, t) -> np.ndarray:
-        """Coordinates ``q(t)``: shape ``(n, len(t))``."""
-        return self._block("q", t)
+    @property
+    def q(self) -> Curve:
+        """Coordinates ``q(t)``: shape ``(n, len(t))`` (the mesh values; call it at any times)."""
+        return Curve(self.X_mesh[self._slice("q")], lambda t: self._block("q", t))
 
-    def v(self, t) -> np.ndarray:
-        """Velocities ``v(t)``: shape ``(n, len(t))``."""
-        return self._block("v", t)
+    @property
+    def v(self) -> Curve:
+        """Velocities ``v(t)``: shape ``(n, len(t))`` (the mesh values; call it at any times)."""
+        return Curve(self.X_mesh[self._slice("v")], lambda t: self._block("v", t))
 
-    def lam(self, t) -> np.ndarray:
-        """Holonomic multipliers ``lam(t)``: shape ``(l, len(t))``."""
-        return self._block("lam", t)
+    @property
+    def lam(self) -> Curve:
+        """Holonomic multipliers ``lam(t)``: shape ``(l, len(t))`` (the mesh values; call it at any times)."""
+        return Curve(self.X_mesh[self._slice("lam")], lambda t: self._block("lam", t))
 
-    def mu(self, t) -> np.ndarray:
-        """Non-holonomic multipliers ``mu(t)``: shape ``(p, len(t))``."""
-        return self._block("mu", t)
+    @property
+    def mu(self) -> Curve:
+        """Non-holonomic multipliers ``mu(t)``: shape ``(p, len(t))`` (the mesh values; call it at any times)."""
+        return Curve(self.X_mesh[self._slice("mu")], lambda t: self._block("mu", t))
 
-    def u(self, t) -> np.ndarray:
-        """The non-causal feedforward ``u_ff(t)`` (with pre-/post-actuation): ``(m, len(t))``."""
-        return self._block("u", t)
+    @property
+    def u(self) -> Curve:
+        """The non-causal feedforward ``u_ff(t)`` (with pre-/post-actuation): ``(m, len(t))`` (the mesh values; call it at any times)."""
+        return Curve(self.X_mesh[self._slice("u")], lambda t: self._block("u", t))
 
     def u_causal(self, t) -> np.ndarray:
         """The causal feedforward of 003 Sect. 6: zero before ``t0``, ``u_bvp(t)`` after."""
@@ -188,9 +197,26 @@ class Inverse:
         return bool(self.diagnostics.get("success", False))
 
     @property
-    def status(self) -> str:
-        """The solver's status (``"Solve_Succeeded"``, ...), as the other results' ``status``."""
+    def status(self) -> Status:
+        """``Status.OK`` for a solved inverse, ``Status.FAILED`` for a partial one (the solver's own word is
+        :attr:`solver_status`)."""
+        return Status.OK if self.success else Status.FAILED
+
+    @property
+    def solver_status(self) -> str:
+        """The solver's status (``"Solve_Succeeded"``, ...)."""
         return str(self.diagnostics.get("status", "?"))
+
+    @property
+    def t(self) -> np.ndarray:
+        """The mesh times (the samples of ``q, v, lam, mu, u``)."""
+        return self.t_mesh
+
+    @property
+    def y(self) -> np.ndarray:
+        """The reference output on the mesh (the inverse tracks it exactly); no rows after loading."""
+        yr = self.y_ref(self.t_mesh)
+        return np.zeros((0, self.t_mesh.size)) if yr is None else yr
 
     @property
     def message(self) -> str:
@@ -206,31 +232,39 @@ class Inverse:
         return {k: getattr(self, k)(t) for k in ("q", "v", "lam", "mu", "u", "u_causal")}
 
     # ------------------------------------------------------------ output
-    def plot(self, path: str | None = None, *, dt: float | None = None):
-        """One figure: feedforward (causal dashed), coordinates, multipliers."""
+    def plot(self, ax=None, *, path=None, dt: float | None = None):
+        """One figure: feedforward (causal dashed), coordinates, multipliers (``ax``: three axes to draw in;
+        ``path``: save it there too). Returns the figure."""
         import matplotlib.pyplot as plt
 
+        from ..results import plot_target
+
+        ax, path = plot_target(ax, path)
         dt = dt or (self.Tf - self.T0) / 1500
         t = np.arange(self.T0, self.Tf + 0.5 * dt, dt)
-        fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+        if ax is None:
+            fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+        else:
+            axes = list(np.atleast_1d(ax))
+            fig = axes[0].figure
         u, uc = self.u(t), self.u_causal(t)
         for i in range(u.shape[0]):
             nm = self.names.get("u", [f"u{i + 1}"])[i]
             axes[0].plot(t, u[i], label=f"{nm} (non-causal)")
             axes[0].plot(t, uc[i], "--", label=f"{nm} causal")
-        axes[0].set_ylabel("u_ff")
+        axes[0].set_ylabel("feedforward u_ff")
         q = self.q(t)
         for i in range(q.shape[0]):
             axes[1].plot(t, q[i], label=self.names.get("q", [f"q{i + 1}"] * q.shape[0])[i])
-        axes[1].set_ylabel("q")
+        axes[1].set_ylabel("coordinates q")
         lam = self.lam(t)
         for i in range(lam.shape[0]):
             axes[2].plot(t, lam[i], label=f"lam{i + 1}")
         mu = self.mu(t)
         for i in range(mu.shape[0]):
             axes[2].plot(t, mu[i], label=f"mu{i + 1}")
-        axes[2].set_ylabel("multipliers")
-        axes[2].set_xlabel("t [s]")
+        axes[2].set_ylabel("multipliers lam, mu")
+        axes[2].set_xlabel("time t [s]")
         for ax in axes:
             ax.axvspan(self.t0, self.tf, color="0.92", zorder=-1)
             if ax.get_legend_handles_labels()[0]:

@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import (FunnelViolation, OptionError, ParameterError, RunInterrupted, SimulationFailed, check_interrupt,
                       INTERRUPT_LIKE, is_interrupt, watch_sigint)
 from ..io import file_loader
+from ..results import Status, Trajectory
 
 __all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acceleration", "sampled_signal"]
 
@@ -36,7 +37,7 @@ MONITOR_BLOCK = 2000
 
 
 @dataclass
-class ClosedLoopResult:
+class ClosedLoopResult(Trajectory):
     """Trajectory of a closed-loop run (all arrays with time along the last axis).
 
     ``ratios`` holds ``phi_i,j |e_i,j|`` for every level and ``phi ||e_bar||`` last (``< 1`` inside the
@@ -76,9 +77,8 @@ class ClosedLoopResult:
     stats: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
 
-    @property
-    def success(self) -> bool:
-        return self.status == "ok"
+    def __post_init__(self):
+        self.status = Status.of(self.status)
 
     @property
     def departure(self):
@@ -204,8 +204,14 @@ class ClosedLoopResult:
             kw["status"], kw["message"] = "left_region", _left_region_message(exit_)
         return cls(**kw)
 
-    def plot(self, path=None):
-        """Outputs, errors, inputs and funnel (one figure)."""
+    def plot(self, ax=None, *, path=None):
+        """Outputs, errors, inputs and funnel (one figure; with ``ax``, the generic panels of
+        :class:`~invctl.results.Trajectory` in those axes). Returns the figure."""
+        from ..results import plot_target
+
+        ax, path = plot_target(ax, path)
+        if ax is not None:
+            return self._generic_plot(ax, path=path, fields=("y", "u"))
         from ..plot.tracking import plot_run
 
         return plot_run(self, path)
@@ -427,7 +433,7 @@ class ClosedLoop:
             T, X = np.concatenate(Ts[:k]), np.hstack(Xs[:k])
             prefix = self._result(T, X, theta, None, time.perf_counter() - wall0, controller_label or self.name,
                                   _stack(Ms[:k]))
-            prefix.status, prefix.message = "interrupted", f"interrupted at t = {T[-1]:.4g} s"
+            prefix.status, prefix.message = Status.INTERRUPTED, f"interrupted at t = {T[-1]:.4g} s"
             raise RunInterrupted(f"{prefix.controller or 'closed loop'}: interrupted at t = {T[-1]:.4g} s of "
                                  f"{self.t_end:g} s; the simulated prefix is in exc.partial", partial=prefix,
                                  diagnostics={"t": float(T[-1])}) from None
@@ -442,7 +448,7 @@ class ClosedLoop:
             level = int(np.argmax(res.ratios[:, idx]))
             cut = self._result(T[:idx + 1], X[:, :idx + 1], theta, None, wall, res.controller,
                                [o[:, :idx + 1] for o in mon])
-            cut.status, cut.message = "funnel_violation", f"left the funnel at t = {T[idx]:.4g} s"
+            cut.status, cut.message = Status.FUNNEL_VIOLATION, f"left the funnel at t = {T[idx]:.4g} s"
             diag = {"t": float(T[idx]), "level": res.ratio_names[level] if res.ratio_names else level,
                     "ratio": float(res.ratios[level, idx]), "margin": float(1 - res.ratios[level, idx]),
                     "max_ratio_before": float(res.ratios[:, :idx].max()) if idx else float("nan"),
@@ -456,7 +462,7 @@ class ClosedLoop:
             return cut
         if fail is not None and res.ratios.size and res.ratios[:, -max(2, T.size // 20):].max() >= BOUNDARY_RATIO:
             level = int(np.argmax(res.ratios[:, -1]))
-            res.status = "funnel_violation"
+            res.status = Status.FUNNEL_VIOLATION
             res.message = f"reached the funnel boundary at t = {T[-1]:.4g} s; the integrator stopped"
             diag = {"t": float(T[-1]), "level": res.ratio_names[level] if res.ratio_names else level,
                     "ratio": float(res.ratios[:, -1].max()), "margin": float(1 - res.ratios[:, -1].max()),
@@ -472,9 +478,9 @@ class ClosedLoop:
         exit_ = self._region_exit(res)
         if exit_ is not None:
             res.stats["left_region"] = exit_
-            res.status, res.message = "left_region", _left_region_message(exit_)
+            res.status, res.message = Status.LEFT_REGION, _left_region_message(exit_)
         if fail is not None:
-            res.status, res.message = "failed", str(fail).splitlines()[-1][:300]
+            res.status, res.message = Status.FAILED, str(fail).splitlines()[-1][:300]
             where = (f"; the plant left the operating region at t = {exit_['t']:.4g} s ({exit_['coordinates']}; "
                      f"{exit_['region']}), where the relative degree and (A1) are not established: the "
                      "mismatch is too large for this controller" if exit_ is not None else self._advice(res))

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import ParameterError, RecordingError, ResourceLimitError, ResultFileError, SimulationFailed
 from ..io import file_loader, load_npz_versioned, require_finite, save_npz
+from ..results import Status, Trajectory
 
 __all__ = ["ContactTrajectory", "ChunkRecorder", "available_memory", "resolve_memory_budget",
            "DEFAULT_MEMORY_FRACTION", "CONTACT_FORMAT_VERSION"]
@@ -80,7 +81,7 @@ def _fmt_bytes(b: float) -> str:
 
 
 @dataclass
-class ContactTrajectory:
+class ContactTrajectory(Trajectory):
     """Result of a time-stepping (or event-driven) contact simulation.
 
     Arrays have time along the last axis, like :class:`~invctl.simulate.closed_loop.ClosedLoopResult`
@@ -124,15 +125,24 @@ class ContactTrajectory:
 
     _ARRAYS = ("t", "q", "v", "P", "active", "gaps", "energy", "V")
 
+    def __post_init__(self):
+        self.status = Status.of(self.status)
+
     # ---------------------------------------------------------- derived data
     @property
-    def success(self) -> bool:
-        return self.status == "ok"
+    def u(self) -> np.ndarray:
+        """The inputs ``(m, len(t))`` (``stats["u"]``; no rows for an uncontrolled run)."""
+        u = self.stats.get("u")
+        u = None if u is None else np.atleast_2d(np.asarray(u, float))
+        return u if u is not None and u.shape[-1] == np.size(self.t) else np.zeros((0, np.size(self.t)))
 
-    def sample(self, t) -> dict:
-        """``q, v`` at times ``t`` (linear interpolation between the recorded steps)."""
-        t = np.atleast_1d(np.asarray(t, float))
-        return {k: np.array([np.interp(t, self.t, row) for row in getattr(self, k)]) for k in ("q", "v")}
+    @property
+    def lam(self) -> np.ndarray:
+        """Contact force estimates ``P / h`` of the step starting at each sample, ``(m_u, len(t))`` (the last
+        sample, which starts no step, is zero)."""
+        P = np.atleast_2d(np.asarray(self.P, float)) / self.h
+        pad = np.size(self.t) - P.shape[-1]
+        return np.hstack([P, np.zeros((P.shape[0], pad))]) if pad > 0 else P[:, :np.size(self.t)]
 
     @property
     def complete(self) -> bool:
@@ -308,11 +318,17 @@ class ContactTrajectory:
 
         return animate_result(self, path, **options)
 
-    def plot(self, path=None, **kw):
-        """Phase portrait, gaps, impulses, energy and V (see :mod:`invctl.plot.contact`)."""
+    def plot(self, ax=None, *, path=None, **options):
+        """Phase portrait, gaps, impulses, energy and V (see :mod:`invctl.plot.contact`; with ``ax``, the
+        generic panels of :class:`~invctl.results.Trajectory` in those axes). Returns the figure."""
+        from ..results import plot_target
+
+        ax, path = plot_target(ax, path)
+        if ax is not None:
+            return self._generic_plot(ax, path=path, fields=("q", "lam"))
         from ..plot.contact import plot_contact_trajectory
 
-        return plot_contact_trajectory(self, path=path, **kw)
+        return plot_contact_trajectory(self, path=path, **options)
 
 
 # ------------------------------------------------------------------ recorder

@@ -32,6 +32,7 @@ from ..contact.mechanics import ContactSystem
 from ..contact.lcp import solve_lcp
 from ..control.pdplus import FeedbackLaw, zero_input
 from ..errors import INTERRUPT_LIKE, RunInterrupted, SimulationFailed, is_interrupt, watch_sigint
+from ..results import Status
 from .timestepping import ContactTrajectory
 
 __all__ = ["simulate_event_driven"]
@@ -239,7 +240,7 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
                 raise
             k = min(len(ts), len(qs), len(vs))  # up to the last event or smooth phase completed
             part = package(ts[:k], qs[:k], vs[:k])
-            part.status, part.message = "interrupted", f"interrupted at t = {ts[k - 1]:.6g} of {t_end:g}"
+            part.status, part.message = Status.INTERRUPTED, f"interrupted at t = {ts[k - 1]:.6g} of {t_end:g}"
             raise RunInterrupted(f"event-driven simulation interrupted at t = {ts[k - 1]:.6g} of {t_end:g}; the "
                                  "simulated prefix is in exc.partial", partial=part) from None
     return package(ts, qs, vs)

@@ -34,13 +34,14 @@ from scipy.optimize import brentq, minimize_scalar
 from ..control.switched import ClosedLoop
 from ..errors import INTERRUPT_LIKE, ParameterError, RunInterrupted, SimulationFailed, is_interrupt, watch_sigint
 from ..io import file_loader
+from ..results import Status, Trajectory
 from ..reference.gluing import powers_apply
 
 EV_ENTER, EV_LEAVE, EV_SLIDE, EV_UNSLIDE = 1, -1, 2, -2
 
 
 @dataclass
-class SwitchedSimulation:
+class SwitchedSimulation(Trajectory):
     """Result of :func:`simulate_switched`: dense exact samples plus events and scores.
 
     Arrays share the time axis ``t`` (event instants appear twice, before and after
@@ -85,16 +86,36 @@ class SwitchedSimulation:
     def n_events(self) -> int:
         return int(self.event_t.size)
 
+    def __post_init__(self):
+        self.status = Status.of(self.status)
+
     @property
-    def success(self) -> bool:
-        return self.status == "ok"
+    def q(self) -> np.ndarray:
+        """The position ``x`` as ``(1, len(t))`` (``v`` is its velocity; the wrist's tip is ``xt, vt``)."""
+        return np.atleast_2d(self.x)
+
+    @property
+    def y(self) -> np.ndarray:
+        """The output: the position ``x``, ``(1, len(t))``."""
+        return np.atleast_2d(self.x)
+
+    @property
+    def u(self) -> np.ndarray:
+        """The actuator force ``F_c``, ``(1, len(t))``."""
+        return np.atleast_2d(self.Fc)
+
+    @property
+    def lam(self) -> np.ndarray:
+        """The contact force ``F_e``, ``(1, len(t))``."""
+        return np.atleast_2d(self.Fe)
 
     def sample(self, t) -> dict:
-        """``x, v, Fe, Fd`` (and ``xt, vt``) at times ``t``: linear interpolation between the exact
-        samples (which include both sides of every event)."""
+        """``x, Fe, Fd`` (and ``xt, vt``) at times ``t``, and the common fields ``q, v, u, y, lam`` as ``(rows,
+        len(t))``: linear interpolation between the exact samples (which include both sides of every event)."""
         t = np.atleast_1d(np.asarray(t, float))
-        keys = ["x", "v", "Fe", "Fd"] + (["xt", "vt"] if self.xt.size else [])
-        return {k: np.interp(t, self.t, getattr(self, k)) for k in keys}
+        keys = ["x", "Fe", "Fd"] + (["xt", "vt"] if self.xt.size else [])
+        own = {k: np.interp(t, self.t, getattr(self, k)) for k in keys}
+        return {**Trajectory.sample(self, t), **own}
 
     def contact_intervals(self) -> list[tuple[float, float]]:
         """Intervals of wall contact ``[(t_on, t_off), ...]``."""
@@ -150,11 +171,17 @@ class SwitchedSimulation:
                    status=str(info.get("status", "ok")), message=str(info.get("message", "")),
                    stats=dict(info.get("stats", {})))
 
-    def plot(self, axes=None, *, title: str | None = None):
-        """Position and force against desired force, contact phases shaded (one call)."""
+    def plot(self, ax=None, *, path=None, title: str | None = None):
+        """Position and force against desired force, contact phases shaded (``ax``: two axes to draw in;
+        ``path``: save the figure there too). Returns the figure."""
         from ..plot.switched import plot_simulation
+        from ..results import plot_target
 
-        return plot_simulation(self, axes=axes, title=title)
+        ax, path = plot_target(ax, path)
+        fig = plot_simulation(self, axes=ax, title=title)[0].figure
+        if path:
+            fig.savefig(path, dpi=130)
+        return fig
 
 
 def _intervals(t, mask) -> list[tuple[float, float]]:
@@ -486,7 +513,7 @@ def simulate_switched(loop: ClosedLoop, t_end: float, *, t0: float = 0.0, h_max:
             t_now = float(part["t"][-1])
             kept = [e for e in getattr(eng, "events", []) if e[0] <= t_now]
             sim = _result(loop, eng, part["t"], part["S"], part["mode"], kept, t_now, w0, label, meta)
-            sim.status, sim.message = "interrupted", f"interrupted at t = {t_now:.6g} s of {t_end:g} s"
+            sim.status, sim.message = Status.INTERRUPTED, f"interrupted at t = {t_now:.6g} s of {t_end:g} s"
         raise RunInterrupted(f"switched simulation{' ' + label if label else ''} interrupted at t = {t_now:.6g} s "
                              f"of {t_end:g} s; the simulated prefix is in exc.partial", partial=sim) from None
 

@@ -49,6 +49,7 @@ from ..contact.mechanics import ContactSystem
 from ..control.pdplus import FeedbackLaw, zero_input
 from ..errors import (ContactError, ParameterError, ResourceLimitError, SimulationFailed, check_interrupt,
                       INTERRUPT_LIKE, is_interrupt)
+from ..results import Status
 from .codegen import Layout, c_compiler, compile_function, cse, small_solve
 from .contact_record import ChunkRecorder, ContactTrajectory, RowLayout, check_budget
 
@@ -541,7 +542,7 @@ class MoreauJean:
             if not rec.rows()[0].shape[0]:  # interrupted before the first row was kept: the initial state
                 rec.finish(self._final_row(meta["x_init"]), 0)
             part = self._package(rec, None, done, time.perf_counter() - tic, meta)
-            part.status, part.message = "interrupted", f"interrupted after {done} of {N} steps"
+            part.status, part.message = Status.INTERRUPTED, f"interrupted after {done} of {N} steps"
             raise RunInterrupted(f"Moreau-Jean interrupted after {done} of {N} steps (t = {t0 + done * h:.6g})",
                                  partial=part) from None
         wall = time.perf_counter() - tic

@@ -18,7 +18,6 @@ re-raises with ``exc.saved`` naming the files.
 """
 from __future__ import annotations
 
-import importlib
 import math
 import os
 from dataclasses import dataclass, replace
@@ -30,11 +29,10 @@ from ..errors import (InvctlError, NumericalError, OptionError, ParameterError, 
                       SceneError, SimulationFailed, watch_sigint)
 from ..io import check_output_dir, check_output_path
 from ..scenes import SCENE_COMMANDS, CommandResult, Scene, load_scene
+from .workflow import workflow
 
 __all__ = ["OPTIONS", "Option", "run_command", "analyze", "invert", "design", "simulate", "pipeline", "study"]
 
-_KIND_MODULES = {"tracking": "invctl.studies.tracking_report", "contact": "invctl.studies.contact",
-                 "switched": "invctl.studies.switched_report"}
 
 
 @dataclass(frozen=True)
@@ -190,7 +188,7 @@ def _scene(scene) -> Scene:
 
 
 def _kind(scene: Scene):
-    return importlib.import_module(_KIND_MODULES[scene.kind])
+    return workflow(scene).verbs
 
 
 def _plant_params(items, scene: Scene | None = None) -> dict:
@@ -199,7 +197,7 @@ def _plant_params(items, scene: Scene | None = None) -> dict:
 
     plant = dict(items) if isinstance(items, dict) else parse_assignments(items, option="--plant-set")
     if plant and scene is not None:
-        if scene.kind == "switched":
+        if not workflow(scene).plant_mismatch:
             raise OptionError(f"scene {scene.name!r}: the controller (3) uses no plant model, so plant and model "
                               "parameters coincide; --plant-set is not applicable (use --set)")
         unknown = sorted(set(plant) - set(scene.params))
@@ -218,17 +216,6 @@ def _figure_path(path, force):
 
 
 # ---------------------------------------------------------------- resources
-#: Recorded doubles per output sample or step (measured: growth of the peak RSS between a default
-#: run and one with ten times the samples, then rounded up by 10-30 %):
-#: Moreau-Jean ``40 + 80 n + 40 n_gaps + 20 m`` (bouncing_ball 133 measured / 160 estimated,
-#: prismatic_clearance 232 / 300, slider_crank_clearance 304 / 340, gear_backlash 412 / 500);
-#: closed loop ``120 + 15 (n + m + n_y)`` per output step (cartpole 167 / 180, manipulator 220 / 255)
-#: plus the funnel's reference grid at half the step; switched runs 100 (stiff_wall 44, wrist 78).
-_DOUBLES = {
-    "contact": lambda n, gaps, m, ny: 40 + 80 * n + 40 * gaps + 20 * m,
-    "tracking": lambda n, gaps, m, ny: 120 + 15 * (n + m + ny) + 2 * 4 * n,
-    "switched": lambda n, gaps, m, ny: 100,
-}
 #: below this many samples a run is never large (no model is built to estimate it)
 _SMALL = 2e5
 #: share of the available memory a run may plan to use
@@ -315,52 +302,19 @@ def check_budget(what: str, count: int, seconds_each: float, bytes_each: float, 
                                           "bytes_usable": limit_m, "count_that_fits": fit})
 
 
-#: ``analyze --samples``: seconds and bytes per sample point, ``(s, s with region constraints, bytes / n^2)``.
-#: Tracking scenes: the region's box test is vectorized, its extra constraints (scalar callables) run per
-#: point; measured 48 us and 0.8 KB (cartpole, n = 2, no constraints, 1e5 samples), 0.46 ms and 4.4 KB
-#: (manipulator, n = 5, one constraint, 2e4 samples); ``6e-5 s``, ``6e-4 s`` and ``260 n^2`` bytes stay above
-#: both.  Contact scenes (vectorized reports): gear_backlash (n = 4) 1e6 samples in less than 0.5 s and 43 MB
-_SAMPLE_COST = {"tracking": (6e-5, 6e-4, 260.0), "contact": (2e-7, 2e-7, 2.5)}
 
 
 def _check_samples(scene: Scene, params, samples: int) -> None:
     """``analyze --samples``: time and memory of the sampled checks (switched scenes use at most 720)."""
-    if scene.kind not in _SAMPLE_COST or samples <= 1000:
+    cost = workflow(scene).sample_cost
+    if cost is None or samples <= 1000:
         return
     model = scene.model(params)
-    per_s, per_s_constrained, per_b = _SAMPLE_COST[scene.kind]
+    per_s, per_s_constrained, per_b = cost
     if model.region is not None and model.region.constraints:
         per_s = per_s_constrained
     check_budget(f"{scene.name}: analyze --samples {samples}", samples, per_s, per_b * model.n * model.n,
                  "use --samples {fit} or less (the default, 200, samples the region well)")
-
-
-def _run_size(command, scene: Scene, params, settings, o) -> tuple | None:
-    """``(samples, runs, step, t_end, horizon option, step option)`` of the long run a command
-    records, or None."""
-    kind = scene.kind
-    t_opt = o.get("t_end")
-    if kind == "contact":  # Moreau-Jean estimates its record itself, with the recording options that fit
-        return None
-    if kind == "tracking" and command in ("simulate", "pipeline") and (t_opt is not None or o.get("dt") is not None):
-        from .tracking import setup_tracking, tracking_model
-        import inspect
-
-        dt = float(o.get("dt") or inspect.signature(setup_tracking).parameters["dt"].default)
-        if t_opt is None:  # the scene's horizon (as setup_tracking takes it)
-            ref = tracking_model(scene, params)[1]
-            t_opt = scene.tracking.t_end or (ref.tf + (ref.tf - ref.t0))
-        runs = 1 if command == "simulate" else len(scene.tracking.controllers)
-        return float(t_opt) / dt, runs, dt, float(t_opt), "--t-end ", "--dt "
-    if kind == "switched" and command in ("simulate", "pipeline", "study"):
-        p = {**scene.params, **params}
-        if "h_max" not in p or "t_end" not in p:
-            return None
-        t_end = float(t_opt if t_opt is not None else p["t_end"])
-        if command == "study":  # the trade-off's reference run (invctl.studies.tradeoff_specs.switched)
-            return t_end / 1e-5, 1, 1e-5, t_end, "--set t_end=", None
-        return t_end / float(p["h_max"]), 2, float(p["h_max"]), t_end, "--t-end ", "--set h_max="
-    return None
 
 
 def check_resources(command: str, scene: Scene, params, settings, o) -> None:
@@ -373,17 +327,19 @@ def check_resources(command: str, scene: Scene, params, settings, o) -> None:
     """
     if command == "invert":
         return _check_inversion(scene, params, o)
-    size = _run_size(command, scene, params, settings, o)
+    sizer = workflow(scene).run_size
+    size = sizer(command, scene, params, o) if sizer else None
     if size is None:
         return
     samples, runs, step, t_end, t_opt, h_opt = size
     if not samples * runs > _SMALL:
         return
     n = gaps = m = ny = 0
-    if scene.kind != "switched":
+    wf = workflow(scene)
+    if wf.builds_model:
         model = scene.model(params)
         n, gaps, m, ny = model.n, len(model.gaps), model.m, model.ny
-    per = 8.0 * _DOUBLES[scene.kind](n, gaps, m, ny)
+    per = 8.0 * wf.doubles(n, gaps, m, ny)
     need = samples * runs * per
     limit = usable_memory()
     if need <= limit:
@@ -499,7 +455,7 @@ def _check_contact_data(name: str, d: dict) -> tuple[str | None, str | None]:
     return None, None
 
 
-def _check_contact(scene: Scene, result: CommandResult) -> CommandResult:
+def check_contact_result(scene: Scene, result: CommandResult) -> CommandResult:
     """Warn about, or fail on, the penetration of the runs in ``result`` (simulate or pipeline)."""
     runs = result.data["runs"] if "runs" in result.data else {result.data.get("controller", scene.name): result.data}
     warnings, failures = [], []
@@ -683,8 +639,7 @@ def _limits(scene: Scene, o: dict) -> dict:
             if not (sep and 0 < mt["duration"][0] < mt["duration"][1] and math.isfinite(mt["duration"][1])):
                 raise OptionError(f"--duration {o['duration']!r}: expected LO:HI with 0 < LO < HI")
         out["minimum_time"] = mt
-    if out and scene.kind != "tracking":
-        raise OptionError("--bound, --weight and --minimum-time apply to tracking scenes only")
+    workflow(scene).check_options(scene, {k: o[k] for k in ("bound", "weight", "minimum_time")})
     return out
 
 
@@ -706,7 +661,7 @@ def simulate(scene, values=None, **options) -> CommandResult:
     out = None
     if o["out"]:
         suffix = ".csv" if str(o["out"]).lower().endswith(".csv") else ".npz"
-        if suffix == ".csv" and scene.kind == "contact":
+        if suffix == ".csv" and not workflow(scene).csv:
             from ..errors import OutputPathError
 
             raise OutputPathError(f"--out {o['out']}: contact runs are written as .npz only; use --out FILE.npz")
@@ -716,23 +671,21 @@ def simulate(scene, values=None, **options) -> CommandResult:
     kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"], scene), t_end=o["t_end"], out=out,
               plot=plot, quiet=o["quiet"], **_recording(scene, o), **_integration(scene, o))
     if o["inverse"]:
-        if scene.kind != "tracking":
-            raise OptionError(f"--inverse applies to tracking scenes only; {scene.name!r} is a {scene.kind} scene")
+        workflow(scene).check_options(scene, {"inverse": o["inverse"]})
         kw["inverse"] = _load_inverse(o["inverse"], scene, params)
     check_resources("simulate", scene, params, settings, o)
     from ..scenes import scene_reference
 
     result = _interruptible(lambda: _kind(scene).simulate(scene, params, settings, **kw), out=out,
                             meta={"scene": scene_reference(scene), "params": params, "controller": o["controller"]})
-    return _check_contact(scene, result) if scene.kind == "contact" else result
+    check = workflow(scene).after_run
+    return check(scene, result) if check else result
 
 
 def _recording(scene: Scene, o: dict) -> dict:
     """The recording options of a contact run (``--record-every``, ``--record``); an error for other kinds."""
     given = {k: o[k] for k in ("record_every", "record") if o.get(k) is not None}
-    if given and scene.kind != "contact":
-        raise OptionError(f"{', '.join('--' + k.replace('_', '-') for k in given)}: applies to contact scenes "
-                          f"only; {scene.name!r} is a {scene.kind} scene")
+    workflow(scene).check_options(scene, given)
     return given
 
 
@@ -741,9 +694,7 @@ def _integration(scene: Scene, o: dict) -> dict:
     for other kinds."""
     keys = ("rtol", "atol", "max_steps")
     given = [k for k in ("dt",) + keys if o.get(k) is not None]
-    if given and scene.kind != "tracking":
-        raise OptionError(f"{', '.join('--' + k.replace('_', '-') for k in given)}: applies to tracking scenes "
-                             f"only; {scene.name!r} is a {scene.kind} scene")
+    workflow(scene).check_options(scene, {k: o[k] for k in given})
     out = {"integrator": {"max_num_steps" if k == "max_steps" else k: o[k] for k in keys if o.get(k) is not None}}
     if o.get("dt") is not None:
         out["dt"] = o["dt"]
@@ -769,7 +720,8 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     stale = Path(out_dir) / "INTERRUPTED.txt"  # the note of an earlier interrupted run in this folder
     if stale.is_file():
         stale.unlink()
-    return _check_contact(scene, result) if scene.kind == "contact" else result
+    check = workflow(scene).after_run
+    return check(scene, result) if check else result
 
 
 def study(scene, kind: str, values=None, **options) -> CommandResult:

@@ -341,7 +341,7 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
         close(run.trajectory.plot(plot, title=f"{scene.name} ({run.controller})"))
         data["plot"] = str(plot)
         lines.append(f"figure written to {plot}")
-    return CommandResult("\n".join(lines), data)
+    return CommandResult("\n".join(lines), data, run.trajectory)
 
 
 def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
@@ -358,11 +358,14 @@ def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     lines = [f"skipped {why}" for why in skipped.values()] + ([""] if skipped else [])
-    data = {"runs": {}, "skipped": skipped}
+    data: dict = {"runs": {}, "skipped": skipped}
+    runs: dict = {}
     for name in names:
         try:
-            lines += _pipeline_run(scene, name, params, settings, out, data, t_end=t_end, plant_params=plant_params,
-                                   animate=animate, record_every=record_every, record=record)
+            ls, runs[name] = _pipeline_run(scene, name, params, settings, out, data, t_end=t_end,
+                                           plant_params=plant_params, animate=animate, record_every=record_every,
+                                           record=record)
+            lines += ls
         except KeyboardInterrupt as exc:  # the runs before are on disk; the prefix of this one is exc.partial
             ri = exc if isinstance(exc, RunInterrupted) else RunInterrupted("interrupted")
             ri.args = (f"{ri} (controller {name}); complete runs: {', '.join(data['runs']) or 'none'}",)
@@ -371,12 +374,13 @@ def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end
             raise ri from None
     files = sorted(p.name for p in out.iterdir())
     lines.append(f"runs and figures in {out}/ ({', '.join(files)})")
-    return CommandResult("\n".join(lines), {**data, "out_dir": str(out), "files": files})
+    return CommandResult("\n".join(lines), {**data, "out_dir": str(out), "files": files}, runs)
 
 
 def _pipeline_run(scene, name, params, settings, out, data, *, t_end, plant_params, animate, record_every,
-                  record) -> list:
-    """One controller's run of a pipeline: report (into ``data["runs"]``), ``run_<name>.npz``, figures."""
+                  record) -> tuple[list, object]:
+    """One controller's run of a pipeline: report (into ``data["runs"]``), ``run_<name>.npz``, figures; returns
+    the report's lines and the trajectory."""
     from ..plot import close
 
     setup = contact_setup(scene, params, settings, controller=name, plant_params=plant_params)
@@ -400,7 +404,7 @@ def _pipeline_run(scene, name, params, settings, out, data, *, t_end, plant_para
         animate_result(run.trajectory, out / f"anim_{name}.gif", scene=scene, params=params, fps=20,
                        title=f"{scene.name} ({name})")
     data["runs"][name] = d
-    return ls + [""]
+    return ls + [""], run.trajectory
 
 
 def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:

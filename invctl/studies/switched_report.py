@@ -84,11 +84,11 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
     if plot:
         import matplotlib.pyplot as plt
 
-        axes = sim.plot() if not is_wrist(p) else _plot_fig7(sim, red)
-        axes[0].figure.savefig(plot, dpi=130)
-        plt.close(axes[0].figure)
+        fig = sim.plot() if not is_wrist(p) else _plot_fig7(sim, red)[0].figure
+        fig.savefig(plot, dpi=130)
+        plt.close(fig)
         text += f"\n  figure written to {plot}"
-    return CommandResult(text, data)
+    return CommandResult(text, data, sim)
 
 
 def _plot_fig7(full, reduced):
@@ -173,4 +173,4 @@ def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end
     files = sorted(q.name for q in out.iterdir())
     text = "\n\n".join(r.text for r in parts) + f"\nfigures and data in {out}/ ({', '.join(files)})"
     return CommandResult(text, {"analyze": parts[0].data, "design": parts[1].data, "simulate": parts[2].data,
-                                "out_dir": str(out), "files": files})
+                                "out_dir": str(out), "files": files}, {"switched": parts[2].result})

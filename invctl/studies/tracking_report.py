@@ -248,7 +248,7 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
         lines.append(f"  trajectory written to {written}")
     if not quiet:
         print(f"invert {scene.name}: done in {wall:.2f} s", file=sys.stderr)
-    return CommandResult("\n".join(lines), data)
+    return CommandResult("\n".join(lines), data, inv)
 
 
 def _limit_lines(d: dict) -> list[str]:
@@ -306,7 +306,7 @@ def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
         close(plot_funnels(c, setup.t_end, plot))
         data["plot"] = str(plot)
         lines.append(f"  figure written to {plot}")
-    return CommandResult("\n".join(lines), data)
+    return CommandResult("\n".join(lines), data, d)
 
 
 # ----------------------------------------------------------------- simulate
@@ -357,7 +357,7 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
         close(res.plot(plot))
         data["plot"] = str(plot)
         lines.append(f"  figure written to {plot}")
-    return CommandResult("\n".join(lines), data)
+    return CommandResult("\n".join(lines), data, res)
 
 
 # ----------------------------------------------------------------- pipeline
@@ -379,4 +379,5 @@ def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end
     files = sorted(p.name for p in out.iterdir())
     wall = time.perf_counter() - t0
     text = "\n".join([study.table(), f"figures and data in {out}/ ({', '.join(files)}); total {wall:.1f} s"])
-    return CommandResult(text, {**study.to_dict(), "out_dir": str(out), "files": files, "total_wall_s": wall})
+    return CommandResult(text, {**study.to_dict(), "out_dir": str(out), "files": files, "total_wall_s": wall},
+                         dict(study.runs))

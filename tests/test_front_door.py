@@ -1,0 +1,127 @@
+"""One result vocabulary and the Python front door.
+
+Every run result is a Trajectory (t, q, v, u, y, lam with time last, a Status, sample, plot, to_npz) and
+``invctl.load`` reads each saved kind back as its class; a scene loaded in Python runs the same
+computations as the command line (compared number for number with what the CLI wrote), and
+``throw=False`` turns a failure into data.
+"""
+import json
+
+import numpy as np
+import pytest
+
+import invctl
+from invctl.cli import main
+from invctl.errors import InversionFailed, ResultFileError
+from invctl.results import Curve, Status, Trajectory
+
+
+def _json(capsys):
+    return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+
+def _check_fields(res):
+    """The common fields: 2-D, time last, the length of ``t``; ``sample`` at the sample times returns them."""
+    K = np.size(res.t)
+    for f in ("q", "v", "u", "y", "lam"):
+        a = res.field(f)
+        assert a.ndim == 2 and a.shape[1] == K, (f, a.shape)
+    s = res.sample(res.t[:5])
+    for f in ("q", "v"):
+        np.testing.assert_allclose(s[f], res.field(f)[:, :5], rtol=0, atol=1e-12)
+    assert isinstance(res.status, Status) and res.success == (res.status is Status.OK)
+
+
+def test_every_saved_result_kind_loads_back_as_its_class(tmp_path, capsys):
+    saved = {}
+    assert main(["invert", "cartpole", "--N", "60", "--quiet", "--out", str(tmp_path / "inv.npz")]) == 0
+    saved["Inverse"] = tmp_path / "inv.npz"
+    assert main(["simulate", "cartpole", "--controller", "C2", "--t-end", "0.5", "--quiet",
+                 "--out", str(tmp_path / "cl.npz")]) == 0
+    saved["ClosedLoopResult"] = tmp_path / "cl.npz"
+    assert main(["simulate", "bouncing_ball", "--t-end", "0.3", "--quiet", "--out", str(tmp_path / "ball.npz")]) == 0
+    saved["ContactTrajectory"] = tmp_path / "ball.npz"
+    assert main(["simulate", "stiff_wall", "--t-end", "0.2", "--quiet", "--out", str(tmp_path / "wall.npz")]) == 0
+    saved["SwitchedSimulation"] = tmp_path / "wall.npz"
+    capsys.readouterr()
+    for kind, path in saved.items():
+        res = invctl.load(path)
+        assert type(res).__name__ == kind and isinstance(res, Trajectory)
+        back = getattr(type(res), "load")(path)  # the class's own reader gives the same arrays
+        np.testing.assert_array_equal(np.asarray(res.q), np.asarray(back.q))
+        _check_fields(res)
+    # what each kind's fields mean, against the kind's own arrays
+    ball = invctl.load(saved["ContactTrajectory"])
+    np.testing.assert_allclose(ball.lam[:, :-1], ball.P / ball.h)
+    wall = invctl.load(saved["SwitchedSimulation"])
+    np.testing.assert_array_equal(wall.u[0], wall.Fc) and np.testing.assert_array_equal(wall.lam[0], wall.Fe)
+    inv = invctl.load(saved["Inverse"])
+    np.testing.assert_array_equal(inv.t, inv.t_mesh)
+    np.testing.assert_allclose(inv.u, inv.u(inv.t_mesh), atol=1e-12)  # the mesh values are the polynomial's
+
+
+def test_load_reads_a_pipeline_folder_and_rejects_what_it_cannot_read(tmp_path):
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ResultFileError, match="without study.json"):
+        invctl.load(tmp_path / "empty")
+    with pytest.raises(ResultFileError, match="no such file"):
+        invctl.load(tmp_path / "missing.npz")
+    from invctl.io import save_npz
+
+    save_npz(tmp_path / "odd.npz", "SomethingElse", {"a": np.zeros(2)})
+    with pytest.raises(ResultFileError, match="cannot read"):
+        invctl.load(tmp_path / "odd.npz")
+
+
+def test_the_python_front_door_computes_what_the_cli_writes(tmp_path, capsys):
+    """``load_scene(name, **values).invert()`` equals ``invctl invert --set ...`` to round-off, and a bound
+    value reaches the model (another mass gives another feedforward)."""
+    scene = invctl.load_scene("cartpole", mp=0.25)
+    assert scene.values == {"mp": 0.25}
+    inv = scene.invert(N=80, quiet=True)
+    assert isinstance(inv, invctl.Trajectory) and inv.success and isinstance(inv.u, Curve)
+    assert main(["invert", "cartpole", "--set", "mp=0.25", "--N", "80", "--quiet",
+                 "--out", str(tmp_path / "inv.npz")]) == 0
+    capsys.readouterr()
+    cli = invctl.load(tmp_path / "inv.npz")
+    np.testing.assert_allclose(np.asarray(inv.u), np.asarray(cli.u), rtol=0, atol=1e-9 * np.abs(cli.u).max())
+    default = invctl.load_scene("cartpole").invert(N=80, quiet=True)
+    assert np.abs(np.asarray(default.u) - np.asarray(inv.u)).max() > 1e-3
+    run = scene.simulate("C2", t_end=0.5, quiet=True)
+    assert type(run).__name__ == "ClosedLoopResult" and run.success
+    _check_fields(run)
+    with pytest.raises(invctl.ParameterError, match="unknown parameter"):
+        invctl.load_scene("cartpole", nonsense=1.0)
+
+
+def test_throw_false_returns_the_failed_inverse_as_data():
+    scene = invctl.load_scene("cartpole")
+    with pytest.raises(InversionFailed):  # stopped by its time limit before the first iteration
+        scene.invert(N=60, max_wall_time=1e-6, quiet=True)
+    partial = scene.invert(N=60, max_wall_time=1e-6, quiet=True, throw=False)
+    assert partial.status is Status.FAILED and not partial.success
+    assert partial.solver_status != "Solve_Succeeded" and partial.status.message.startswith("the solver")
+
+
+def test_plots_share_one_signature(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    run = invctl.load_scene("cartpole").simulate("C2", t_end=0.3, quiet=True)
+    fig = run.plot(tmp_path / "a.png")  # a path in place of the axes, as before
+    assert (tmp_path / "a.png").stat().st_size > 0 and fig.axes
+    plt.close(fig)
+    fig, axes = plt.subplots(2, 1)
+    out = run.plot(axes)
+    assert out is fig and axes[0].get_ylabel() == "outputs y" and axes[-1].get_xlabel() == "time t [s]"
+    assert [ln.get_label() for ln in axes[0].get_lines()] == run.row_names("y")
+    plt.close(fig)
+
+
+def test_status_is_one_vocabulary():
+    assert Status.of("left_region") is Status.LEFT_REGION and Status.OK == "ok"
+    assert f"{Status.FAILED}" == "failed" and json.dumps({"s": Status.OK}) == '{"s": "ok"}'
+    with pytest.raises(ValueError, match="statuses"):
+        Status.of("fine")
