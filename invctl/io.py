@@ -41,7 +41,7 @@ def save_npz(path, kind: str, arrays: dict, info: dict | None = None, *, version
             raise ResultFileError(f"save_npz: entry {k!r} is not a plain array")
     meta = {"kind": kind, "version": int(version), "info": jsonable(info or {})}
     data[_TAG] = np.asarray(json.dumps(meta))
-    np.savez(path, **data)
+    np.savez(path, **data)  # type: ignore[arg-type]  # numpy types the first keyword as allow_pickle
     return path
 
 

@@ -36,7 +36,9 @@ class Status(str, Enum):
     INTERRUPTED = "interrupted"
 
     __str__ = str.__str__
-    __format__ = str.__format__
+
+    def __format__(self, spec: str) -> str:
+        return str.__format__(self.value, spec)
 
     @property
     def message(self) -> str:
@@ -175,10 +177,10 @@ class Trajectory:
             fig.savefig(path, dpi=120)
         return fig
 
-    def plot(self, ax=None, *, path=None, fields=("q", "u")):
+    def plot(self, ax=None, *, path=None, **options):
         """The result's figure (subclasses draw their own kind's panels); ``ax``: axes to draw in, ``path``: save
-        the figure there too. Returns the figure."""
-        return self._generic_plot(ax, path=path, fields=fields)
+        the figure there too; ``fields``: which signals the generic panels show. Returns the figure."""
+        return self._generic_plot(ax, path=path, fields=options.get("fields", ("q", "u")))
 
     def to_npz(self, path, meta: dict | None = None):  # pragma: no cover - every subclass writes its own
         raise NotImplementedError

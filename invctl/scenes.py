@@ -132,9 +132,9 @@ class Tracking:
         if self.split not in ("schur", "eig", "eig-unit"):
             raise SceneError(f"scene {scene!r}: tracking.split must be 'schur', 'eig' or 'eig-unit', "
                              f"got {self.split!r}")
-        for k, v in self.plant.items():
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise SceneError(f"scene {scene!r}: tracking.plant[{k!r}] must be a positive factor, got {v!r}")
+        for k, factor in self.plant.items():
+            if not (isinstance(factor, (int, float)) and math.isfinite(factor) and factor > 0):
+                raise SceneError(f"scene {scene!r}: tracking.plant[{k!r}] must be a positive factor, got {factor!r}")
         if self.t_end is not None and not (isinstance(self.t_end, (int, float)) and self.t_end > 0):
             raise SceneError(f"scene {scene!r}: tracking.t_end must be a positive number, got {self.t_end!r}")
         object.__setattr__(self, "controllers", tuple(self.controllers))
@@ -491,7 +491,7 @@ class Scene:
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(float(v)):
                 raise ParameterError(f"{self.name}: {k} = {v!r} is not a finite number")
 
-        full = {**self.params, **self.settings, **{k: float(v) for k, v in values.items()}, **chosen}
+        full: dict[str, Any] = {**self.params, **self.settings, **{k: float(v) for k, v in values.items()}, **chosen}
         self.check_values(full)
         params = {**{k: float(v) for k, v in values.items() if k in self.params}, **chosen}
         settings = {k: float(full[k]) for k in self.settings}
@@ -505,7 +505,7 @@ class Scene:
                                  f"(default {allowed[0]}), got {value!r}")
         return value.strip()
 
-    def check_values(self, full: Mapping[str, float]) -> None:
+    def check_values(self, full: Mapping[str, Any]) -> None:
         """Apply the magnitude range, ``integer``, ``positive``, ``ranges`` and ``validate`` to a full set of values
         (choices not in ``full`` take their defaults)."""
         full = {**{k: a[0] for k, a in self.choices.items()}, **full}
@@ -533,28 +533,28 @@ class Scene:
 
     def model(self, params: Mapping[str, float] | None = None):
         """``build(**params)`` (parameter overrides only), with its return type checked."""
-        params = dict(params or {})
-        unknown = sorted(set(params) - set(self.params) - set(self.choices))
+        values: dict[str, Any] = dict(params or {})
+        unknown = sorted(set(values) - set(self.params) - set(self.choices))
         if unknown:
             raise ParameterError(f"{self.name}: unknown model parameter(s) {unknown}; known: {sorted(self.params)}"
                                  + (f"; choices: {sorted(self.choices)}" if self.choices else ""))
-        for k in params:
+        for k in values:
             if k in self.choices:
-                params[k] = self.check_choice(k, params[k])
+                values[k] = self.check_choice(k, values[k])
         try:
-            obj = self.build(**params)
+            obj = self.build(**values)
         except (ParameterError, SceneError):
             raise
         except ModelError as exc:
-            if params and not isinstance(exc, DimensionError):
-                self._blame(params, exc)
+            if values and not isinstance(exc, DimensionError):
+                self._blame(values, exc)
             raise
         except Exception as exc:
             from .errors import InvctlError
 
             if isinstance(exc, InvctlError):
                 raise
-            raise SceneError(f"scene {self.name!r}: build({', '.join(f'{k}={v!r}' for k, v in params.items())}) "
+            raise SceneError(f"scene {self.name!r}: build({', '.join(f'{k}={v!r}' for k, v in values.items())}) "
                              f"failed: {type(exc).__name__}: {exc}{_where(exc, self.source)}") from exc
         self._check_model(obj)
         return obj

@@ -13,6 +13,8 @@ scene that never asks for them never pays for them.
 """
 from __future__ import annotations
 
+from typing import Any
+
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -65,7 +67,7 @@ class AuxiliarySystem:
         ``(p, l, m)``: sizes of ``O1``, ``O2``, ``O3``.
     """
 
-    model: object
+    model: Any
     x: ca.SX
     F: ca.SX
     K: ca.SX

@@ -207,7 +207,8 @@ def operating_points(model, reference, count: int = 5, *, guess_q=None, tol: flo
         if gq.size != n:
             raise ReferenceSignalError(f"{model.name}: guess_q has {gq.size} entries, expected n = {n}")
         w[:n] = gq
-    W, res = [], []
+    W: list = []
+    res: list = []
     sel = np.zeros((l + p + m + n, m))
     sel[l + p:l + p + m] = np.eye(m)        # d residual / d y = -sel
     for k in range(count):

@@ -118,7 +118,7 @@ def printed(name: str, value, decimals: int) -> Target:
     """A printed number with ``decimals`` decimals: resolution ``0.5 * 10**-decimals``."""
     if int(decimals) != decimals or decimals < 0:
         raise ParameterError(f"printed({name!r}): decimals must be a non-negative integer, got {decimals!r}")
-    return Target(name, value, 0.5 * 10.0 ** (-int(decimals)))
+    return Target(name, value, np.asarray(0.5 * 10.0 ** (-int(decimals))))
 
 
 # ----------------------------------------------------------------------------- result
@@ -381,7 +381,7 @@ def identify(model, free: Sequence[str], targets: Sequence[Target], evaluate: Ca
         bound = {k: math.inf for k in names}
         std = {k: math.inf for k in names}
     best_vals = values_of(x)
-    alternatives = []
+    alternatives: list = []
     for r, s2, _ in fits[1:]:
         if r > max(accept, 2.0 * best_r):
             continue

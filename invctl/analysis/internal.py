@@ -26,6 +26,8 @@ symbolic pseudo-inverse in (27), the same internal dynamics up to a linear chang
 """
 from __future__ import annotations
 
+from typing import Any
+
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -66,7 +68,7 @@ class InternalDynamics:
         ``max |L_K phi|``, smallest singular value of ``Phi'`` over the samples, ...
     """
 
-    model: object
+    model: Any
     method: str
     dim: int
     dim1: int

@@ -9,6 +9,8 @@
 """
 from __future__ import annotations
 
+from typing import Any
+
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -49,8 +51,8 @@ class LinearizedInternal:
         :func:`eigenvector_columns`); with either ``"eig"`` form ``T Q T^-1`` is diagonal.
     """
 
-    model: object
-    internal: object
+    model: Any
+    internal: Any
     Q: np.ndarray
     P_list: list
     P: np.ndarray
@@ -184,12 +186,12 @@ class LinearizedInternal:
         ev, vec = np.linalg.eig(Q2)
         semisimple = np.linalg.matrix_rank(vec, tol=1e-8) == l2
         if exo is not None:
-            Ae, Ce, w0 = (np.atleast_2d(np.asarray(a, float)) for a in exo[:2]) + (np.asarray(exo[2], float),)
+            Ae, Ce, w0 = np.atleast_2d(np.asarray(exo[0], float)), np.atleast_2d(np.asarray(exo[1], float)), np.asarray(exo[2], float)
             A = np.kron(np.eye(Ae.shape[0]), Q2) - np.kron(Ae.T, np.eye(l2))
             b = (P2 @ Ce).ravel(order="F")
             X = np.linalg.lstsq(A, b, rcond=None)[0]
             res = np.linalg.norm(A @ X - b)
-            ok = semisimple and res < 1e-9 * max(1.0, np.linalg.norm(b))
+            ok = semisimple and res < 1e-9 * max(1.0, float(np.linalg.norm(b)))
             return A2Report(bool(ok), l1, l2, f"exosystem: Sylvester residual {res:.3g}, Q2 semisimple: {semisimple}", W)
         if reference is None:
             return A2Report(False, l1, l2, "Q~ has eigenvalues on the imaginary axis: give the reference to decide (A2)", W)
@@ -197,7 +199,7 @@ class LinearizedInternal:
         b = P2 @ yf
         z = np.linalg.lstsq(Q2, -b, rcond=None)[0]
         res = np.linalg.norm(Q2 @ z + b)
-        ok = semisimple and res < 1e-9 * max(1.0, np.linalg.norm(b))
+        ok = semisimple and res < 1e-9 * max(1.0, float(np.linalg.norm(b)))
         return A2Report(bool(ok), l1, l2, f"constant tail y_f: residual of Q2 z = -P2 y_f is {res:.3g}, "
                                           f"Q2 semisimple: {semisimple}", W)
 

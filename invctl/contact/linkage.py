@@ -388,7 +388,7 @@ class Linkage:
         self.closure = ca.vertcat(*closure) if closure else ca.SX(0, 1)
         self.closure_names, self.gap_joint = cnames, gap_joint
         self.potential = U
-        model.linkage = self
+        model.linkage = self  # type: ignore[attr-defined]  # the linkage a model was built from
         return model
 
     def potential_of(self, subsystems: Sequence[int]) -> ca.SX:
@@ -405,7 +405,7 @@ class Linkage:
         """Open-system coordinates of numeric body poses ``name -> (x, y, phi)`` (frame origin and angle),
         e.g. of a configuration of the clearance-free mechanism; ``params``/``theta_values``: the
         model's :class:`~invctl.model.ParamSet` and parameter values."""
-        entries = []
+        entries: list = []
         for b in self.bodies.values():
             entries += [(("pt", b.name, k), p) for k, p in b.points.items()] + [(("pt", b.name, "__com__"), b.com)]
         for j in self.joints:

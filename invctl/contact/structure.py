@@ -19,6 +19,8 @@ actuation of the clearance-free system (000 Assumption 1).
 """
 from __future__ import annotations
 
+from typing import Any
+
 from dataclasses import dataclass
 
 import casadi as ca
@@ -216,7 +218,7 @@ def subsystem_report(ctx) -> dict:
     if link is not None and getattr(link, "nominal", None) is not None:
         q = link.nominal
     st = open_structure(model, q)
-    out = {"n (open system)": st.n, "n_ind": st.n_ind, "unilateral constraints m_u": len(model.gaps)}
+    out: dict[str, Any] = {"n (open system)": st.n, "n_ind": st.n_ind, "unilateral constraints m_u": len(model.gaps)}
     for s in st.subsystems:
         bodies = ""
         if link is not None:

@@ -113,7 +113,7 @@ class Funnel:
         return cls(t, fn(t), name)
 
     # -------------------------------------------------------------- evaluation
-    def of(self, t) -> ca.SX:
+    def of(self, t) -> ca.SX | ca.MX:
         """The expression ``phi(t)`` with the time symbol replaced by ``t`` (SX or MX)."""
         return self.function(0)(t)[0] if isinstance(t, ca.MX) else ca.substitute(self.expr, self.t, t)
 
@@ -219,7 +219,7 @@ def as_funnel(spec, name: str = "phi") -> Funnel:
     if isinstance(spec, dict):
         return Funnel.exponential(spec["p"], spec["q"], spec["r"], name)
     if isinstance(spec, (tuple, list)) and len(spec) == 3:
-        return Funnel.exponential(*spec, name=name)
+        return Funnel.exponential(spec[0], spec[1], spec[2], name=name)
     if callable(spec):
         return Funnel.from_callable(spec, name)
     raise ParameterError(f"cannot make a funnel function from {spec!r}: give (p, q, r), a dict or a callable of t")

@@ -241,7 +241,7 @@ def design_cycle(j: Juggler, st: JugglerState, q2d: float, v2d: float, *, durati
         raise ParameterError(f"design_cycle: the start must follow an impact on y1 = 0 (y1' = v2 - v1 >= 0), "
                              f"got v1 = {st.v1}, v2 = {st.v2}")
     pairs = [tuple(durations)] if durations is not None else [
-        (a, b) for a in np.geomspace(*window, grid) for b in np.geomspace(*window, grid)]
+        (a, b) for a in np.geomspace(window[0], window[1], grid) for b in np.geomspace(window[0], window[1], grid)]
     cands = [c for c in (_cycle(j, st, q2d, v2d, D0, D1, check=False)[0] for D0, D1 in pairs) if c is not None]
     n_step2 = len(pairs) - len(cands)
     for c in sorted(cands, key=lambda c: c.peak_acceleration):      # step 4 on the smoothest first
@@ -357,7 +357,8 @@ def plan_vs_run(plan: JugglingPlan, tr, *, body2: int = 1, walls=(0, 1)) -> dict
         v_plus = np.asarray(st["impact_v_plus"], float).reshape(times.size, -1)
     else:
         times, contact, _, _, v_plus = tr.impacts()
-    rows, dt, dq, dv = [], 0.0, 0.0, 0.0
+    rows: list = []
+    dt, dq, dv = 0.0, 0.0, 0.0
     for t, wall, q2, v2 in plan.impact_table():
         sel = np.flatnonzero(contact == walls[wall - 1])
         if sel.size == 0:

@@ -84,16 +84,16 @@ def selection_indices(model, idx: Sequence[int] | None = None) -> list[int]:
         model.B, model.q) else None
     if B is None:
         raise ModelError(f"model {model.name!r}: B depends on q; PD laws need a constant selection matrix")
-    B = np.array(B)
+    Bn = np.array(B)
     if idx is None:
-        idx = [int(np.flatnonzero(B[:, j])[0]) for j in range(B.shape[1])]
+        idx = [int(np.flatnonzero(Bn[:, j])[0]) for j in range(Bn.shape[1])]
     idx = [int(i) for i in idx]
     E = np.zeros((model.n, len(idx)))
     E[idx, range(len(idx))] = 1.0
-    if B.shape[1] != len(idx) or not np.allclose(B, E):
+    if Bn.shape[1] != len(idx) or not np.allclose(Bn, E):
         raise ModelError(
             f"model {model.name!r}: B does not select coordinates {idx} (collocated control needs "
-            f"B[:, j] = e_idx[j]); got B = {B.tolist()}")
+            f"B[:, j] = e_idx[j]); got B = {Bn.tolist()}")
     return idx
 
 

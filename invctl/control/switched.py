@@ -150,7 +150,7 @@ class ClosedLoop:
         self.nu = reference.n_inputs * (DEG + 1)
         self.n = self.np + self.nr + self.nu
         self._sel = input_selector(reference.n_inputs)
-        self._cache = {}
+        self._cache: dict = {}
 
     # -- mode bookkeeping ---------------------------------------------------------------
     @property

@@ -232,7 +232,7 @@ class Inverse(Trajectory):
         return {k: getattr(self, k)(t) for k in ("q", "v", "lam", "mu", "u", "u_causal")}
 
     # ------------------------------------------------------------ output
-    def plot(self, ax=None, *, path=None, dt: float | None = None):
+    def plot(self, ax=None, *, path=None, dt: float | None = None, **options):
         """One figure: feedforward (causal dashed), coordinates, multipliers (``ax``: three axes to draw in;
         ``path``: save it there too). Returns the figure."""
         import matplotlib.pyplot as plt

@@ -240,7 +240,8 @@ def from_samples(t, y, smoothness: int = 4, *, smoothing="gcv", noise: float | N
                                        f"got noise={noise!r}")
         if smoothing == "gcv" and noise is not None:
             raise ReferenceSignalError("noise is used only with smoothing='noise'; GCV estimates it")
-    elif isinstance(smoothing, bool) or not (np.isscalar(smoothing) and np.isfinite(smoothing) and smoothing >= 0):
+    elif isinstance(smoothing, bool) or not (isinstance(smoothing, (int, float, np.number)) and np.isfinite(smoothing)
+                                             and float(smoothing) >= 0):
         raise ReferenceSignalError(f"smoothing must be 'gcv', 'noise' or a number >= 0, got {smoothing!r}")
     if int(max_pieces) != max_pieces or max_pieces < 1:
         raise ReferenceSignalError(f"max_pieces must be a positive integer, got {max_pieces!r}")

@@ -14,6 +14,8 @@ the funnel stops it with :class:`~invctl.errors.FunnelViolation` carrying the tr
 """
 from __future__ import annotations
 
+from typing import Any
+
 import re
 import time
 from dataclasses import dataclass, field, fields
@@ -179,7 +181,7 @@ class ClosedLoopResult(Trajectory):
 
         arrays, info = load_npz(path, "ClosedLoopResult")
         require_finite(path, arrays, ("t", "q", "v"))
-        kw = {"signals": {}, "signals_ref": {}, "cumulative_errors": dict(info.get("cumulative_errors", {})),
+        kw: dict[str, Any] = {"signals": {}, "signals_ref": {}, "cumulative_errors": dict(info.get("cumulative_errors", {})),
               "stats": dict(info.get("stats", {})),
               "meta": {k: v for k, v in info.items() if k not in ("cumulative_errors", "stats")}}
         for key, a in arrays.items():
@@ -204,14 +206,14 @@ class ClosedLoopResult(Trajectory):
             kw["status"], kw["message"] = "left_region", _left_region_message(exit_)
         return cls(**kw)
 
-    def plot(self, ax=None, *, path=None):
+    def plot(self, ax=None, *, path=None, **options):
         """Outputs, errors, inputs and funnel (one figure; with ``ax``, the generic panels of
         :class:`~invctl.results.Trajectory` in those axes). Returns the figure."""
         from ..results import plot_target
 
         ax, path = plot_target(ax, path)
         if ax is not None:
-            return self._generic_plot(ax, path=path, fields=("y", "u"))
+            return self._generic_plot(ax, path=path, fields=options.get("fields", ("y", "u")))
         from ..plot.tracking import plot_run
 
         return plot_run(self, path)

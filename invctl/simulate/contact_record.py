@@ -285,9 +285,9 @@ class ContactTrajectory(Trajectory):
         stats.update({k[6:]: v for k, v in d.items() if k.startswith("stats:")})
         meta = {k: v for k, v in info.items()
                 if k not in ("h", "impact_vel_tol", "names", "stats", "status", "message")}
-        return cls(*(d[k] for k in cls._ARRAYS), float(info["h"]), dict(info.get("names", {})), stats,
-                   float(info.get("impact_vel_tol", 1e-8)), meta, str(info.get("status", "ok")),
-                   str(info.get("message", "")))
+        return cls(**{k: d[k] for k in cls._ARRAYS}, h=float(info["h"]), names=dict(info.get("names", {})),
+                   stats=stats, impact_vel_tol=float(info.get("impact_vel_tol", 1e-8)), meta=meta,
+                   status=str(info.get("status", "ok")), message=str(info.get("message", "")))
 
     @staticmethod
     def _check_shapes(path, d: dict) -> None:
@@ -325,7 +325,7 @@ class ContactTrajectory(Trajectory):
 
         ax, path = plot_target(ax, path)
         if ax is not None:
-            return self._generic_plot(ax, path=path, fields=("q", "lam"))
+            return self._generic_plot(ax, path=path, fields=options.pop("fields", ("q", "lam")))
         from ..plot.contact import plot_contact_trajectory
 
         return plot_contact_trajectory(self, path=path, **options)
@@ -391,13 +391,14 @@ class ChunkRecorder:
         self.complete = self.every == 1 and not self.events
         self.impacts = self.every > 1 or self.events
         self.regular = self.every > 1 or not self.events
-        self.blocks, self.steps = [], []
+        self.blocks: list = []
+        self.steps: list = []
         if not self.events:
             self.R = np.empty((self.rows_needed(N, every, events), layout.ncols))
             self.S = np.empty(self.R.shape[0], np.int64)
         self.pos = 0
         self.n_event_rows = 0
-        self.imp = {k: [] for k in ("step", "contact", "pre", "post", "v_plus", "dV", "dE")}
+        self.imp: dict[str, list] = {k: [] for k in ("step", "contact", "pre", "post", "v_plus", "dV", "dE")}
         self.n_imp_rows = 0
 
     @staticmethod
@@ -544,14 +545,14 @@ def check_budget(*, N: int, h: float, t0: float, every: int, events: bool, row_b
     if need <= limit:
         return est
     room = (limit - buffer_bytes) // row_bytes - 1
-    fits = {}
+    fits: dict[str, float] = {}
     if room >= 1:
         fits["record_every"] = int(-(-N // room))
         fits["t_end"] = t0 + room * every * h
     rec = (f"every step" if every == 1 else f"every {every}-th step") if not events else "events"
     alt = []
     if "record_every" in fits:
-        k = fits["record_every"]
+        k = int(fits["record_every"])
         need_k = ChunkRecorder.rows_needed(N, k, False) * row_bytes + buffer_bytes
         alt.append(f"record_every={k} (--record-every {k}; {_fmt_bytes(need_k)})")
     if not events:

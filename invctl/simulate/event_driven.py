@@ -24,6 +24,8 @@ located): use smooth laws.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
@@ -110,8 +112,8 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
     # both thresholds clearly away from its value at the segment's start.
     armed = (g0 > gap_tol) & ~active
     ts, qs, vs = [t], [q.copy()], [v.copy()]
-    events = []
-    imp = {"t": [], "i": [], "pre": [], "post": [], "vplus": []}
+    events: list = []
+    imp: dict[str, list] = {"t": [], "i": [], "pre": [], "post": [], "vplus": []}
 
     def package(ts, qs, vs):
         """The trajectory of the samples so far (impacts and events up to the last sample)."""
@@ -147,16 +149,18 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
                     return np.r_[x[n:], a]
 
                 g_start = cs.gaps(q, th)
-                evs, kinds = [], []
+                evs: list = []
+                kinds: list = []
+                watch: list[tuple[Any, int, str]]
                 for i in range(mu):
                     if act[i]:
                         def ev(tt, x, i=i, act=act):
                             return accel(tt, x[:n], x[n:], act)[1][i]
                         watch = [(ev, -1, "release")]
                     elif armed[i]:
-                        def ev(tt, x, i=i):
+                        def ev_gap(tt, x, i=i):
                             return float(cs.gaps(x[:n], th)[i])
-                        watch = [(ev, -1, "close")]
+                        watch = [(ev_gap, -1, "close")]
                     else:
                         up, down = max(g_start[i], 0.0) + gap_tol, min(g_start[i], 0.0) - gap_tol
 
@@ -215,8 +219,8 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
                 ee[slow] = 0.0
                 res = cs.impact(q, v, theta=th, e=ee, involved=inv)
                 Up = W.T @ res.v_plus
-                for i in np.flatnonzero(inv):
-                    events.append((t, "impact", int(i), float(U[i]), float(Up[i])))
+                for j in np.flatnonzero(inv):
+                    events.append((t, "impact", int(j), float(U[j]), float(Up[j])))
                     if res.p[i] > 0 and U[i] < -v_rest:
                         imp["t"].append(t)
                         imp["i"].append(int(i))

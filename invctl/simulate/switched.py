@@ -171,7 +171,7 @@ class SwitchedSimulation(Trajectory):
                    status=str(info.get("status", "ok")), message=str(info.get("message", "")),
                    stats=dict(info.get("stats", {})))
 
-    def plot(self, ax=None, *, path=None, title: str | None = None):
+    def plot(self, ax=None, *, path=None, title: str | None = None, **options):
         """Position and force against desired force, contact phases shaded (``ax``: two axes to draw in;
         ``path``: save the figure there too). Returns the figure."""
         from ..plot.switched import plot_simulation
@@ -189,8 +189,8 @@ def _intervals(t, mask) -> list[tuple[float, float]]:
     if mask.size == 0:
         return []
     d = np.diff(mask.astype(int))
-    on = list(np.flatnonzero(d == 1) + 1)
-    off = list(np.flatnonzero(d == -1) + 1)
+    on = [int(i) for i in np.flatnonzero(d == 1) + 1]
+    off = [int(i) for i in np.flatnonzero(d == -1) + 1]
     if mask[0]:
         on = [0] + on
     if mask[-1]:
@@ -211,9 +211,9 @@ class _Engine:
         self.max_events = max_events
         self.slide_tol = slide_tol
         self.progress = progress
-        self._h = {}
+        self._h: dict = {}
         self.modes: list[tuple] = []
-        self._mode_id = {}
+        self._mode_id: dict = {}
 
     def mode_id(self, key) -> int:
         if key not in self._mode_id:

@@ -475,9 +475,9 @@ class MoreauJean:
         xin = np.array(x, float)
         x_init = xin.copy()
         buf, run_chunk = loop.buffer()
-        buf.set_arg(0, memoryview(xin))
-        buf.set_res(0, memoryview(Xacc.reshape(-1, order="F")))
-        buf.set_res(1, memoryview(Ych.reshape(-1, order="F")))
+        buf.set_arg(0, memoryview(xin))  # type: ignore[arg-type]
+        buf.set_res(0, memoryview(Xacc.reshape(-1, order="F")))  # type: ignore[arg-type]
+        buf.set_res(1, memoryview(Ych.reshape(-1, order="F")))  # type: ignore[arg-type]
         lay = self._lay
         ok_row = L.sl("ok").start
         done, recomputed, c = 0, 0, 0

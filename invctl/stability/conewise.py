@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -177,7 +178,7 @@ def eigenvectors(sys: SwitchedErrorSystem, i: int) -> list[tuple[float, np.ndarr
     if case == "complex":
         return []
     if case == "critical":
-        lam = -B / 2
+        lam = float(-B / 2)
         return [(lam, np.array([lam / K, 1.0]))]
     r = math.sqrt(B * B - 4 * K)
     out = []
@@ -309,9 +310,9 @@ def _jordan(sys: SwitchedErrorSystem, i: int):
     case = sys.damping_case(i)
     K, B = sys.K(i), sys.B(i)
     if case == "complex":
-        lam, V = np.linalg.eig(A)
-        k = int(np.argmax(lam.imag))
-        a, w = lam[k].real, lam[k].imag
+        eigs, V = np.linalg.eig(A)
+        k = int(np.argmax(eigs.imag))
+        a, w = eigs[k].real, eigs[k].imag
         v = V[:, k]
         # A (Re v) = a Re v - w Im v, A (Im v) = w Re v + a Im v  ->  P = [Re v, -Im v], J = [[a, -w], [w, a]]
         P = np.column_stack([v.real, -v.imag])
@@ -345,7 +346,7 @@ def lambda_i_appendix_b(sys: SwitchedErrorSystem, i: int) -> float:
         if ang < 0:
             ang += 2 * math.pi
         # J rotates counter-clockwise in the Jordan coordinates with the P above
-        return np.linalg.norm(ti) / np.linalg.norm(to) * math.exp(a / w * ang)
+        return float(np.linalg.norm(ti) / np.linalg.norm(to) * math.exp(a / w * ang))
     if case == "critical":
         (lam,) = ev
         return abs(ti[1] / to[1]) * math.exp(lam * (to[0] / to[1] - ti[0] / ti[1]))
@@ -397,7 +398,9 @@ def lambda_numerical(sys: SwitchedErrorSystem, *, rtol: float = 1e-12, method: s
     slowest = min(-complex(ev).real for i in (1, 2) for ev in np.atleast_1d(sys.eigenvalues(i)))
     t_cap = -math.log(max_decay) / slowest
     z = np.array([1.0, 0.0])
-    factors, modes, times = [], [], []
+    factors: list = []
+    modes: list = []
+    times: list = []
     nfev = 0
     angle_total = 0.0
     for _ in range(8):
@@ -407,7 +410,7 @@ def lambda_numerical(sys: SwitchedErrorSystem, *, rtol: float = 1e-12, method: s
         mode = sys.worst_case_mode(probe)
         events = []
         for ln in lines:
-            ev = (lambda n: (lambda t, y: float(n @ y)))(ln)
+            ev: Any = (lambda n: (lambda t, y: float(n @ y)))(ln)
             ev.terminal = True
             on_line = abs(ln @ z) <= 1e-9 * r * np.linalg.norm(ln)
             # leaving a line we start on: only a crossing back counts

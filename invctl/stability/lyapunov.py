@@ -130,7 +130,7 @@ def equilibrium_check(cs, q, G, *, gap_tol: float = 1e-9, rtol: float = 1e-8, th
     G = np.asarray(G, float).ravel()
     g = cs.gaps(q, theta)
     closed = np.flatnonzero(g <= gap_tol)
-    scale = max(1.0, np.linalg.norm(G))
+    scale = max(1.0, float(np.linalg.norm(G)))
     if closed.size == 0:
         res = float(np.linalg.norm(G))
         return EquilibriumCheck(res <= rtol * scale, res, np.zeros(0), closed, res)

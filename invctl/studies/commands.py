@@ -617,7 +617,7 @@ def _limits(scene: Scene, o: dict) -> dict:
     ``--minimum-time``, ``--energy`` and ``--duration`` (parsed, never evaluated)."""
     from ..inversion import Bounds, Objective
 
-    out = {}
+    out: dict[str, Any] = {}
     if o["bound"]:
         out["bounds"] = Bounds.parse(o["bound"])
     if o["weight"]:
@@ -629,7 +629,7 @@ def _limits(scene: Scene, o: dict) -> dict:
         if "bounds" not in out and not (o["energy"] or 0) > 0:
             raise OptionError("--minimum-time needs bounds (--bound u=...) or an energy weight (--energy W > 0): "
                               "without either the shortest duration is zero")
-        mt = {"energy": float(o["energy"] or 0.0)}
+        mt: dict[str, Any] = {"energy": float(o["energy"] or 0.0)}
         if o["duration"] is not None:
             lo, sep, hi = o["duration"].partition(":")
             try:
@@ -773,7 +773,8 @@ def generate(scene, values=None, **options) -> CommandResult:
         out = str(check_output_dir("invctl-out") / f"library_{scene.name}.npz")
         Path(out).parent.mkdir(parents=True, exist_ok=True)
     params, _settings = scene.split(values)
-    executor, client = ("serial" if o["workers"] == 1 else None), None
+    executor: Any = "serial" if o["workers"] == 1 else None
+    client: Any = None
     if o["dask"]:
         try:
             from dask.distributed import Client

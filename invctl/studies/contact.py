@@ -28,9 +28,17 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from typing import TYPE_CHECKING, Any
+
 from ..errors import DimensionError, ParameterError, RunInterrupted, SceneError
 from ..scenes import CommandResult
 from .reports import run_reports
+
+if TYPE_CHECKING:
+    from ..control.pdplus import FeedbackLaw
+    from ..model import Model
+    from ..scenes import Scene
+    from ..simulate.contact_record import ContactTrajectory
 
 __all__ = ["ContactRun", "contact_setup", "run_contact", "simulate", "pipeline", "analyze", "law_report",
            "DEFAULT_SETTINGS", "DEFAULT_SAMPLES"]
@@ -46,16 +54,16 @@ DEFAULT_SAMPLES = 20000
 class ContactRun:
     """A contact run with everything needed to report and redo it."""
 
-    scene: object
-    model: object
-    plant: object
+    scene: Scene
+    model: Model
+    plant: Model
     controller: str
-    law: object
+    law: FeedbackLaw | None
     q0: np.ndarray
     v0: np.ndarray
     settings: dict
     params: dict
-    trajectory: object = None
+    trajectory: ContactTrajectory | None = None
     stats: dict = field(default_factory=dict)
 
     def meta(self) -> dict:
@@ -152,7 +160,8 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
     info = dict(law.info)
     kap = dict(zip(law.kappa_names, law.kappa_values))
     h = tr.h
-    lines, data = [], {}
+    lines: list[str] = []
+    data: dict[str, Any] = {}
     if info.get("lyapunov", True) and law.name != "open_loop":
         rep = lyapunov_report(tr)
         data.update({"V0": rep.V0, "V_end": rep.V_end, "max_V_increase": rep.max_increase,
@@ -242,7 +251,7 @@ def _equilibrium_report(run: ContactRun) -> tuple[list, dict]:
     F_end, W_end = (np.array(a) for a in Fn(q_end, th))
     lam_end = tr.P[:, -1] / tr.h if tr.P.shape[1] else np.zeros(len(model.gaps))
     res_end = float(np.max(np.abs(F_end.ravel() + W_end @ lam_end)))
-    data = {"equilibrium_residual_final": res_end, "static_force_scale": float(np.max(np.abs(F_end)))}
+    data: dict[str, Any] = {"equilibrium_residual_final": res_end, "static_force_scale": float(np.max(np.abs(F_end)))}
     try:
         e = static_equilibrium(model, F, q_end, theta=th)
     except ContactError as exc:

@@ -535,7 +535,7 @@ def _interrupted(store, axes, points, done) -> RunInterrupted:
         msg = f"the library stopped with {len(kept)} of {len(points)} grid points solved (not saved: no output given)"
     exc = RunInterrupted(msg, diagnostics={"points": len(points), "solved": len(kept), "kept": kept,
                                            "out": None if store is None else str(store.path)})
-    exc.saved = saved
+    exc.saved = [str(s) for s in saved]
     return exc
 
 

@@ -24,11 +24,14 @@ import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import LibraryError, OutputPathError, ParameterError, ResultFileError
+
+if TYPE_CHECKING:
+    from ..inversion import Inverse
 
 __all__ = ["Axis", "Library", "LibraryStore", "grid_counts", "parse_grid", "reference_arguments", "resolve_axes"]
 
@@ -261,7 +264,7 @@ class Library:
                 d += ((self.values[:, j] - float(values[a.name])) / span) ** 2
         return int(np.argmin(d))
 
-    def inverse(self, i) -> "Inverse":  # noqa: F821
+    def inverse(self, i) -> Inverse:
         """Point ``i`` (flat index or dict of axis values) as an :class:`~invctl.inversion.Inverse`."""
         from ..inversion import Inverse
 

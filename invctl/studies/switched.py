@@ -175,22 +175,22 @@ def _border(p: dict, name: str, lo: float, hi: float, method: str, *, want_stabl
 
 def design_bt_min(p: dict, *, method: str = "closed", bt_range=(1.0, 1e5)) -> float:
     """Smallest wrist damping ``bt`` with GUAS of the reduced model (Lambda < 1 or visible eigenvector)."""
-    return _border(p, "bt", *bt_range, method, want_stable_above=True)
+    return _border(p, "bt", bt_range[0], bt_range[1], method, want_stable_above=True)
 
 
 def design_kt_max(p: dict, *, method: str = "closed", kt_range=(10.0, 1e9)) -> float:
     """Largest wrist stiffness ``kt`` with GUAS of the reduced model at the given ``bt``."""
-    return _border(p, "kt", *kt_range, method, want_stable_above=False)
+    return _border(p, "kt", kt_range[0], kt_range[1], method, want_stable_above=False)
 
 
 def design_bf_min(p: dict, *, method: str = "closed", bf_range=(1e-3, 1e7)) -> float:
     """Smallest force-controller damping ``bf`` with GUAS (rigid wall or wrist)."""
-    return _border(p, "bf", *bf_range, method, want_stable_above=True)
+    return _border(p, "bf", bf_range[0], bf_range[1], method, want_stable_above=True)
 
 
 def design_bt_visible(p: dict, *, bt_range=(1.0, 1e6)) -> float:
     """Smallest ``bt`` for which a visible stable eigenvector exists (no bouncing for any reference)."""
-    grid = np.geomspace(*bt_range, 200)
+    grid = np.geomspace(bt_range[0], bt_range[1], 200)
     vis = np.array([bool(visible_eigenvectors(error_system({**p, "bt": float(v)}))) for v in grid])
     if not vis.any():
         raise StabilityError(f"no visible eigenvector for bt in [{bt_range[0]:.4g}, {bt_range[1]:.4g}]")
@@ -227,7 +227,7 @@ def build_reference(p: dict, *, reduced_estimates: bool | None = None) -> GluedR
     """The glued reference of the scenario: approach, one intended contact ``[t_c, t_b]``, retract."""
     xp = approach_retract(p["t_c"], p["t_b"], p["v_app"], p["x_ret"], overshoot_time=p["overshoot"])
     Fp = force_bump(p["t_c"], p["t_b"], p["F_max"])
-    return GluedReference(xp, Fp, [(p["t_c"], p["t_b"])], p["gamma1"], p["gamma2"], p["ke_hat"], p["be_hat"],
+    return GluedReference(xp, Fp, ((p["t_c"], p["t_b"]),), p["gamma1"], p["gamma2"], p["ke_hat"], p["be_hat"],
                           contact_start="crossing" if p.get("glue_at_crossing", 1.0) else "time")
 
 
@@ -235,6 +235,7 @@ def build_loop(p: dict, *, reduced: bool = False) -> ClosedLoop:
     """Closed loop of the scenario: rigid wall (1)-(2), full wrist (24)-(25) or its reduced model (27)-(28)."""
     ctrl = SwitchedForceController(p["Ma"], p["kp"], p["kd"], p["kf"], p["bf"])
     ref = build_reference(p)
+    plant: CompliantWristPlant | RigidWallPlant
     if is_wrist(p) and not reduced:
         plant = CompliantWristPlant(p["M"], p["b"], p["Mt"], p["kt"], p["bt"], p["ke"], p["be"],
                                     controller_on="tip" if p.get("switch_on_tip", 0.0) else "arm")

@@ -88,6 +88,6 @@ def timestep_study(stepper, stepper_projected, q0, v0, t_end, hs, ref_times, ref
         sps.append(tr.stats["steps_per_s"])
         penp.append(stepper_projected.run(q0, v0, t_end, h, **run_kw).max_gap_violation
                     if stepper_projected is not None else np.nan)
-    et, ev = np.array(et), np.array(ev)
-    return TimestepStudy(hs, et, ev, np.array(pen), np.array(penp), np.array(sps), fitted_slope(hs, et),
-                         fitted_slope(hs, ev), reference)
+    eta, eva = np.array(et), np.array(ev)
+    return TimestepStudy(hs, eta, eva, np.array(pen), np.array(penp), np.array(sps), fitted_slope(hs, eta),
+                         fitted_slope(hs, eva), reference)

@@ -226,7 +226,8 @@ def run_tradeoff(spec: TradeoffSpec, *, progress: bool = True, min_time_s: float
     """
     from ..errors import RunInterrupted, watch_sigint
 
-    rows, failures = [], []
+    rows: list = []
+    failures: list = []
     k, value = 0, None
     try:
         for k, value in enumerate(spec.values, 1):

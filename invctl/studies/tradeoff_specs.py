@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -47,6 +47,7 @@ def tracking_invert(scene, params: dict, settings: dict, smoke: bool = False) ->
     from .tracking import invert_tracking, tracking_model
 
     model, ref = tracking_model(scene, params)
+    values: list[dict[str, Any]]
     if smoke:
         values = [{"scheme": "hermite-simpson", "N": 40}, {"scheme": "hermite-simpson", "N": 80},
                   {"scheme": "radau3", "N": 20}]

@@ -60,7 +60,7 @@ class Workflow:
 
     @property
     def verbs(self) -> Verbs:
-        return importlib.import_module(self.module)  # type: ignore[return-value]
+        return importlib.import_module(self.module)
 
     def accepts(self, option: str) -> bool:
         return all(option not in opts or kind == self.kind for kind, opts in KIND_OPTIONS.items())
