@@ -130,13 +130,13 @@ def lemma1_report(ctx) -> dict:
     if tr is None:
         turn = np.linspace(0.0, 2 * np.pi, 721)
         qs = np.stack([configuration(model, th) for th in turn], axis=1)
-        E = np.array(fn.map(turn.size)(qs, model.theta_values)[0]).reshape(model.m, -1)
+        E = np.array(fn.map(turn.size)(qs, model.theta_values)[0]).reshape(-1, model.m).T  # 1 x p blocks side by side
         out["crank turn: smallest |E_hat|"] = float(np.linalg.norm(E, axis=0).min())
         if model.m == 1:
             flips = turn[1:][np.diff(np.sign(E[0])) != 0]
             out["crank turn: E_hat changes sign near crank angles [rad] (Lemma 1 fails there)"] = flips.round(3).tolist()
         return out
-    E = np.array(fn.map(tr.q.shape[1])(tr.q, model.theta_values)[0]).reshape(model.m, -1)
+    E = np.array(fn.map(tr.q.shape[1])(tr.q, model.theta_values)[0]).reshape(-1, model.m).T
     lam = tr.P[0, 1:] / tr.h
     out["along the run: smallest |E_hat|"] = float(np.linalg.norm(E, axis=0).min())
     out["journal gap: min, max [m]"] = [float(tr.gaps[0].min()), float(tr.gaps[0].max())]

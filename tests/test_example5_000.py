@@ -197,6 +197,15 @@ def test_fourbar_gap_delassus_and_lemma_1_against_numpy():
         np.testing.assert_allclose(E, E_hand, rtol=1e-6, atol=1e-9)
         signs.append(np.sign(E_hand[0, 0]))
     assert np.count_nonzero(np.diff(np.r_[signs, signs[0]])) == 2
+    from invctl.scenes import ReportContext
+
+    rep = fc.lemma1_report(ReportContext(load_scene("fourbar_clearance"), model, {"actuators": 1}, fc.SETTINGS))
+    flips = rep["crank turn: E_hat changes sign near crank angles [rad] (Lemma 1 fails there)"]
+    assert len(flips) == 2 and all(np.sign(E_at(model, th - 0.01)) != np.sign(E_at(model, th + 0.01)) for th in flips)
+
+
+def E_at(model, crank):
+    return preload_check(model, fc.configuration(model, crank), np.zeros(3), [0], raise_=False).E_hat[0, 0]
 
 
 def test_fourbar_preloading_keeps_the_journal_on_the_bearing():
@@ -209,6 +218,11 @@ def test_fourbar_preloading_keeps_the_journal_on_the_bearing():
     assert np.abs(tr.gaps[0]).max() < 2e-5 * cl
     assert np.mean(np.abs(lam - beta) <= 1e-3 * beta) > 0.9
     np.testing.assert_allclose(lam[:lam.size // 100 * 100].reshape(-1, 100).mean(axis=1), beta, rtol=0.02)
+    from invctl.scenes import ReportContext
+
+    rep = fc.lemma1_report(ReportContext(load_scene("fourbar_clearance"), run.model, {}, run.settings, tr, "preload"))
+    E0 = preload_check(run.model, tr.q[:, 0], tr.v[:, 0], [0], raise_=False).E_hat
+    assert rep["along the run: smallest |E_hat|"] <= np.linalg.norm(E0) + 1e-12  # the start is on the run
     pd = _run("fourbar_clearance", {"t_end": 0.5, "actuators": 1}, "pd").trajectory
     assert pd.gaps[0].max() > 0.1 * cl and pd.impact_mask().sum() >= 1
 
