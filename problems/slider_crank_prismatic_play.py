@@ -182,7 +182,7 @@ def drawing(model: Model):
     from invctl.plot.animate import Drawing
 
     link = model.linkage
-    poses = link._poses(model.q)
+    poses = link.poses
     p = model.params
     r, phi = poses["slider"]
     rot = ca.vertcat(ca.horzcat(ca.cos(phi), -ca.sin(phi)), ca.horzcat(ca.sin(phi), ca.cos(phi)))
