@@ -134,7 +134,8 @@ def lemma1_report(ctx) -> dict:
         out["crank turn: smallest |E_hat|"] = float(np.linalg.norm(E, axis=0).min())
         if model.m == 1:
             flips = turn[1:][np.diff(np.sign(E[0])) != 0]
-            out["crank turn: E_hat changes sign near crank angles [rad] (Lemma 1 fails there)"] = flips.round(3).tolist()
+            key = "crank turn: E_hat changes sign near crank angles [rad] (Lemma 1 fails there)"
+            out[key] = flips.round(3).tolist()
         return out
     E = np.array(fn.map(tr.q.shape[1])(tr.q, model.theta_values)[0]).reshape(-1, model.m).T
     lam = tr.P[0, 1:] / tr.h

@@ -135,7 +135,7 @@ def lemma1_report(ctx) -> dict:
     model, s = ctx.model, ctx.settings
     q0, v0 = _initial(model, s, "preload")
     out = {"actuators p": model.m}
-    for code, (label, idx) in CORNERS.items():
+    for label, idx in CORNERS.values():
         chk = preload_check(model, q0, v0, idx, raise_=False)
         out[f"corners {label}: rank E_hat, m_u', Lemma 1 holds"] = [chk.rank, chk.m_active, bool(chk.feasible)]
     D = ca.Function("D", [model.q, model.theta], [preload_terms(model, _active(s))[2]])(q0, model.theta_values)
@@ -195,7 +195,8 @@ def drawing(model: Model):
 
 
 SCENE = Scene(
-    "slider_crank_prismatic_play", build, params=PARAMS, settings=SETTINGS, integer=("actuators", "corners", "projection"),
+    "slider_crank_prismatic_play", build, params=PARAMS, settings=SETTINGS,
+    integer=("actuators", "corners", "projection"),
     positive=("r", "Lr", "rho", "ms", "sl", "sw", "c", "beta", "Kp", "Kv", "h", "t_end"), validate=_check,
     contact=Contact(controllers={"preload": _preload, "pd": _pd}, initial_state=_initial,
                     potential=lambda model: model.linkage.potential, clearance=lambda model, s: 2 * model.values["c"],

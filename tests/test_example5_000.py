@@ -160,7 +160,7 @@ def _fb_mass(p, q):
 
     def com(k):
         def f(x):
-            B, C, P, a3 = _fb_points(p, x)
+            B, C, P, _ = _fb_points(p, x)
             return {"b": B / 2, "c": (B + C) / 2, "d": (P + C) / 2}[k]
         return f
     return _mass([(m["b"], m["b"] * p["b"] ** 2 / 12, com("b"), [1, 0, 0]),

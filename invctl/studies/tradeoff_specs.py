@@ -212,7 +212,8 @@ def contact_rest(scene, params: dict, settings: dict, smoke: bool = False) -> Tr
     flights = np.diff(np.r_[0.0, rt])
     k = int(np.argmin(flights > 10 * max(values))) if np.any(flights <= 10 * max(values)) else rt.size
     if k < 1:
-        raise SceneError(f"scene {scene.name!r}: no impact is resolved by h = {max(values):g}; the rest study needs one")
+        raise SceneError(f"scene {scene.name!r}: no impact is resolved by h = {max(values):g}; the rest study "
+                         "needs one")
     t_end = 1.25 * rest
     potential = scene.contact.potential(model) if scene.contact.potential is not None else None
     mj = MoreauJean(model, law, potential=potential)
