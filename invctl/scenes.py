@@ -159,6 +159,9 @@ class Contact:
     exact_impacts : callable, optional
         ``exact_impacts(model, settings, t_max) -> (times, post-impact normal velocities)`` of the
         default run in closed form (the reference of ``invctl study tradeoff --job impacts``).
+    exact_rest : callable, optional
+        ``exact_rest(model, settings) -> float``: the closed-form rest (accumulation) time of the default
+        run (with ``exact_impacts``, the reference of ``invctl study tradeoff --job rest``).
     clearance : callable, optional
         ``clearance(model, settings) -> float``: the free room of the joints (the scale a run's
         penetration is judged against); default: the largest gap at the start of the run.
@@ -173,6 +176,7 @@ class Contact:
     default_controller: Any = None
     potential: Callable | None = None
     exact_impacts: Callable | None = None
+    exact_rest: Callable | None = None
     clearance: Callable | None = None
     requires: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
@@ -191,6 +195,7 @@ class Contact:
         _callable(self.initial_state, "contact.initial_state", scene, optional=False)
         _callable(self.potential, "contact.potential", scene)
         _callable(self.exact_impacts, "contact.exact_impacts", scene)
+        _callable(self.exact_rest, "contact.exact_rest", scene)
         _callable(self.clearance, "contact.clearance", scene)
         dc = self.default_controller
         if isinstance(dc, str) and dc not in self.controllers:

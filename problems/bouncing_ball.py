@@ -62,6 +62,10 @@ def _exact(model: Model, settings: dict, t_max: float):
     return times, post
 
 
+def _rest(model: Model, settings: dict) -> float:
+    return float(exact_impacts(settings["H"], model.values["g"], model.values["e"], 0.0)[3])
+
+
 def closed_form_report(ctx) -> dict:
     """Impact times, post-impact velocities and rest time against the closed form."""
     tr, p, s = ctx.result, ctx.model.values, ctx.settings
@@ -98,7 +102,7 @@ SCENE = Scene(
     settings={k: v for k, v in PARAMS.items() if k not in MODEL_PARAMS},
     integer=("projection",), positive=("m", "g", "H", "h", "t_end"), validate=_check,
     contact=Contact(initial_state=lambda model, settings, controller: ([settings["H"]], [0.0]),
-                    potential=potential, exact_impacts=_exact),
+                    potential=potential, exact_impacts=_exact, exact_rest=_rest),
     reports=(Report("closed form (Newton's law, free fall)", closed_form_report),),
     drawing=drawing,
     description="a ball dropped onto the ground (000 (1) with n = 1); impacts and rest time in closed form",

@@ -280,8 +280,10 @@ def test_linkage_coordinates_round_trip():
 
 
 def test_structure_of_existing_scenes():
-    """The generic analysis on scenes written by hand: the slider-crank with a journal clearance has the
-    crank and the rod-slider as subsystems (000 Example 5), the prismatic joint two bodies."""
+    """The generic analysis on scenes written by hand: the slider-crank with a journal clearance between
+    crank and rod (000 Fig. 4(a); not Example 5, whose slider-crank has play in the prismatic joint J4:
+    ``slider_crank_prismatic_play``) has the crank and the rod-slider as subsystems, the prismatic joint
+    two bodies."""
     import problems.slider_crank_clearance as sc
 
     st = open_structure(sc.build())

@@ -5,6 +5,7 @@ reference) and that the error falls with the knob the way theory says; never
 wall time.
 """
 import json
+import math
 
 import numpy as np
 import pytest
@@ -87,6 +88,28 @@ def test_contact_impacts_tradeoff(scene, tmp_path, capsys, monkeypatch):
     h, err = _knob_error(data)
     assert np.all(np.diff(err) < 0)
     # Moreau-Jean is first order in h for impact times and post-impact velocities (000 Sect. 4)
+    assert 0.6 < fitted_order(h, err) < 1.6
+
+
+def test_bouncing_ball_tradeoff_runs_to_rest_against_the_closed_form(tmp_path, capsys, monkeypatch):
+    """The ball's default study covers the whole bouncing sequence to rest: the closed-form rest time is
+    sqrt(2H/g) (1 + 2e/(1-e)) (typed here, 1e-15), every run comes to rest, the error (rest time and the
+    impact times every setting resolves, against the closed form) falls strictly from the coarsest to the
+    finest step while the number of steps grows 4x per setting (64x overall), first order in h."""
+    from invctl.studies.tradeoff import run_tradeoff
+
+    data = _study("bouncing_ball", tmp_path, capsys, monkeypatch)
+    assert data["scene"] == "bouncing_ball" and "rest" in data["reference"]
+    assert next(iter(jobs_of(load_scene("bouncing_ball")))) == "rest"
+    scene = load_scene("bouncing_ball")
+    p, s = scene.params, scene.settings
+    rest = math.sqrt(2 * s["H"] / p["g"]) * (1 + 2 * p["e"] / (1 - p["e"]))
+    assert abs(scene.contact.exact_rest(scene.model({}), s) - rest) < 1e-15 * rest
+    res = run_tradeoff(spec_for(scene, {}, dict(s)), progress=False, max_repeats=1)
+    h, err = np.array([r["value"] for r in res.rows]), res.errors
+    steps = np.array([r["steps"] for r in res.rows])
+    assert np.all(np.diff(h) < 0) and np.all(np.diff(err) < 0) and np.all(steps[1:] > 3.99 * steps[:-1])
+    assert all(abs(r["rest_time"] - rest) == r["rest_time_error"] < 1e-2 for r in res.rows)
     assert 0.6 < fitted_order(h, err) < 1.6
 
 

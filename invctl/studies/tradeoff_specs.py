@@ -11,10 +11,12 @@ resolved reference (a scene may add its own jobs in ``Scene.studies``):
 * tracking, ``analyze`` (default without a reference): the number of random region samples of
   ``invctl analyze --samples``; error = relative excess of the smallest singular value of Gamma
   found over the region's true minimum (dense sampling + multistart local optimisation).
-* contact, ``simulate`` (default): the Moreau-Jean step ``h`` of the default controller against the
-  same loop at a 16x finer step; ``impacts``: the first impact times and post-impact velocities
-  against the event-driven simulation (DOP853, located events), or against the scene's closed form
-  (``Contact.exact_impacts``).
+* contact, ``rest`` (default when the scene declares ``Contact.exact_rest`` and ``exact_impacts``):
+  the Moreau-Jean step ``h`` over the whole impact sequence to rest, against the closed-form rest time
+  and impact times; ``simulate`` (default otherwise): the Moreau-Jean step ``h`` of the default
+  controller against the same loop at a 16x finer step; ``impacts``: the first impact times and
+  post-impact velocities against the event-driven simulation (DOP853, located events), or against
+  the scene's closed form (``Contact.exact_impacts``).
 * switched, ``simulate``: the sampling step ``h_max`` of the exact event-located propagation; the
   force RMS error against ``h_max = 1e-5`` (switch times and peak force are exact at every step).
 """
@@ -193,6 +195,47 @@ def contact_impacts(scene, params: dict, settings: dict, smoke: bool = False) ->
                         error_name=f"max error of the first {k} impact times [s] and post-impact velocities")
 
 
+def contact_rest(scene, params: dict, settings: dict, smoke: bool = False) -> TradeoffSpec:
+    """The whole impact sequence to rest against the scene's closed form (``Contact.exact_rest`` and
+    ``exact_impacts``): error = the larger of the rest-time error and the largest impact-time error over
+    the impacts every setting resolves (closed-form flight before them longer than 10 coarsest steps)."""
+    from ..simulate.timestepping import MoreauJean
+    from .contact import _setting, contact_setup
+
+    run0 = contact_setup(scene, params, settings)
+    model, law, q0, v0 = run0.model, run0.law, run0.q0, run0.v0
+    rest = float(scene.contact.exact_rest(model, run0.settings))
+    if not (np.isfinite(rest) and rest > 0):
+        raise SceneError(f"scene {scene.name!r}: the closed-form rest time is {rest:g}: the run never comes to rest "
+                         "(e.g. restitution e = 1); use --job impacts")
+    values = [1e-3, 2.5e-4, 6.25e-5] if smoke else [1e-3, 2.5e-4, 6.25e-5, 1.5625e-5]
+    rt, _ = (np.asarray(a, float) for a in scene.contact.exact_impacts(model, run0.settings, rest))
+    flights = np.diff(np.r_[0.0, rt])
+    k = int(np.argmin(flights > 10 * max(values))) if np.any(flights <= 10 * max(values)) else rt.size
+    if k < 1:
+        raise SceneError(f"scene {scene.name!r}: no impact is resolved by h = {max(values):g}; the rest study "
+                         "needs one")
+    t_end = 1.25 * rest
+    potential = scene.contact.potential(model) if scene.contact.potential is not None else None
+    mj = MoreauJean(model, law, potential=potential)
+
+    def run(h):
+        tr = mj.run(q0, v0, t_end, float(h), theta=_setting(run0.settings, "theta"))
+        ti = tr.impacts()[0]
+        t_rest = tr.rest_time()
+        imp = float(np.max(np.abs(ti[:k] - rt[:k]))) if ti.size >= k else float("inf")
+        rest_err = abs(t_rest - rest) if np.isfinite(t_rest) else float("inf")
+        return {"error": max(imp, rest_err), "time_s": float(tr.stats["wall_s"]), "steps": int(tr.stats["steps"]),
+                "impact_time_error": imp, "rest_time_error": rest_err, "rest_time": float(t_rest),
+                "impacts": int(ti.size)}
+
+    return TradeoffSpec(
+        knob="h", values=values, run=run,
+        reference=f"the scene's closed form: rest (accumulation) time {rest:.6g} s and the first {k} impact times "
+                  f"(those with a flight longer than 10 h of the coarsest step); each run covers [0, {t_end:.4g}] s",
+        error_name="max(|rest time error|, max impact time error) [s]")
+
+
 # --------------------------------------------------------------- analysis only
 def _region_box(model):
     reg = model.region
@@ -280,6 +323,8 @@ def jobs_of(scene) -> dict:
     jobs = dict(JOBS.get(scene.kind, {}))
     if scene.kind == "tracking" and scene.tracking.reference is None:
         jobs = {"analyze": analysis}
+    if scene.kind == "contact" and scene.contact.exact_rest is not None and scene.contact.exact_impacts is not None:
+        jobs = {"rest": contact_rest, **jobs}
     return {**dict(scene.studies), **jobs}
 
 
