@@ -3,11 +3,11 @@
 Every command takes a scene (object, name or path), the ``--set`` values and its options, checks
 the options once (:data:`OPTIONS`), checks output paths before any computation, and dispatches to
 the module of the scene's kind (:mod:`.tracking_report`, :mod:`.contact`, :mod:`.switched_report`).
-The same calls serve the command line, notebooks and scripts::
+The same calls serve the command line and, through the scene's methods, notebooks and scripts::
 
-    from invctl.studies import commands
-    res = commands.invert("cartpole", {"mp": 0.3}, N=300)
-    print(res.text); res.data["max_output_error"]
+    scene = invctl.load_scene("cartpole", mp=0.3)
+    res = scene.run("invert", N=300)          # this module's invert(): res.text, res.data, res.result
+    inv = scene.invert(N=300)                 # the typed result alone
 
 Around every run: the memory a long run records is estimated before it starts
 (:class:`~invctl.errors.ResourceLimitError` naming the option that fits); a contact run whose
