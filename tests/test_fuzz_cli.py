@@ -738,7 +738,7 @@ def test_fuzz_sigint_in_every_simulator_keeps_a_loadable_prefix(kind, data, tmp_
     assert d["error"] == "RunInterrupted" and d["partial"], (argv, d)
     files = [cwd / f for f in d["partial"]]
     expected = ({"x.partial.npz", "x.partial.csv"} if argv[0] == "simulate" else
-                {"run.partial.npz", "run_pd.partial.npz", "run_preload.partial.npz"})
+                {"run_switched.partial.npz", "run_pd.partial.npz", "run_preload.partial.npz"})
     assert any(f.name in expected for f in files), (argv, d["partial"])
     for f in files:
         assert f.is_file(), f

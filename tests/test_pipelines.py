@@ -60,8 +60,8 @@ def test_contact_and_switched_pipelines(tmp_path, capsys):
     assert (tmp_path / "b" / "anim_none.gif").exists()
     assert main(["pipeline", "stiff_wall", "--out-dir", str(tmp_path / "w"), "--json"]) == 0
     data = _json(capsys)
-    assert data["simulate"]["bounces"] >= 1 and not data["design"]["guas"]
-    assert {"design.png", "run.png", "run.npz"} <= set(data["files"])
+    assert data["runs"]["switched"]["bounces"] >= 1 and not data["design"]["guas"]
+    assert {"design.png", "run_switched.png", "run_switched.npz"} <= set(data["files"])
 
 
 @pytest.mark.parametrize("actuators, ran, skipped", [

@@ -29,6 +29,7 @@ from ..errors import (InvctlError, NumericalError, OptionError, ParameterError, 
                       SceneError, SimulationFailed, watch_sigint)
 from ..io import check_output_dir, check_output_path
 from ..scenes import SCENE_COMMANDS, CommandResult, Scene, load_scene
+from .pipeline import run_pipeline
 from .workflow import workflow
 
 __all__ = ["OPTIONS", "Option", "run_command", "analyze", "invert", "design", "simulate", "pipeline", "study"]
@@ -713,10 +714,13 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     from ..scenes import scene_reference
 
     rec = {**_recording(scene, o), **_integration(scene, o)}
-    result = _interruptible(lambda: _kind(scene).pipeline(scene, params, settings, out_dir=out_dir, t_end=o["t_end"],
-                                                          plant_params=plant,
-                                                          quiet=o["quiet"], animate=not o["no_animation"], **rec),
-                            out_dir=out_dir, meta={"scene": scene_reference(scene), "params": params})
+
+    def run():
+        session = _kind(scene).session(scene, params, settings, t_end=o["t_end"], plant_params=plant, quiet=o["quiet"],
+                                       **rec)
+        return run_pipeline(scene, session, params, out_dir=out_dir, animate=not o["no_animation"])
+
+    result = _interruptible(run, out_dir=out_dir, meta={"scene": scene_reference(scene), "params": params})
     stale = Path(out_dir) / "INTERRUPTED.txt"  # the note of an earlier interrupted run in this folder
     if stale.is_file():
         stale.unlink()

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import DimensionError, ParameterError, RunInterrupted, SceneError
 from ..scenes import CommandResult
+from .pipeline import Step
 from .reports import run_reports
 
 if TYPE_CHECKING:
@@ -40,7 +41,7 @@ if TYPE_CHECKING:
     from ..scenes import Scene
     from ..simulate.contact_record import ContactTrajectory
 
-__all__ = ["ContactRun", "contact_setup", "run_contact", "simulate", "pipeline", "analyze", "law_report",
+__all__ = ["ContactRun", "contact_setup", "run_contact", "simulate", "session", "analyze", "law_report",
            "DEFAULT_SETTINGS", "DEFAULT_SAMPLES"]
 
 #: settings of the time-stepping scheme a scene may leave out
@@ -353,67 +354,63 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
     return CommandResult("\n".join(lines), data, run.trajectory)
 
 
-def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
-             quiet=False, animate=True, record_every: int | None = None, record: str = "steps") -> CommandResult:
-    """Every declared controller of a contact scene that fits the given values (``Contact.requires``):
-    runs, reports, figures (one per controller); the others are listed as skipped, with the reason.
-    Ctrl-C keeps the complete runs and the prefix of the one under way (``run_<name>.partial.npz``)."""
-    values = _values(scene, params, settings)
-    names = list(scene.contact.controllers) or ["none"]
-    skipped = {k: why for k in names if (why := scene.contact.unmet(k, values))}
-    names = [k for k in names if k not in skipped]
-    if not names:
-        raise SceneError(f"scene {scene.name!r}: no controller fits these values: " + "; ".join(skipped.values()))
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    lines = [f"skipped {why}" for why in skipped.values()] + ([""] if skipped else [])
-    data: dict = {"runs": {}, "skipped": skipped}
-    runs: dict = {}
-    for name in names:
+class Session:
+    """The contact pipeline's session (:mod:`.pipeline`): every declared controller that fits the given values
+    (``Contact.requires``; the others are listed as skipped, with the reason), each with its own setup and
+    report, figure and animation."""
+
+    def __init__(self, scene, params, settings, *, t_end=None, plant_params=None, quiet=False,
+                 record_every: int | None = None, record: str = "steps"):
+        self.scene, self.params, self.settings = scene, params, settings
+        self.options = {"t_end": t_end, "record_every": record_every, "record": record}
+        self.plant_params = plant_params
+        names = list(scene.contact.controllers) or ["none"]
+        values = _values(scene, params, settings)
+        self.skipped = {k: why for k in names if (why := scene.contact.unmet(k, values))}
+        self.controllers = [k for k in names if k not in self.skipped]
+        if not self.controllers:
+            raise SceneError(f"scene {scene.name!r}: no controller fits these values: "
+                             + "; ".join(self.skipped.values()))
+        self._runs: dict[str, ContactRun] = {}
+
+    def head(self, out):
+        lines = [f"skipped {why}" for why in self.skipped.values()] + ([""] if self.skipped else [])
+        return lines, {"skipped": self.skipped}
+
+    def run(self, name):
+        setup = contact_setup(self.scene, self.params, self.settings, controller=name, plant_params=self.plant_params)
         try:
-            ls, runs[name] = _pipeline_run(scene, name, params, settings, out, data, t_end=t_end,
-                                           plant_params=plant_params, animate=animate, record_every=record_every,
-                                           record=record)
-            lines += ls
-        except KeyboardInterrupt as exc:  # the runs before are on disk; the prefix of this one is exc.partial
-            ri = exc if isinstance(exc, RunInterrupted) else RunInterrupted("interrupted")
-            ri.args = (f"{ri} (controller {name}); complete runs: {', '.join(data['runs']) or 'none'}",)
-            ri.diagnostics.update(run_file=f"run_{name}.npz",
-                                  complete=[str(out / f"run_{k}.npz") for k in data["runs"]])
-            raise ri from None
-    files = sorted(p.name for p in out.iterdir())
-    lines.append(f"runs and figures in {out}/ ({', '.join(files)})")
-    return CommandResult("\n".join(lines), {**data, "out_dir": str(out), "files": files}, runs)
+            run = run_contact(setup, progress=False, **self.options)
+        except RunInterrupted as exc:
+            if exc.partial is not None:
+                exc.partial.meta = {**exc.partial.meta, **setup.meta()}
+            raise
+        self._runs[name] = run
+        lines, data = _summary(run)
+        rtext, rdata = run_reports(self.scene, run.model, self.params, run.settings, "simulate",
+                                   result=run.trajectory, controller=name)
+        if rtext:
+            lines.append(rtext)
+            data["reports"] = rdata
+        return Step(run.trajectory, lines + [""], data)
+
+    def meta(self, name):
+        return self._runs[name].meta()
+
+    def figure(self, name, step, out):
+        from ..plot import close
+
+        close(step.trajectory.plot(out / f"run_{name}.png", title=f"{self.scene.name} ({name})"))
+
+    def animation(self, name):
+        return {"fps": 20, "title": f"{self.scene.name} ({name})"}
+
+    def finish(self, runs, out):
+        return [], {}
 
 
-def _pipeline_run(scene, name, params, settings, out, data, *, t_end, plant_params, animate, record_every,
-                  record) -> tuple[list, object]:
-    """One controller's run of a pipeline: report (into ``data["runs"]``), ``run_<name>.npz``, figures; returns
-    the report's lines and the trajectory."""
-    from ..plot import close
-
-    setup = contact_setup(scene, params, settings, controller=name, plant_params=plant_params)
-    try:
-        run = run_contact(setup, t_end=t_end, progress=False, record_every=record_every, record=record)
-    except RunInterrupted as exc:
-        if exc.partial is not None:
-            exc.partial.meta = {**exc.partial.meta, **setup.meta()}
-        raise
-    ls, d = _summary(run)
-    rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
-                               controller=name)
-    if rtext:
-        ls.append(rtext)
-        d["reports"] = rdata
-    run.trajectory.to_npz(out / f"run_{name}.npz", meta=run.meta())
-    close(run.trajectory.plot(out / f"run_{name}.png", title=f"{scene.name} ({name})"))
-    if animate and scene.drawing is not None:
-        from ..plot.animate import animate_result
-
-        animate_result(run.trajectory, out / f"anim_{name}.gif", scene=scene, params=params, fps=20,
-                       title=f"{scene.name} ({name})")
-    data["runs"][name] = d
-    return ls + [""], run.trajectory
+def session(scene, params: dict, settings: dict, **options) -> Session:
+    return Session(scene, params, settings, **options)
 
 
 def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:

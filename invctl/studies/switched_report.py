@@ -12,10 +12,11 @@ import numpy as np
 
 from ..errors import OptionError, RunInterrupted, SceneError, StabilityError
 from ..scenes import CommandResult
+from .pipeline import Step
 from .switched import (design_bf_min, design_bt_min, design_bt_visible, design_kt_max, effective_wall, error_system,
                        is_wrist, lambda_map, lambda_point, lambda_sweep, reduction_check, simulate_scenario)
 
-__all__ = ["analyze", "simulate", "design", "pipeline"]
+__all__ = ["analyze", "simulate", "design", "session"]
 
 
 def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:
@@ -49,9 +50,7 @@ def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> Comma
     return CommandResult(head + "\n" + rep.summary(), data)
 
 
-def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
-             plot=None, quiet=False) -> CommandResult:
-    """Exact switched simulation; peak force, bounces, force RMS error."""
+def _check_run_options(scene, controller, plant_params) -> None:
     name = scene.name
     if controller is not None:
         raise SceneError(f"scene {name!r} has one controller, the switched law 002 (3); "
@@ -59,10 +58,17 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
     if plant_params:
         raise OptionError(f"scene {name!r}: the controller (3) uses no plant model, so plant and model "
                           "parameters coincide; --plant-set is not applicable (use --set)")
+
+
+def _run(scene, params: dict, t_end=None):
+    """The exact switched run (and, for the compliant wrist, the reduced model's run): ``(sim, reduced or None,
+    text, data)``."""
+    name = scene.name
     p = scene.model(params).params
     sim = simulate_scenario(p, t_end=t_end, label=name)
     text = sim.summary()
     data = sim.to_dict()
+    red = None
     if is_wrist(p):
         try:
             red = simulate_scenario(p, reduced=True, t_end=t_end, label=f"{name} (reduced model)")
@@ -73,6 +79,22 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
             raise
         data["reduced"] = red.to_dict()
         text += "\n" + red.summary()
+    return sim, red, text, data
+
+
+def _figure(sim, red, path) -> None:
+    import matplotlib.pyplot as plt
+
+    fig = sim.plot() if red is None else _plot_fig7(sim, red)[0].figure
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
+             plot=None, quiet=False) -> CommandResult:
+    """Exact switched simulation; peak force, bounces, force RMS error."""
+    _check_run_options(scene, controller, plant_params)
+    sim, red, text, data = _run(scene, params, t_end)
     if out:
         if str(out).lower().endswith(".csv"):
             sim.to_csv(out)
@@ -82,11 +104,7 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
         data["out"] = str(written)
         text += f"\n  trajectory written to {written}"
     if plot:
-        import matplotlib.pyplot as plt
-
-        fig = sim.plot() if not is_wrist(p) else _plot_fig7(sim, red)[0].figure
-        fig.savefig(plot, dpi=130)
-        plt.close(fig)
+        _figure(sim, red, plot)
         text += f"\n  figure written to {plot}"
     return CommandResult(text, data, sim)
 
@@ -161,16 +179,38 @@ def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
     return CommandResult("\n".join(lines), data)
 
 
-def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
-             quiet=False, animate=True) -> CommandResult:
-    """Analysis, design and simulation of a switched scene, with their figures in ``out_dir``."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    parts = [analyze(scene, params, settings),
-             design(scene, params, settings, plot=out / "design.png"),
-             simulate(scene, params, settings, t_end=t_end, out=out / "run.npz", plot=out / "run.png",
-                      plant_params=plant_params)]
-    files = sorted(q.name for q in out.iterdir())
-    text = "\n\n".join(r.text for r in parts) + f"\nfigures and data in {out}/ ({', '.join(files)})"
-    return CommandResult(text, {"analyze": parts[0].data, "design": parts[1].data, "simulate": parts[2].data,
-                                "out_dir": str(out), "files": files}, {"switched": parts[2].result})
+class Session:
+    """The switched pipeline's session (:mod:`.pipeline`): the analysis and the design (``design.png``) first,
+    then the one controller, the switched law 002 (3) (``run_switched.npz``, ``run_switched.png``)."""
+
+    controllers = ("switched",)
+
+    def __init__(self, scene, params, settings, *, t_end=None, plant_params=None, quiet=False):
+        _check_run_options(scene, None, plant_params)
+        self.scene, self.params, self.settings, self.t_end = scene, params, settings, t_end
+        self._reduced = None
+
+    def head(self, out):
+        a = analyze(self.scene, self.params, self.settings)
+        d = design(self.scene, self.params, self.settings, plot=out / "design.png")
+        return [a.text, "", d.text, ""], {"analyze": a.data, "design": d.data}
+
+    def run(self, name):
+        sim, self._reduced, text, data = _run(self.scene, self.params, self.t_end)
+        return Step(sim, [text], data)
+
+    def meta(self, name):
+        return {}
+
+    def figure(self, name, step, out):
+        _figure(step.trajectory, self._reduced, out / f"run_{name}.png")
+
+    def animation(self, name):
+        return {}
+
+    def finish(self, runs, out):
+        return [], {}
+
+
+def session(scene, params: dict, settings: dict, **options) -> Session:
+    return Session(scene, params, settings, **options)

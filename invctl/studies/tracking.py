@@ -574,6 +574,12 @@ def run_tracking_study(scene, params=None, plant_params=None, *, controllers=Non
             raise
         note = f"interrupted; complete runs: {', '.join(runs) or 'none'} of {', '.join(controllers)}"
         raise RunInterrupted(note, partial=TrackingStudy(runs, {"scene": scene.name, "partial": note}, setup)) from None
+    return compare_runs(scene, params, setup, runs)
+
+
+def compare_runs(scene, params, setup: TrackingSetup, runs: dict) -> TrackingStudy:
+    """The comparison of 003 Sect. 6 of ``runs`` (controller name -> run) made on ``setup``, with (A1) along
+    every run and what the scene's paper printed."""
     a1 = {name: a1_along(setup, r) for name, r in runs.items() if r.t.size > 1}
     info = {"a1_along_trajectory": a1, "params": dict(params or {}),
             "plant": {k: v for k, v in setup.plant.values.items() if v != setup.model.values.get(k)},

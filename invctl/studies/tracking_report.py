@@ -6,17 +6,20 @@ options (already checked by :mod:`invctl.studies.commands`) and returns a
 """
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import FunnelViolation
 from ..scenes import CommandResult
-from .tracking import (CONTROLLERS, design_configuration, invert_tracking, run_controller, run_tracking_study,
-                       setup_tracking, tracking_linearization, tracking_model)
+from .pipeline import Step
+from .tracking import (CONTROLLERS, NEEDS_INVERSE, check_controller, compare_runs, design_configuration,
+                       invert_tracking, run_controller, setup_tracking, tracking_linearization, tracking_model)
 
-__all__ = ["analyze", "invert", "design", "simulate", "pipeline"]
+__all__ = ["analyze", "invert", "design", "simulate", "session"]
 
 #: frames per second of the animations the pipeline writes (GIF delays are whole 1/100 s: 10, 20, 25, 50 are exact)
 ANIMATION_FPS = 20
@@ -361,23 +364,47 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
 
 
 # ----------------------------------------------------------------- pipeline
-def pipeline(scene, params: dict, settings: dict, *, out_dir="invctl-out", t_end=None, plant_params=None,
-             quiet=False, animate=True, dt=None, integrator=None) -> CommandResult:
-    """Invert, design, simulate every declared controller, compare, write figures, runs (and animations)."""
-    t0 = time.perf_counter()
-    study = run_tracking_study(scene, params, plant_params, t_end=t_end, progress=not quiet, integrator=integrator,
-                               **_step(dt))
-    out = Path(out_dir)
-    meta = study.setup.meta()
-    study.save(out, meta=meta)
-    from ..plot import close
+class Session:
+    """The tracking pipeline's session (:mod:`.pipeline`): one setup (inverse, design) for C1, C2, C3 (and the
+    scene's other controllers) on the mismatched plant; the comparison of 003 Sect. 6 and its figures."""
 
-    close(study.plot(out))
-    if animate and scene.drawing is not None:
-        for name, run in study.runs.items():
-            run.animate(out / f"anim_{name}.gif", scene=scene, params=params, fps=ANIMATION_FPS)
-    files = sorted(p.name for p in out.iterdir())
-    wall = time.perf_counter() - t0
-    text = "\n".join([study.table(), f"figures and data in {out}/ ({', '.join(files)}); total {wall:.1f} s"])
-    return CommandResult(text, {**study.to_dict(), "out_dir": str(out), "files": files, "total_wall_s": wall},
-                         dict(study.runs))
+    def __init__(self, scene, params, *, t_end=None, plant_params=None, quiet=False, dt=None, integrator=None):
+        self.scene, self.params, self.quiet = scene, params, quiet
+        self.controllers = tuple(check_controller(c) for c in scene.tracking.controllers)
+        self.setup = setup_tracking(scene, params, plant_params, t_end=t_end, progress=not quiet,
+                                    invert=bool(set(NEEDS_INVERSE) & set(self.controllers)), integrator=integrator,
+                                    **_step(dt))
+
+    def head(self, out):
+        return [], {}
+
+    def run(self, name):
+        if not self.quiet:
+            print(f"simulating {name} ({CONTROLLERS.get(name, '?')}) ...", file=sys.stderr)
+        try:
+            res = run_controller(self.setup, name)
+        except FunnelViolation as exc:  # kept, truncated at the violation, and reported
+            res = exc.partial
+        return Step(res, [], res.summary())
+
+    def meta(self, name):
+        return self.setup.meta()
+
+    def figure(self, name, step, out):
+        return None
+
+    def animation(self, name):
+        return {"fps": ANIMATION_FPS}
+
+    def finish(self, runs, out):
+        from ..plot import close
+        from ..scenes import jsonable
+
+        study = compare_runs(self.scene, self.params, self.setup, runs)
+        (Path(out) / "study.json").write_text(json.dumps(jsonable(study.to_dict()), indent=1))
+        close(study.plot(out))
+        return [study.table()], study.to_dict()
+
+
+def session(scene, params: dict, settings: dict, **options) -> Session:
+    return Session(scene, params, **options)
