@@ -125,3 +125,74 @@ def test_status_is_one_vocabulary():
     assert f"{Status.FAILED}" == "failed" and json.dumps({"s": Status.OK}) == '{"s": "ok"}'
     with pytest.raises(ValueError, match="statuses"):
         Status.of("fine")
+
+
+# ------------------------------------------------------------ a user-written scene of each kind
+_USER_SCENES = {
+    "tracking": '''
+import casadi as ca
+from invctl.model import Model, ParamSet
+from invctl.reference import rest_to_rest
+from invctl.scenes import Scene, Tracking
+
+PARAMS = {"m1": 1.0, "m2": 0.5, "k": 20.0, "d": 0.5}
+
+
+def build(**overrides):
+    P = ParamSet(list(PARAMS))
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    spring = P["k"] * (q[1] - q[0]) + P["d"] * (v[1] - v[0])
+    M = ca.diag(ca.vertcat(P["m1"], P["m2"]))
+    return Model("two_masses", q, v, P, PARAMS, M=M, f=ca.vertcat(spring, -spring), B=ca.DM([[1.0], [0.0]]),
+                 h=q[0], overrides=overrides)
+
+
+SCENE = Scene("two_masses", build, params=PARAMS,
+              tracking=Tracking(reference=lambda model: rest_to_rest([0.0], [0.2], 0.5, 1.5),
+                                plant={"m2": 1.2}, controllers=("C1", "C2")))
+''',
+    "contact": '''
+import casadi as ca
+from invctl.model import Gap, Model, ParamSet
+from invctl.scenes import Contact, Scene
+
+
+def build(**overrides):
+    P = ParamSet(["m", "g", "e"])
+    q, v = ca.SX.sym("q", 1), ca.SX.sym("v", 1)
+    return Model("ball", q, v, P, {"m": 1.0, "g": 9.81, "e": 0.5}, M=ca.reshape(P["m"], 1, 1), f=-P["m"] * P["g"],
+                 B=ca.SX.zeros(1, 0), gaps=[Gap("floor", q[0], "e")], overrides=overrides)
+
+
+SCENE = Scene("ball", build, params={"m": 1.0, "g": 9.81, "e": 0.5}, settings={"h": 1e-3, "t_end": 0.8},
+              contact=Contact(initial_state=lambda model, settings, controller: ([0.5], [0.0])))
+''',
+    "switched": '''
+from problems.stiff_wall import PARAMS, build, check
+from invctl.scenes import Scene, Switched
+
+SCENE = Scene("my_wall", build, params={**PARAMS, "t_end": 0.35}, validate=check, switched=Switched())
+''',
+}
+
+
+@pytest.mark.parametrize("kind", list(_USER_SCENES))
+def test_a_user_written_scene_of_each_kind_runs_the_pipeline_from_python_and_the_cli(kind, tmp_path, capsys):
+    """The same pipeline (one function for every kind) from the scene's method and from the command line:
+    the same runs, number for number, each a Trajectory saved where the report says."""
+    path = tmp_path / f"my_{kind}.py"
+    path.write_text(_USER_SCENES[kind])
+    scene = invctl.load_scene(str(path))
+    assert scene.kind == kind
+    runs = scene.pipeline(tmp_path / "py", quiet=True, no_animation=True)
+    assert runs and all(isinstance(r, Trajectory) for r in runs.values())
+    assert main(["pipeline", str(path), "--out-dir", str(tmp_path / "cli"), "--quiet", "--no-animation",
+                 "--json"]) == 0
+    data = _json(capsys)
+    assert set(data["runs"]) == set(runs)
+    for name, run in runs.items():
+        cli = invctl.load(tmp_path / "cli" / f"run_{name}.npz")
+        assert type(cli) is type(run) and cli.status == run.status
+        np.testing.assert_allclose(cli.field("q"), run.field("q"), rtol=0, atol=1e-12)
+        py = invctl.load(tmp_path / "py" / f"run_{name}.npz")
+        np.testing.assert_array_equal(py.field("q"), run.field("q"))
