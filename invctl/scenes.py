@@ -29,12 +29,48 @@ import traceback
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from types import MappingProxyType, ModuleType
-from typing import Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence, Union
 
 from .errors import DimensionError, ModelError, ParameterError, SceneError
 
+if TYPE_CHECKING:
+    import casadi as ca
+    from numpy.typing import ArrayLike
+
+    from .control.pdplus import FeedbackLaw
+    from .model import Model
+    from .plot.animate import Drawing
+    from .reference import Reference
+    from .studies.switched import SwitchedProblem
+
 __all__ = ["Scene", "Tracking", "Contact", "Switched", "Report", "ReportContext", "CommandResult", "jsonable",
            "available_scenes", "load_scene", "scene_reference", "SCENE_COMMANDS"]
+
+# ---------------------------------------------------------------- the hooks a scene declares
+#: ``build(**overrides) -> Model`` (a switched scene: ``-> SwitchedProblem``)
+BuildHook = Callable[..., Union["Model", "SwitchedProblem"]]
+#: ``reference(model) -> Reference``
+ReferenceHook = Callable[["Model"], "Reference"]
+#: ``f(model) -> q`` (a design or initial configuration)
+ConfigurationHook = Callable[["Model"], "ArrayLike"]
+#: ``internal_coordinates(model) -> SX`` (the phi of 003 Sect. 3), ``potential(model) -> SX``
+ExpressionHook = Callable[["Model"], "ca.SX"]
+#: ``signal(model) -> (y -> SX)``: an extra signal computed from the output
+SignalHook = Callable[["Model"], Callable[[Any], Any]]
+#: ``law(model, settings) -> FeedbackLaw``: a contact scene's controller
+ControllerHook = Callable[["Model", dict[str, Any]], "FeedbackLaw"]
+#: ``initial_state(model, settings, controller) -> (q0, v0)``
+InitialStateHook = Callable[["Model", dict[str, Any], str], tuple["ArrayLike", "ArrayLike"]]
+#: ``exact_impacts(model, settings, t_max) -> (times, post-impact normal velocities)``
+ExactImpactsHook = Callable[["Model", dict[str, Any], float], tuple[Any, Any]]
+#: ``f(model, settings) -> float`` (the closed-form rest time, the joints' clearance)
+ModelNumberHook = Callable[["Model", dict[str, Any]], float]
+#: ``drawing(model) -> Drawing``
+DrawingHook = Callable[["Model"], "Drawing"]
+#: ``validate(values) -> None`` raising ParameterError
+ValidateHook = Callable[[dict[str, Any]], None]
+#: ``compute(ctx: ReportContext) -> dict`` of named values
+ReportHook = Callable[["ReportContext"], Mapping[str, Any]]
 
 #: every command of ``invctl`` that acts on a scene
 SCENE_COMMANDS = ("analyze", "invert", "design", "simulate", "pipeline", "study")
@@ -103,17 +139,17 @@ class Tracking:
         The runs ``invctl pipeline`` compares.
     """
 
-    reference: Callable | None = None
-    point: Any = None
+    reference: ReferenceHook | None = None
+    point: ConfigurationHook | ArrayLike | None = None
     plant: Mapping[str, float] = field(default_factory=dict)
-    initial_configuration: Callable | None = None
+    initial_configuration: ConfigurationHook | None = None
     inversion: Mapping[str, Any] = field(default_factory=dict)
     feedback: Mapping[str, Any] = field(default_factory=dict)
     expected_error: float | None = None
-    internal_coordinates: Callable | None = None
+    internal_coordinates: ExpressionHook | None = None
     linearize_at: str = "ends"
     split: str = "schur"
-    signals: Mapping[str, Callable] = field(default_factory=dict)
+    signals: Mapping[str, SignalHook] = field(default_factory=dict)
     t_end: float | None = None
     a1: Mapping[str, Mapping] = field(default_factory=dict)
     printed: Mapping[str, Any] = field(default_factory=dict)
@@ -171,13 +207,13 @@ class Contact:
         requirements the given values meet and reports the others as skipped.
     """
 
-    controllers: Mapping[str, Callable] = field(default_factory=dict)
-    initial_state: Callable | None = None
-    default_controller: Any = None
-    potential: Callable | None = None
-    exact_impacts: Callable | None = None
-    exact_rest: Callable | None = None
-    clearance: Callable | None = None
+    controllers: Mapping[str, ControllerHook] = field(default_factory=dict)
+    initial_state: InitialStateHook | None = None
+    default_controller: str | Callable[["Model", dict[str, Any]], str] | None = None
+    potential: ExpressionHook | None = None
+    exact_impacts: ExactImpactsHook | None = None
+    exact_rest: ModelNumberHook | None = None
+    clearance: ModelNumberHook | None = None
     requires: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
     def _check(self, scene: str) -> None:
@@ -255,7 +291,7 @@ class Report:
     """
 
     title: str
-    compute: Callable
+    compute: ReportHook
     command: str = "simulate"
     printed: Mapping[str, Any] = field(default_factory=dict)
     controllers: tuple = ()
@@ -322,17 +358,17 @@ class Scene:
     """
 
     name: str
-    build: Callable
+    build: BuildHook
     params: Mapping[str, float] = field(default_factory=dict)
     settings: Mapping[str, float] = field(default_factory=dict)
     choices: Mapping[str, tuple] = field(default_factory=dict)
     integer: tuple = ()
     positive: tuple = ()
-    validate: Callable | None = None
+    validate: ValidateHook | None = None
     tracking: Tracking | None = None
     contact: Contact | None = None
     switched: Switched | None = None
-    drawing: Callable | None = None
+    drawing: DrawingHook | None = None
     presets: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
     reports: tuple = ()
     studies: Mapping[str, Callable] = field(default_factory=dict)
