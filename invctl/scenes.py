@@ -240,7 +240,7 @@ class Contact:
         if dc is not None and not isinstance(dc, str):
             _callable(dc, "contact.default_controller", scene)
 
-    def controller_for(self, model, settings: Mapping, name: str | None) -> str:
+    def controller_for(self, model, settings: dict, name: str | None) -> str:
         """The controller to run: ``name``, the declared default, or the first one."""
         if name is None:
             dc = self.default_controller
