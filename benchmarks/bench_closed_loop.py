@@ -27,7 +27,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import problems.manipulator as scene  # noqa: E402
 from invctl.simulate.closed_loop import scipy_reference_run  # noqa: E402
-from invctl.studies.tracking import run_controller, setup_tracking  # noqa: E402
+from invctl.studies.tracking import setup_tracking  # noqa: E402
 
 
 def main(argv=None):

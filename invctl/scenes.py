@@ -29,7 +29,7 @@ import traceback
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from types import MappingProxyType, ModuleType
-from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence, Union
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
 
 from .errors import DimensionError, ModelError, ParameterError, SceneError
 

@@ -1,6 +1,5 @@
 """The CLI frame and the trade-off framework, on a small scene given by path."""
 import json
-import math
 import textwrap
 
 import numpy as np

@@ -12,7 +12,6 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import problems.flexible_arm as fa
-from invctl.analysis import internal_dynamics, linearize_internal
 from invctl.cli import main
 from invctl.errors import ParameterError, SceneError
 from invctl.inversion import forward_check, invert

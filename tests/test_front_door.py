@@ -47,7 +47,7 @@ def test_every_saved_result_kind_loads_back_as_its_class(tmp_path, capsys):
     for kind, path in saved.items():
         res = invctl.load(path)
         assert type(res).__name__ == kind and isinstance(res, Trajectory)
-        back = getattr(type(res), "load")(path)  # the class's own reader gives the same arrays
+        back = type(res).load(path)  # the class's own reader gives the same arrays
         np.testing.assert_array_equal(np.asarray(res.q), np.asarray(back.q))
         _check_fields(res)
     # what each kind's fields mean, against the kind's own arrays

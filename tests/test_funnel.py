@@ -7,7 +7,6 @@ import problems.manipulator as scene
 from invctl.control.funnel import Funnel, as_funnel
 from invctl.control.funnel_nmp import NMPFunnelController
 from invctl.errors import ParameterError
-from invctl.control.funnel_nmp import NMPFunnelController
 from invctl.studies.tracking import tracking_linearization
 
 

@@ -384,7 +384,7 @@ def test_batched_equilibria_match_pointwise_continuation(model, ref):
     G = quasi_static_guess(model, ref, times, np.zeros(model.n))
     eq, n = _equilibrium_solver(model), model.n
     w, W = None, []
-    for k, t in enumerate(times):
+    for t in times:
         X, _ = eq.solve(ref(t).ravel(), guess_q=np.zeros(n) if w is None else None, guess_w=w)
         w = np.concatenate([X[:n], X[2 * n:]])
         W.append(w)

@@ -162,7 +162,7 @@ def test_fourbar_rests_on_a_flank_with_the_gravity_torque():
     and at rest the flank's multiplier equals the four-bar's gravity torque about J1 by virtual work
     (central differences of numpy positions, error O(1e-10)); the shaft balances lam / N."""
     run = _run("fourbar_backlash", {})
-    tr, s, v = run.trajectory, run.settings, run.model.values
+    tr, s = run.trajectory, run.settings
     assert tr.max_V_increase <= 1e-12 * abs(tr.V[0])
     from problems.fourbar_backlash import rest_report
 

@@ -213,7 +213,7 @@ def test_active_input_bound_on_the_manipulator(manip, manip_exact, manip_u2):
     # where the exact inverse exceeds the bound, and by how much (its |u2| peaks at 9.72)
     t = np.linspace(inv.T0, inv.Tf, 4001)
     ue = manip_exact.u(t)[1]
-    for (name, side), a in active.items():
+    for a in active.values():
         for lo, hi in a["intervals"]:
             sel = (t >= lo - 0.02) & (t <= hi + 0.02)
             assert np.max(np.abs(ue[sel])) > 8.0  # active only where the exact inverse needs more
@@ -290,7 +290,6 @@ def test_minimum_time_cartpole_matches_square_inversions(manip):
     sq = invert(md, retime(ref, tau), mesh=inv.t_mesh, T0=inv.T0, Tf=inv.Tf, start=plan["start"], end=plan["end"],
                 backend="newton")
     assert np.max(np.abs(sq.X_mesh - inv.X_mesh)) < 1e-8
-    sv = servo_model(md)
     t = np.linspace(sq.T0, sq.Tf, 20001)
     k = int(np.argmax(np.abs(sq.u(t)[0])))
     peak = np.max(np.abs(sq.u(np.linspace(t[k - 2], t[k + 2], 10001))))  # the interpolant's peak, to ~1e-12

@@ -17,15 +17,14 @@ import subprocess
 import sys
 import textwrap
 import time
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from invctl.cli import main
-from invctl.errors import (InversionFailed, OutputPathError, ParameterError, ResourceLimitError, ResultFileError,
-                           RunInterrupted, SceneError, SimulationFailed, WallTimeLimitError)
+from invctl.errors import (InversionFailed, ParameterError, ResultFileError,
+                           RunInterrupted, WallTimeLimitError)
 from invctl.scenes import available_scenes, load_scene
 from invctl.studies import commands
 

@@ -186,7 +186,7 @@ class LinearizedInternal:
         ev, vec = np.linalg.eig(Q2)
         semisimple = np.linalg.matrix_rank(vec, tol=1e-8) == l2
         if exo is not None:
-            Ae, Ce, w0 = np.atleast_2d(np.asarray(exo[0], float)), np.atleast_2d(np.asarray(exo[1], float)), np.asarray(exo[2], float)
+            Ae, Ce = np.atleast_2d(np.asarray(exo[0], float)), np.atleast_2d(np.asarray(exo[1], float))
             A = np.kron(np.eye(Ae.shape[0]), Q2) - np.kron(Ae.T, np.eye(l2))
             b = (P2 @ Ce).ravel(order="F")
             X = np.linalg.lstsq(A, b, rcond=None)[0]

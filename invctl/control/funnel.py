@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import casadi as ca
 import numpy as np
@@ -117,9 +116,14 @@ class Funnel:
         """The expression ``phi(t)`` with the time symbol replaced by ``t`` (SX or MX)."""
         return self.function(0)(t)[0] if isinstance(t, ca.MX) else ca.substitute(self.expr, self.t, t)
 
-    @lru_cache(maxsize=None)
     def function(self, order: int = 0) -> ca.Function:
-        """``t -> (phi, phi', ..., phi^(order))`` (outputs ``d0``..``d<order>``)."""
+        """``t -> (phi, phi', ..., phi^(order))`` (outputs ``d0``..``d<order>``; built once per order)."""
+        cache = self.__dict__.setdefault("_functions", {})
+        if order not in cache:
+            cache[order] = self._function(order)
+        return cache[order]
+
+    def _function(self, order: int) -> ca.Function:
         outs = [self.expr]
         for _ in range(order):
             outs.append(ca.jacobian(outs[-1], self.t))
@@ -158,7 +162,7 @@ class Funnel:
             raise ParameterError(f"Phi_k needs k >= 0, got {k}")
         sampled = self._sampled(k, horizon, samples, t_scale)
         if self.params.get("family") == "exponential":
-            p, q, r = self.params["p"], self.params["q"], self.params["r"]
+            p, r = self.params["p"], self.params["r"]
             problems = []
             if not r > 0:
                 problems.append(f"r = {r} must be > 0 (liminf phi = 1/r)")

@@ -357,7 +357,6 @@ def plan_vs_run(plan: JugglingPlan, tr, *, body2: int = 1, walls=(0, 1)) -> dict
         v_plus = np.asarray(st["impact_v_plus"], float).reshape(times.size, -1)
     else:
         times, contact, _, _, v_plus = tr.impacts()
-    rows: list = []
     dt, dq, dv = 0.0, 0.0, 0.0
     for t, wall, q2, v2 in plan.impact_table():
         sel = np.flatnonzero(contact == walls[wall - 1])

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 
 from ..analysis.equilibrium import EquilibriumSolver  # noqa: F401  (moved; re-exported here)

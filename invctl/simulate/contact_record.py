@@ -549,7 +549,7 @@ def check_budget(*, N: int, h: float, t0: float, every: int, events: bool, row_b
     if room >= 1:
         fits["record_every"] = int(-(-N // room))
         fits["t_end"] = t0 + room * every * h
-    rec = (f"every step" if every == 1 else f"every {every}-th step") if not events else "events"
+    rec = ("every step" if every == 1 else f"every {every}-th step") if not events else "events"
     alt = []
     if "record_every" in fits:
         k = int(fits["record_every"])

@@ -553,7 +553,7 @@ def _outputs(loop: ClosedLoop, eng: _Engine, T, S, Mi) -> dict:
     out["wall"] = np.zeros(n, bool)
     out["ctrl"] = np.zeros(n, bool)
     out["intended"] = np.zeros(n, bool)
-    for mid, (bits, phase, sliding) in enumerate(eng.modes):
+    for mid, (bits, phase, _sliding) in enumerate(eng.modes):
         sel = Mi == mid
         if not np.any(sel):
             continue

@@ -561,7 +561,6 @@ class MoreauJean:
     def _package(self, rec: ChunkRecorder, x_final, N: int, wall: float, meta: dict) -> ContactTrajectory:
         """The trajectory of the recorded rows (and ``x_final``, the state after
         step ``N``, with the run's statistics; None for a partial record)."""
-        n, mu, m = self.model.n, self.cs.m_u, self.model.m
         L, lay = self.rows, self._lay
         if x_final is not None:
             rec.finish(self._final_row(x_final), N)

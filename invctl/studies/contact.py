@@ -23,7 +23,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -157,7 +156,7 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
     """The report lines and data that follow from the law of a contact run (module docstring)."""
     from ..stability.lyapunov import lyapunov_report
 
-    tr, law, s = run.trajectory, run.law, run.settings
+    tr, law = run.trajectory, run.law
     info = dict(law.info)
     kap = dict(zip(law.kappa_names, law.kappa_values))
     h = tr.h

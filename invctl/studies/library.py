@@ -393,7 +393,6 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
         a failed compilation falls back to CasADi's virtual machine (``info["compiled"]`` says why).
     """
     from ..scenes import Scene, load_scene, scene_reference
-    from .tracking import invert_tracking, tracking_model
 
     t_start = time.perf_counter()
     scene = scene if isinstance(scene, Scene) else load_scene(scene)

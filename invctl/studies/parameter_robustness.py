@@ -139,7 +139,7 @@ def feedforward_robustness(scene, params=None, names=None, relative: float = 0.1
     r0 = loop.run(q_nom, controller_label="C3")
     e0, t0 = r0.y - r0.y_ref, r0.t
     rows = []
-    for j, name in enumerate(names):
+    for name in names:
         v = model.values[name]
         row = {"name": name, "value": v}
         if v == 0:

@@ -6,7 +6,6 @@ recognised by its parameters (``kt``), and is analysed by its reduced model (27)
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
