@@ -191,18 +191,28 @@ _MARK_RUN = textwrap.dedent("""
         print("SIMULATION STARTED", file=sys.stderr, flush=True)
         return run(self, *a, **k)
     closed_loop.ClosedLoop.run = marked_run
+    monitor = closed_loop.ClosedLoop._monitor
+    def marked_monitor(self, t, *a, **k):  # called once per chunk after the start: the prefix is not empty
+        out = monitor(self, t, *a, **k)
+        if t.size and t[0] > 0 and not getattr(self, "_marked", False):
+            self._marked = True
+            print("FIRST CHUNK DONE", file=sys.stderr, flush=True)
+        return out
+    closed_loop.ClosedLoop._monitor = marked_monitor
     from invctl.cli import main
     sys.exit(main(sys.argv[1:]))
     """)
 
 
 def test_sigint_during_a_long_run_keeps_the_prefix_quickly(tmp_path):
-    """t_end = 1000 s (10^6 output samples): the monitor runs in blocks, and the prefix reuses its values."""
+    """t_end = 1000 s (10^6 output samples): the monitor runs in blocks, and the prefix reuses its values. The signal
+    comes 1 s after the first of the 8 chunks (125 s each) is complete: a fixed 3 s after the start, the first chunk
+    of a loaded machine was not, and the prefix was empty."""
     from invctl.simulate.closed_loop import ClosedLoopResult
 
     args = ["simulate", "cartpole", "--controller", "C2", "--t-end", "1000", "--out", "run.npz", "--quiet", "--json"]
     p = _child(args, _MARK_RUN, tmp_path)
-    rc, latency, out, err = _interrupt_latency(p, "SIMULATION STARTED", 3.0)
+    rc, latency, out, err = _interrupt_latency(p, "FIRST CHUNK DONE", 1.0)
     print(f"SIGINT during the run: exit {rc} after {latency:.2f} s")
     assert rc == 130, err[-2000:]
     assert json.loads(out.strip().splitlines()[-1])["error"] == "RunInterrupted"
