@@ -10,7 +10,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 def pytest_configure(config):
     """Tests of Ctrl-C send SIGINT to this process and to command-line children. A suite started as a background job
-    (``pytest ... &`` in a script, ``nohup``) inherits SIGINT ignored, and so would every child: a Python started with
+    (``pytest ... &`` in a script) inherits SIGINT ignored, and so would every child: a Python started with
     SIGINT ignored keeps ignoring it, and the child ran to the end (exit 0). Give the suite a terminal's default,
     which the children then inherit."""
     if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
