@@ -268,13 +268,13 @@ class remember_sigint:
 _SIGINT_PENDING = False
 
 
-def check_interrupt() -> None:
-    """Raise ``KeyboardInterrupt`` if a Ctrl-C arrived inside :class:`remember_sigint` and was
-    swallowed before reaching Python code (does nothing outside it)."""
+def check_interrupt(message: str | None = None) -> None:
+    """Raise ``KeyboardInterrupt`` (:class:`RunInterrupted` with ``message``) if a Ctrl-C arrived inside
+    :class:`remember_sigint` and was swallowed before reaching Python code (does nothing outside it)."""
     global _SIGINT_PENDING
     if _SIGINT_PENDING:
         _SIGINT_PENDING = False
-        raise KeyboardInterrupt
+        raise RunInterrupted(message) if message else KeyboardInterrupt
 
 
 def is_interrupt(exc: BaseException) -> bool:

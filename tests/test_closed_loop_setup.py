@@ -156,6 +156,28 @@ def test_sigint_at_points_of_the_setup_is_honoured(monkeypatch, capsys, point, n
     assert built and rc == 130 and d["error"] == "RunInterrupted", d
 
 
+def test_sigint_swallowed_after_the_last_check_of_a_run_is_honoured(monkeypatch, capsys, tmp_path):
+    """A Ctrl-C whose KeyboardInterrupt a compiled call drops in the monitor of the last chunk, after the loop's last
+    check: the command line still exits 130 (it ran to the end with exit 0); what was written is complete."""
+    from invctl.simulate import closed_loop
+
+    monitor, hit = closed_loop.ClosedLoop._monitor, []
+
+    def marked(self, t, *a, **k):
+        out = monitor(self, t, *a, **k)
+        if t.size and t[-1] >= self.t_end - 1e-9 and not hit:
+            hit.append(t[-1])
+            _ctrl_c(True)
+        return out
+
+    monkeypatch.setattr(closed_loop.ClosedLoop, "_monitor", marked)
+    rc = main(["simulate", "cartpole", "--controller", "C2", "--t-end", "1", "--out", str(tmp_path / "run.npz"),
+               "--quiet", "--json"])
+    d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert hit and rc == 130 and d["error"] == "RunInterrupted", d
+    assert "complete" in d["message"] and (tmp_path / "run.npz").is_file()
+
+
 _SUITE_CHILD = textwrap.dedent("""
     import os, signal, subprocess, sys, time
     import pytest
