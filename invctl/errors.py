@@ -235,7 +235,8 @@ class remember_sigint:
     compiled library is still honoured: CasADi's conversion of Python arguments catches any exception
     raised inside it, ``KeyboardInterrupt`` included, and carries on.  :func:`check_interrupt` at the
     loops' natural boundaries (closed-loop chunks, controllers of a study, contact chunks, sweep
-    points, IPOPT solves) raises it there.  Restores the handler in place on exit."""
+    points, IPOPT solves) raises it there, and the command line once more when a command returns.  Restores
+    the handler in place on exit."""
 
     def __enter__(self):
         import signal
