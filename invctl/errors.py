@@ -235,7 +235,8 @@ class remember_sigint:
     compiled library is still honoured: CasADi's conversion of Python arguments catches any exception
     raised inside it, ``KeyboardInterrupt`` included, and carries on.  :func:`check_interrupt` at the
     loops' natural boundaries (closed-loop chunks, controllers of a study, contact chunks, sweep
-    points, IPOPT solves) raises it there.  Restores the handler in place on exit."""
+    points, IPOPT solves) raises it there, and the command line once more when a command returns.  Restores
+    the handler in place on exit."""
 
     def __enter__(self):
         import signal
@@ -268,13 +269,13 @@ class remember_sigint:
 _SIGINT_PENDING = False
 
 
-def check_interrupt() -> None:
-    """Raise ``KeyboardInterrupt`` if a Ctrl-C arrived inside :class:`remember_sigint` and was
-    swallowed before reaching Python code (does nothing outside it)."""
+def check_interrupt(message: str | None = None) -> None:
+    """Raise ``KeyboardInterrupt`` (:class:`RunInterrupted` with ``message``) if a Ctrl-C arrived inside
+    :class:`remember_sigint` and was swallowed before reaching Python code (does nothing outside it)."""
     global _SIGINT_PENDING
     if _SIGINT_PENDING:
         _SIGINT_PENDING = False
-        raise KeyboardInterrupt
+        raise RunInterrupted(message) if message else KeyboardInterrupt
 
 
 def is_interrupt(exc: BaseException) -> bool:

@@ -1,10 +1,20 @@
 import os
+import signal
 
 import matplotlib
 import pytest
 
 matplotlib.use("Agg")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+def pytest_configure(config):
+    """Tests of Ctrl-C send SIGINT to this process and to command-line children. A suite started as a background job
+    (``pytest ... &`` in a script) inherits SIGINT ignored, and so would every child: a Python started with
+    SIGINT ignored keeps ignoring it, and the child ran to the end (exit 0). Give the suite a terminal's default,
+    which the children then inherit."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")

@@ -16,7 +16,7 @@ import json
 import sys
 import time
 
-from ..errors import InvctlError, ResourceLimitError, remember_sigint
+from ..errors import InvctlError, ResourceLimitError, check_interrupt, remember_sigint
 from ..scenes import jsonable
 
 _HELP = {
@@ -130,6 +130,8 @@ def _run(args, target: str, t0: float) -> int:
                 result = generate(args.scene, values, **options)
             else:
                 result = run_command(args.command, args.scene, values, **options)
+        # a Ctrl-C that a compiled library swallowed after the command's last check (e.g. in its last chunk)
+        check_interrupt("interrupted as the command finished; what it wrote is complete")
     except InvctlError as exc:
         return _error(args.command, target, exc, args.json)
     except MemoryError as exc:  # an allocation no estimate foresaw: a resource limit, not a bug
