@@ -658,12 +658,16 @@ class Scene:
     def run(self, command: str, **options) -> "CommandResult":
         """``invctl <command>`` on this scene with its bound values: the report (``text``, ``data``) and the
         typed ``result``. Options are the command's, as keywords (``N=200``, ``controller="C2"``, ...)."""
+        from .errors import check_interrupt, remember_sigint
         from .studies.commands import run_command
 
         preset, values = self.__dict__.get("_bound", (None, {}))
         if preset is not None and options.get("preset") is None and command != "generate":
             options["preset"] = preset
-        return run_command(command, self, values, **options)
+        with remember_sigint():  # a Ctrl-C a compiled library swallowed is honoured here too, as on the CLI
+            result = run_command(command, self, values, **options)
+            check_interrupt("interrupted as the command finished; what it wrote is complete")
+        return result
 
     def analyze(self, **options) -> "CommandResult":
         """The scene's analysis (``invctl analyze``): a report with ``text`` and ``data``."""

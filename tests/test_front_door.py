@@ -196,3 +196,28 @@ def test_a_user_written_scene_of_each_kind_runs_the_pipeline_from_python_and_the
         np.testing.assert_allclose(cli.field("q"), run.field("q"), rtol=0, atol=1e-12)
         py = invctl.load(tmp_path / "py" / f"run_{name}.npz")
         np.testing.assert_array_equal(py.field("q"), run.field("q"))
+
+
+def test_a_ctrl_c_swallowed_inside_a_python_call_is_honoured(monkeypatch):
+    """As on the command line: a Ctrl-C that a compiled library caught and dropped (CasADi's argument
+    conversion does) still interrupts the scene's method when it returns."""
+    import os
+    import signal
+    import time
+
+    import invctl.inversion
+
+    real = invctl.inversion.forward_check
+
+    def swallowing(*a, **k):
+        out = real(*a, **k)
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.2)  # the handler runs here and raises KeyboardInterrupt ...
+        except KeyboardInterrupt:
+            pass  # ... which the library swallows
+        return out
+
+    monkeypatch.setattr(invctl.inversion, "forward_check", swallowing)
+    with pytest.raises(invctl.RunInterrupted, match="as the command finished"):
+        invctl.load_scene("cartpole").invert(N=60, quiet=True)
