@@ -315,16 +315,24 @@ def _check_position_output(model) -> None:
 
 def _decoupling_scales(model, Q) -> np.ndarray:
     """``||C M^-1||_2 ||W||_2`` at the configurations ``Q`` (columns), ``C = [G; J; h']``,
-    ``W = [G^T J^T B]`` (numerically; the scale of the product ``A_z = C M^-1 W``)."""
-    H = ca.jacobian(model.h, model.q)
-    parts = ca.Function("decoupling_parts", [model.q, model.theta],
-                        [model.M, ca.vertcat(model.G, model.J, H), ca.horzcat(model.G.T, model.J.T, model.B)])
-    th = model.theta_values
-    out = []
-    for k in range(Q.shape[1]):
-        M, C, W = (np.array(x) for x in parts(Q[:, k], th))
-        out.append(np.linalg.norm(np.linalg.solve(M, C.T), 2) * np.linalg.norm(W, 2))
-    return np.array(out)
+    ``W = [G^T J^T B]`` (numerically; the scale of the product ``A_z = C M^-1 W``).  The parts
+    come from one mapped evaluation of a function built once per model."""
+    parts = getattr(model, "_decoupling_parts", None)
+    if parts is None:
+        H = ca.jacobian(model.h, model.q)
+        parts = ca.Function("decoupling_parts", [model.q, model.theta],
+                            [model.M, ca.vertcat(model.G, model.J, H), ca.horzcat(model.G.T, model.J.T, model.B)])
+        try:
+            model._decoupling_parts = parts
+        except AttributeError:
+            pass
+    K, n = Q.shape[1], model.n
+    M, C, W = (np.array(x) for x in parts.map(K)(Q, model.theta_values))
+    M = M.reshape(n, K, n).transpose(1, 0, 2)
+    C = C.reshape(C.shape[0], K, n).transpose(1, 0, 2)
+    W = W.reshape(n, K, -1).transpose(1, 0, 2)
+    CMinvT = np.linalg.solve(M, C.transpose(0, 2, 1))
+    return np.linalg.norm(CMinvT, 2, axis=(1, 2)) * np.linalg.norm(W, 2, axis=(1, 2))
 
 
 def check_decoupling(model, Az, times, Q, rcond: float = 1e-10) -> None:

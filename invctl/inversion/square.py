@@ -19,9 +19,12 @@ from .problem import Setup, prepare
 from .result import Inverse
 
 
-def solve_square(model, reference, opts: Options, warm_start: Inverse | None = None, setup: Setup | None = None
-                 ) -> Inverse:
-    """The square (or input-energy underdetermined) servo-constraint BVP on one mesh."""
+def solve_square(model, reference, opts: Options, warm_start: Inverse | None = None, setup: Setup | None = None,
+                 tr=None, x0=None) -> Inverse:
+    """The square (or input-energy underdetermined) servo-constraint BVP on one mesh.
+
+    ``tr``: the transcription to use (a held solver's; default: the cached one); ``x0``: the
+    initial decision vector (default: ``warm_start`` or the quasi-static guess on the mesh)."""
     t_all = time.perf_counter()
     disc, slv = opts.discretization, opts.solver
     if setup is None:
@@ -34,10 +37,13 @@ def solve_square(model, reference, opts: Options, warm_start: Inverse | None = N
     else:
         weight = 1.0 if under else 0.0
     t_build = time.perf_counter()
-    tr = transcription(servo, sel, sch, N, weight, compiled=disc.compiled if not under else False)
+    if tr is None:
+        tr = transcription(servo, sel, sch, N, weight, compiled=disc.compiled if not under else False)
     build_s = setup.timings["build_s"] + time.perf_counter() - t_build
     tc = tr.collocation_times(t_mesh)
-    if warm_start is not None:
+    if x0 is not None:
+        pass
+    elif warm_start is not None:
         x0 = tr.pack(warm_start.X(t_mesh), warm_start.X(tc) if tc.size else None)
     else:
         x0 = tr.pack(setup.initial_guess(t_mesh), setup.initial_guess(tc) if tc.size else None)
@@ -51,7 +57,8 @@ def solve_square(model, reference, opts: Options, warm_start: Inverse | None = N
     x, info, solve_s, build_solver_s = _solve(tr, x0, p, **kw)
     build_s += build_solver_s
     cont_info = None
-    if not info["success"] and slv.continuation and warm_start is None and info["status"] not in _TIME_LIMIT:
+    if (not info["success"] and slv.continuation and warm_start is None and setup.guess is not None
+            and info["status"] not in _TIME_LIMIT):
         x, info, cont_info = _continuation(reference, tr, servo, t_mesh, x0, setup.E0, setup.Ef, theta, **kw)
         solve_s += cont_info.pop("solve_s")
     inv = make_inverse(model, reference, servo, sch, t_mesh, *tr.unpack(x), theta)
