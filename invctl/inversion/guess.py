@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .cache import equilibrium_solver as _equilibrium_solver
-from .servo import check_decoupling
+from .servo import check_decoupling, mapped
 
 
 def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: str = "", path=None) -> np.ndarray:
@@ -62,8 +62,8 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     X = np.vstack([Q, V, np.zeros((l + p + m, times.size))])
     Y = servo.reference_samples(reference, times)
     th = model.theta_values
-    _pos, _vel, acc = servo.residuals.map(times.size)(X, Y, th)
-    Az = np.array(servo.decoupling.map(times.size)(X, Y, th)).reshape(l + p + m, l + p + m, times.size, order="F")
+    _pos, _vel, acc = mapped(servo.residuals, times.size)(X, Y, th)
+    Az = np.array(mapped(servo.decoupling, times.size)(X, Y, th)).reshape(l + p + m, l + p + m, times.size, order="F")
     acc = np.array(acc)
     check_decoupling(model, Az, times, Q)
     Z = np.linalg.solve(Az.transpose(2, 0, 1), -acc.T[:, :, None])[:, :, 0].T

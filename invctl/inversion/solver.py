@@ -131,11 +131,14 @@ class InversionSolver:
         old = self._setup
         N = setup.t_mesh.size - 1
         tr = self._tr
-        if tr is None or (tr.selection.start, tr.selection.end, tr.N, tr.objective) != (
+        if tr is None or tr.upgradable() or (tr.selection.start, tr.selection.end, tr.N, tr.objective) != (
                 setup.selection.start, setup.selection.end, N, float(weight)):
-            if tr is not None:
-                info["rebuilt"] = (f"boundary selection {old.selection.describe()} -> {setup.selection.describe()}"
-                                   if tr.selection != setup.selection else f"N {tr.N} -> {N}")
+            if tr is not None and tr.selection != setup.selection:
+                info["rebuilt"] = f"boundary selection {old.selection.describe()} -> {setup.selection.describe()}"
+            elif tr is not None and tr.N != N:
+                info["rebuilt"] = f"N {tr.N} -> {N}"
+            elif tr is not None:
+                info["rebuilt"] = "functions compiled in the background are ready"
             tr = transcription(setup.servo, setup.selection, setup.scheme, N, weight,
                                compiled=disc.compiled if not under else False)
             self.builds += 1

@@ -17,6 +17,7 @@ from .cache import transcription
 from .options import Options
 from .problem import Setup, prepare
 from .result import Inverse
+from .servo import mapped
 
 
 def solve_square(model, reference, opts: Options, warm_start: Inverse | None = None, setup: Setup | None = None,
@@ -68,7 +69,8 @@ def solve_square(model, reference, opts: Options, warm_start: Inverse | None = N
         "backend": slv.backend, "scheme": sch.name, "N": int(N), "formulation": disc.formulation,
         "omega": disc.omega, "build_s": build_s, "solve_s": solve_s, "guess_s": setup.timings["guess_s"],
         "unknowns": tr.nX, "equations": tr.ng, "selection": sel.describe(), "T0": setup.T0, "Tf": setup.Tf,
-        "residuals": res, "continuation": cont_info, "compiled": tr.compiled, "dichotomy": setup.dichotomy,
+        "residuals": res, "continuation": cont_info, "compiled": tr.compiled,
+        "compiled_pieces": list(tr.compiled_pieces), "dichotomy": setup.dichotomy,
         "plan": None if setup.plan is None else setup.plan.to_dict(), "mesh": setup.mesh_kind,
         "wall_s": time.perf_counter() - t_all,
     })
@@ -182,7 +184,7 @@ def make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta, dX=No
         dX = np.zeros_like(Xmesh)
         if sch.is_hs:
             Yn = servo.reference_samples(reference, t_mesh)
-            dX = np.array(servo.rhs.map(t_mesh.size)(Xmesh, Yn, theta))
+            dX = np.array(mapped(servo.rhs, t_mesh.size)(Xmesh, Yn, theta))
     L = servo.layout
     return Inverse(sch.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
                    reference.t0, reference.tf, servo.names, {}, y_ref_fn=reference)
@@ -199,7 +201,7 @@ def residuals(inv: Inverse, servo, reference, theta, samples_per_interval: int =
     for name, t in (("mesh", tm), ("between", tt)):
         X = inv.X(t)
         Y = servo.reference_samples(reference, t)
-        pos, vel, acc = (np.array(r) for r in servo.residuals.map(t.size)(X, Y, theta))
+        pos, vel, acc = (np.array(r) for r in mapped(servo.residuals, t.size)(X, Y, theta))
         out[f"position_{name}"] = float(np.max(np.abs(pos))) if pos.size else 0.0
         nl = servo.layout.l
         out[f"holonomic_{name}"] = float(np.max(np.abs(pos[:nl]))) if nl else 0.0
