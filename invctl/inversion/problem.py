@@ -134,7 +134,12 @@ def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest
                 and np.array_equal(last[3], q0)):
             G = last[4]  # mesh refinement: same model, reference and horizon
         else:
-            G = quasi_static_guess(model, reference, qs_times, q0, servo=servo)
+            path = None
+            if plan is not None and plan.path is not None and (plan.t0, plan.tf) == (reference.t0, reference.tf):
+                # the plan's path on [t0, tf] (the reference rests outside): one batched Newton solve
+                pt = np.linspace(plan.t0, plan.tf, plan.path.shape[1])
+                path = np.vstack([np.interp(qs_times, pt, row) for row in plan.path])
+            G = quasi_static_guess(model, reference, qs_times, q0, servo=servo, path=path)
             _QS_LAST["entry"] = (model, reference, (T0, Tf), q0, G)
         ends = (G[:, 0], G[:, -1])
     eq = equilibrium_solver(model)

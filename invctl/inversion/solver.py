@@ -121,7 +121,7 @@ class InversionSolver:
         t0 = time.perf_counter()
         first = self._setup is None
         plan_result = self._plan(model, ref, new_reference)
-        ends = None if first or ws is None else (self._setup.E0, self._setup.Ef)
+        ends = None if first or ws is None or new_reference else (self._setup.E0, self._setup.Ef)
         setup = prepare(model, ref, disc, opts.horizon, plan_result=plan_result, ends=ends)
         if setup.plan is not None and setup.plan.path is not None:
             self._path = setup.plan.path
