@@ -85,8 +85,8 @@ class InversionSolver:
         """Bounded problems and mesh refinement: the one-shot routes, warm-started."""
         from .bounded import invert_bounded
         from .refine import refine
-        from .square import solve_square
         from .solve import servo_model
+        from .square import solve_square
 
         opts = self.opts
         self.info = {"held": False, "route": "bounded" if opts.bounds is not None else "refine"}
@@ -147,7 +147,7 @@ class InversionSolver:
             info["reused"].append("transcription")
         if old is not None and (old.T0, old.Tf) != (setup.T0, setup.Tf):
             info["remapped"] = {"T0": [old.T0, setup.T0], "Tf": [old.Tf, setup.Tf],
-                                "why": "the automatic horizon moved with the parameters"}
+                                "why": "the automatic horizon moved with the parameters or the reference"}
         x0 = None
         if ws is not None and ws is self.last and self._x is not None and tr is self._tr \
                 and np.array_equal(old.t_mesh, setup.t_mesh):
@@ -156,11 +156,13 @@ class InversionSolver:
         elif ws is not None:
             tc = tr.collocation_times(setup.t_mesh)
             x0 = tr.pack(ws.X(setup.t_mesh), ws.X(tc) if tc.size else None)
-        elif setup.guess is None:  # warm=False after warm solves: the quasi-static path is needed
-            setup = prepare(model, ref, disc, opts.horizon, plan_result=plan_result)
         info["setup_s"] = time.perf_counter() - t0
         self._setup, self._tr = setup, tr
-        inv = solve_square(model, ref, opts, ws if x0 is not None else None, setup=setup, tr=tr, x0=x0)
+        try:
+            inv = solve_square(model, ref, opts, ws if x0 is not None else None, setup=setup, tr=tr, x0=x0)
+        except BaseException:
+            self._x = None  # the next solve starts from ``last``, interpolated
+            raise
         self._x = tr.pack(inv.X_mesh, inv.X_col)
         inv.diagnostics["solver"] = info
         self.info = info
