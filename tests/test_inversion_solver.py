@@ -78,6 +78,20 @@ def test_given_horizon_reuses_the_last_solution_vector(model, ref):
     assert _rel(cold.X_mesh, fresh.X_mesh) < 1e-10
 
 
+def test_other_reference_that_moves_the_selection_rebuilds_and_says_so(model, ref):
+    q0 = scene.initial_configuration(model)
+    solver = InversionSolver(model, ref, q_guess=q0, **KW)
+    solver.solve()
+    tr = solver.transcription
+    other = scene.reference(model, rf=(0.95, -0.85))  # the automatic selection at T0 takes v:beta_dot, not q:beta
+    inv = solver.solve(reference=other)
+    assert solver.transcription is not tr and solver.info["rebuilt"].startswith("boundary selection at T0: ")
+    assert "v:beta_dot" in solver.info["rebuilt"].split("->")[1]
+    assert solver.info["remapped"] is None  # the same horizon (to round-off): not reported as moved
+    fresh = invert(model, other, q_guess=q0, **KW)
+    assert _rel(inv.X_mesh, fresh.X_mesh) < 1e-10 and np.allclose(inv.t_mesh, fresh.t_mesh, rtol=0, atol=1e-12)
+
+
 def test_unknown_parameter_is_a_parameter_error(model, ref):
     solver = InversionSolver(model, ref, **KW)
     with pytest.raises(ParameterError, match="mass3.*m3"):

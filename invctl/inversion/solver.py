@@ -145,7 +145,8 @@ class InversionSolver:
             self._x = None
         else:
             info["reused"].append("transcription")
-        if old is not None and (old.T0, old.Tf) != (setup.T0, setup.Tf):
+        if old is not None and not np.allclose([old.T0, old.Tf], [setup.T0, setup.Tf], rtol=0,
+                                               atol=1e-12 * (setup.Tf - setup.T0)):
             info["remapped"] = {"T0": [old.T0, setup.T0], "Tf": [old.Tf, setup.Tf],
                                 "why": "the automatic horizon moved with the parameters or the reference"}
         x0 = None
