@@ -122,6 +122,9 @@ class InversionSolver:
         first = self._setup is None
         plan_result = self._plan(model, ref, new_reference)
         ends = None if first or ws is None or new_reference else (self._setup.E0, self._setup.Ef)
+        plan = plan_result[4]
+        if ends is not None and plan is not None and plan.E0:  # the plan's equilibria: y_ref rests before t0, after tf
+            ends = (np.array(plan.E0), np.array(plan.Ef))
         setup = prepare(model, ref, disc, opts.horizon, plan_result=plan_result, ends=ends)
         if setup.plan is not None and setup.plan.path is not None:
             self._path = setup.plan.path
