@@ -8,9 +8,9 @@ object without compiling.  Compiled functions have no derivatives: the
 transcription uses them only where it supplies its own Jacobian (square
 systems).  Whether this pays is measured in ``benchmarks/bench_inversion.py``.
 
-``compile_in_background(fns, key)`` compiles what is missing in a separate process
-(``python -m invctl.inversion.compiled``), smallest function first, which outlives the
-caller: the first run on a new machine solves in CasADi's virtual machine and the
+``compile_in_background(fns, key)`` compiles what is missing in a separate process (a
+detached fork of the caller; ``python -m invctl.inversion.compiled`` where there is no fork),
+smallest function first, which outlives the caller: the first run on a new machine solves in CasADi's virtual machine and the
 pieces switch to C as they land in the cache (a held solver picks them up between
 solves; the next run finds them).  ``INVCTL_BACKGROUND_COMPILE=0`` turns it off.
 """
@@ -119,11 +119,11 @@ def background_enabled() -> bool:
     return os.environ.get("INVCTL_BACKGROUND_COMPILE", "1") != "0" and compiler() is not None
 
 
-def compile_in_background(fns, flags: tuple[str, ...] = ("-O2",), key: str | None = None):
+def compile_in_background(fns, flags: tuple[str, ...] = ("-O2",), key: str | None = None) -> Path | None:
     """Start one detached worker process compiling the functions of ``fns`` missing from the
-    disk cache (smallest first); returns it, or ``None`` when nothing is missing, another
-    worker holds the lock or background compilation is off (``INVCTL_BACKGROUND_COMPILE=0``,
-    no compiler)."""
+    disk cache (smallest first); returns its lock file (removed when the worker is done), or
+    ``None`` when nothing is missing, another worker holds the lock or background compilation is
+    off (``INVCTL_BACKGROUND_COMPILE=0``, no compiler)."""
     if not background_enabled():
         return None
     todo = [(f, _name(f, flags, key)) for f in fns]
@@ -140,13 +140,45 @@ def compile_in_background(fns, flags: tuple[str, ...] = ("-O2",), key: str | Non
     except OSError:
         return None
     todo.sort(key=lambda item: item[0].n_instructions())
+    if hasattr(os, "fork"):
+        _fork_worker(todo, flags, lock)
+        return lock
+    # no fork: the functions go to a new interpreter serialized (~0.15 s for the manipulator's largest)
     job = Path(tempfile.mkdtemp(prefix="invctl-compile-"))
     for i, (f, nm) in enumerate(todo):
         (job / f"{i:02d}_{nm}.casadi").write_text(f.serialize())
     (job / "flags").write_text(" ".join(flags))
-    return subprocess.Popen([sys.executable, "-m", "invctl.inversion.compiled", str(job), str(lock)],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True, env={**os.environ, "INVCTL_CACHE": str(d)})
+    subprocess.Popen([sys.executable, "-m", "invctl.inversion.compiled", str(job), str(lock)],
+                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                     start_new_session=True, env={**os.environ, "INVCTL_CACHE": str(d)})
+    return lock
+
+
+def _fork_worker(todo, flags, lock: Path) -> None:
+    """Compile ``todo`` in a detached grandchild of this process: it has the functions in memory, so
+    nothing is serialized on the caller's path (a fork costs milliseconds); lowest CPU priority, its
+    own session, standard streams to ``/dev/null`` and no other inherited descriptors (nobody waits
+    on a pipe it holds); it removes ``lock`` when done."""
+    pid = os.fork()
+    if pid:
+        os.waitpid(pid, 0)  # the child exits at once; the grandchild is re-parented
+        return
+    try:
+        if os.fork() == 0:
+            try:
+                os.setsid()
+                os.nice(19)
+                null = os.open(os.devnull, os.O_RDWR)
+                for fd in (0, 1, 2):
+                    os.dup2(null, fd)
+                os.closerange(3, 4096)
+                for f, nm in todo:
+                    if not (cache_dir() / f"{nm}.so").exists():
+                        _build(f, nm, flags)
+            finally:
+                lock.unlink(missing_ok=True)
+    finally:
+        os._exit(0)
 
 
 def _worker(job: Path, lock: Path) -> None:
