@@ -11,11 +11,12 @@ from .plan import InversionPlan, check_reference, plan_inversion
 from .result import Inverse
 from .servo import ServoModel
 from .solve import interval_errors, invert, quasi_static_guess, servo_model
+from .solver import InversionSolver
 from .mintime import minimum_time, retime
 from .verify import forward_check
 
 __all__ = [
-    "Bounds", "Discretization", "EquilibriumSolver", "Horizon", "Inverse", "InversionPlan", "NormalForm", "Objective",
+    "Bounds", "Discretization", "EquilibriumSolver", "Horizon", "Inverse", "InversionPlan", "InversionSolver", "NormalForm", "Objective",
     "dichotomy", "Scheme", "Selection", "ServoModel", "SolverOptions", "Transcription", "check_reference",
     "forward_check", "get_scheme", "interval_errors", "invert", "invert_normal_form", "minimum_time", "normal_form",
     "plan_inversion", "quasi_static_guess", "resolve_selection", "retime", "servo_model",

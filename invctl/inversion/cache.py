@@ -54,8 +54,8 @@ def transcription(servo, selection, scheme, N: int, objective: float = 0.0, comp
     """The cached :class:`Transcription` for (servo model, selection, scheme, N)."""
     key = (id(servo), selection.start, selection.end, scheme.name, int(N), float(objective), compiled)
     tr = _TRANS_CACHE.get(key)
-    if tr is not None and tr.servo is not servo:  # a servo model evicted and its id reused
-        del _TRANS_CACHE[key]
+    if tr is not None and (tr.servo is not servo or tr.upgradable()):  # a servo model evicted and its id
+        del _TRANS_CACHE[key]  # reused, or compiled pieces landed in the disk cache since it was built
     return remember(_TRANS_CACHE, key,
                     lambda: Transcription(servo, selection, scheme, N, objective=objective, compiled=compiled,
                                           cache_key=compiled_key(servo, scheme)))

@@ -130,14 +130,23 @@ class Transcription:
             self.n_col, self.nY = d * N, d * N
         if self._compile_request == "auto" and nx > NUMERIC_SOLVES_NX:
             self._compile_request = False  # large models: numeric solves, nothing to look up in the cache
+        self.compiled_pieces: tuple = ()
+        self._pending: tuple = ()
         if self._compile_request:
-            from .compiled import compile_cached, is_cached
+            from .compiled import compile_cached, compile_in_background, is_cached
 
             wanted = [rhs, interval, servo.rhs_jac, self._block_function()]
-            if self._compile_request is True or (self._compile_request == "auto"
-                                                 and all(is_cached(f, key=cache_key) for f in wanted)):
-                self._c = lambda f: compile_cached(f, key=cache_key)  # noqa: E731
-                self.compiled = True
+            if self._compile_request is True:
+                have = {f.name() for f in wanted}
+            else:  # "auto": what the disk cache has now; the rest compiles in the background
+                have = {f.name() for f in wanted if is_cached(f, key=cache_key)}
+                missing = [f for f in wanted if f.name() not in have]
+                if missing:
+                    self._pending = tuple((f, cache_key) for f in missing)
+                    compile_in_background(missing, key=cache_key)
+            self._c = lambda f: compile_cached(f, key=cache_key) if f.name() in have else f  # noqa: E731
+            self.compiled = len(have) == len(wanted)
+            self.compiled_pieces = tuple(f.name() for f in wanted if f.name() in have)
         self.interval = interval = self._c(interval)
         rhs = self._c(rhs)
         self.nX = nx * (N + 1) + nx * self.n_col
@@ -163,6 +172,15 @@ class Transcription:
         self._solvers: dict = {}
         self._newton = None
         self.build_s = time.perf_counter() - t_build
+
+    def upgradable(self) -> bool:
+        """Whether pieces compiled in the background since this transcription was built are now in
+        the disk cache (a new transcription of the same problem would evaluate them in C)."""
+        if not self._pending:
+            return False
+        from .compiled import is_cached
+
+        return any(is_cached(f, key=key) for f, key in self._pending)
 
     # ------------------------------------------------------------ layout
     def _split_p(self, p):

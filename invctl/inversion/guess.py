@@ -5,12 +5,15 @@ from __future__ import annotations
 import numpy as np
 
 from .cache import equilibrium_solver as _equilibrium_solver
-from .servo import check_decoupling
+from .servo import check_decoupling, mapped
 
 
-def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: str = "") -> np.ndarray:
+def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: str = "", path=None) -> np.ndarray:
     """Quasi-static inverses along ``y_ref``: equilibria at ``times`` (continued from
     ``q0``), with ``v`` and the multipliers/inputs made consistent with the motion.
+
+    ``path``: an earlier result at the same ``times`` (other parameter values); its equilibria
+    start one batched Newton solve, and the continuation runs only if a point fails.
 
     Raises
     ------
@@ -37,14 +40,20 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
 
     # continuation (one point after the other) on every 4th point keeps the branch of q0; the
     # points between start from the interpolated path and are solved together (batched Newton)
-    coarse = np.unique(np.r_[np.arange(0, times.size, 4), times.size - 1])
-    Wc = continuation(coarse)
-    W0 = np.array([np.interp(times, times[coarse], row) for row in Wc])
-    W, res = eq.solve_many(ys, W0, theta=th)
-    W[:, coarse] = Wc
-    for k in np.flatnonzero(res > 1e-9):  # rare: fall back to continuation from the previous point
-        if k not in coarse:
-            W[:, k] = continuation([k], W[:, k - 1])[:, 0]
+    W = None
+    if path is not None and np.shape(path) == (2 * n + l + p + m, times.size):
+        W, res = eq.solve_many(ys, np.vstack([path[:n], path[2 * n:]]), theta=th)
+        if np.any(res > 1e-9):
+            W = None
+    if W is None:
+        coarse = np.unique(np.r_[np.arange(0, times.size, 4), times.size - 1])
+        Wc = continuation(coarse)
+        W0 = np.array([np.interp(times, times[coarse], row) for row in Wc])
+        W, res = eq.solve_many(ys, W0, theta=th)
+        W[:, coarse] = Wc
+        for k in np.flatnonzero(res > 1e-9):  # rare: fall back to continuation from the previous point
+            if k not in coarse:
+                W[:, k] = continuation([k], W[:, k - 1])[:, 0]
     Q = W[:n]
     V = np.gradient(Q, times, axis=1) if times.size > 2 else np.zeros_like(Q)
     if servo is None:
@@ -53,8 +62,8 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     X = np.vstack([Q, V, np.zeros((l + p + m, times.size))])
     Y = servo.reference_samples(reference, times)
     th = model.theta_values
-    _pos, _vel, acc = servo.residuals.map(times.size)(X, Y, th)
-    Az = np.array(servo.decoupling.map(times.size)(X, Y, th)).reshape(l + p + m, l + p + m, times.size, order="F")
+    _pos, _vel, acc = mapped(servo.residuals, times.size)(X, Y, th)
+    Az = np.array(mapped(servo.decoupling, times.size)(X, Y, th)).reshape(l + p + m, l + p + m, times.size, order="F")
     acc = np.array(acc)
     check_decoupling(model, Az, times, Q)
     Z = np.linalg.solve(Az.transpose(2, 0, 1), -acc.T[:, :, None])[:, :, 0].T

@@ -35,6 +35,7 @@ from .boundary import BLOCKS, explain_no_dichotomy, neutral_tolerance, resolve_s
 from .cache import equilibrium_solver as _equilibrium_solver
 from .cache import servo_model
 from .guess import _split, quasi_static_guess
+from .servo import mapped
 
 #: largest number of candidate selections enumerated exactly (otherwise column-pivoted QR)
 MAX_ENUMERATION = 5000
@@ -87,6 +88,7 @@ class InversionPlan:
     derived: tuple
     E0: tuple = field(repr=False, default=())
     Ef: tuple = field(repr=False, default=())
+    path: np.ndarray | None = field(repr=False, default=None, compare=False)
 
     @property
     def pre_actuation(self) -> float:
@@ -191,7 +193,7 @@ def check_reference(reference, order: int = 3, *, samples: int = 2000, levels: i
     fn = reference.function(order + 1)
 
     def values(t):  # (order + 2, m, K)
-        outs = fn.map(t.size)(np.asarray(t, float)[None, :])
+        outs = mapped(fn, t.size)(np.asarray(t, float)[None, :])
         return np.stack([np.array(o).reshape(m, t.size) for o in outs])
 
     grid = np.linspace(t0 - 0.05 * tau, tf + 0.05 * tau, samples + 1)
@@ -419,7 +421,7 @@ def graded_mesh(T0, Tf, t0, tf, N, decay=(0.0, 0.0)):
 def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "baumgarte", omega: float = 10.0,
                    q_guess=None, start: dict | None = None, end: dict | None = None, T0: float | None = None,
                    Tf: float | None = None, max_horizon: float | None = None, neutral: float = 1e-6,
-                   scale: dict | None = None) -> InversionPlan:
+                   scale: dict | None = None, path=None) -> InversionPlan:
     """Boundary selection 003 (36) and horizon ``[T0, Tf]`` from the linearized inverse model.
 
     Parameters
@@ -440,6 +442,9 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
         Internal eigenvalues with ``|Re| <= neutral max(1, |lambda|)`` count as neutral.
     scale : dict, optional
         Block scales (``{"q": 0.1, "u": 50}``) replacing the ranges along the quasi-static path.
+    path : array, optional
+        ``plan.path`` of an earlier plan of the same model and reference (other parameter values):
+        starts the quasi-static path (:func:`~invctl.inversion.guess.quasi_static_guess`).
 
     Raises
     ------
@@ -463,7 +468,7 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
     n, th = model.n, model.theta_values
     q0 = np.zeros(n) if q_guess is None else np.asarray(q_guess, float)
     # the quasi-static path (checks the decoupling matrix along it) and the equilibria
-    G = quasi_static_guess(model, reference, np.linspace(t0, tf, 41), q0, servo=servo)
+    G = quasi_static_guess(model, reference, np.linspace(t0, tf, 41), q0, servo=servo, path=path)
     eq = _equilibrium_solver(model)
     E = []
     for k, t in ((0, t0), (-1, tf)):
@@ -566,4 +571,4 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
         scale={b: float(d[servo.layout.blocks[b]][0]) for b in BLOCKS
                if servo.layout.blocks[b].stop > servo.layout.blocks[b].start},
         tol=float(tol), max_horizon=float(cap), formulation=formulation, omega=float(omega), derived=derived,
-        E0=tuple(float(x) for x in E0), Ef=tuple(float(x) for x in Ef))
+        E0=tuple(float(x) for x in E0), Ef=tuple(float(x) for x in Ef), path=G)

@@ -31,7 +31,7 @@ class Setup:
     mesh_kind: str
     E0: np.ndarray
     Ef: np.ndarray
-    guess: np.ndarray
+    guess: np.ndarray | None
     guess_times: np.ndarray
     plan: object = None
     dichotomy: dict | None = None
@@ -41,6 +41,8 @@ class Setup:
 
     def initial_guess(self, times) -> np.ndarray:
         """The quasi-static path interpolated at ``times`` (columns of ``X``)."""
+        if self.guess is None:
+            raise ValueError("this setup has no quasi-static path (prepared with ends=...)")
         return np.vstack([np.interp(times, self.guess_times, row) for row in self.guess])
 
     def describe_selection(self) -> str:
@@ -70,14 +72,16 @@ def resolve_plan(model, reference, discretization, horizon):
 
 
 def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest_start: bool = False,
-            rest_end: bool = False, plan_result=None, any_count: bool = False) -> Setup:
+            rest_end: bool = False, plan_result=None, any_count: bool = False, ends=None) -> Setup:
     """The :class:`Setup` of one inversion.
 
     ``T0``/``Tf`` override the horizon (pre-/post-actuation bounds); ``rest_start``/``rest_end``
     fix every entry of ``X`` at that end to the equilibrium (an inverse that starts/ends at rest
     there; over-determined for exact tracking).  ``plan_result`` is the output of
     :func:`resolve_plan` when the caller has it already.  ``any_count`` accepts selections with
-    more or fewer conditions than unknowns (problems with a relaxed servo constraint).
+    more or fewer conditions than unknowns (problems with a relaxed servo constraint).  ``ends``:
+    guesses ``(E0, Ef)`` of both equilibria (a warm re-solve of a held solver): the quasi-static
+    path is not computed (``Setup.guess`` is ``None``; the caller has its own initial guess).
     """
     from .plan import check_reference, graded_mesh
 
@@ -122,18 +126,26 @@ def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest
     q0 = np.zeros(model.n) if horizon.q_guess is None else np.array(horizon.q_guess, float)
     qs_times = np.unique(np.concatenate([np.linspace(T0, Tf, 21), np.linspace(reference.t0, reference.tf, 41)]))
     qs_times = qs_times[np.r_[True, np.diff(qs_times) > 1e-9 * (Tf - T0)]]
-    last = _QS_LAST.get("entry")
-    if (last is not None and last[0] is model and last[1] is reference and last[2] == (T0, Tf)
-            and np.array_equal(last[3], q0)):
-        G = last[4]  # mesh refinement: same model, reference and horizon
-    else:
-        G = quasi_static_guess(model, reference, qs_times, q0, servo=servo)
-        _QS_LAST["entry"] = (model, reference, (T0, Tf), q0, G)
     n = model.n
+    G = None
+    if ends is None:
+        last = _QS_LAST.get("entry")
+        if (last is not None and last[0] is model and last[1] is reference and last[2] == (T0, Tf)
+                and np.array_equal(last[3], q0)):
+            G = last[4]  # mesh refinement: same model, reference and horizon
+        else:
+            path = None
+            if plan is not None and plan.path is not None and (plan.t0, plan.tf) == (reference.t0, reference.tf):
+                # the plan's path on [t0, tf] (the reference rests outside): one batched Newton solve
+                pt = np.linspace(plan.t0, plan.tf, plan.path.shape[1])
+                path = np.vstack([np.interp(qs_times, pt, row) for row in plan.path])
+            G = quasi_static_guess(model, reference, qs_times, q0, servo=servo, path=path)
+            _QS_LAST["entry"] = (model, reference, (T0, Tf), q0, G)
+        ends = (G[:, 0], G[:, -1])
     eq = equilibrium_solver(model)
     E = []
-    for k, t, name in ((0, T0, "T0"), (-1, Tf, "Tf")):  # the ends of the path are static; re-solve to be sure
-        X, _ = eq.solve(reference(t).ravel(), guess_w=np.concatenate([G[:n, k], G[2 * n:, k]]),
+    for X0, t, name in ((ends[0], T0, "T0"), (ends[1], Tf, "Tf")):  # the ends of the path are static
+        X, _ = eq.solve(reference(t).ravel(), guess_w=np.concatenate([X0[:n], X0[2 * n:]]),
                         theta=model.theta_values, where=f" at {name} = {t}")
         E.append(X)
     dich = None

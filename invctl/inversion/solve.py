@@ -9,7 +9,6 @@ the forward-check output error is below ``tol`` (:mod:`invctl.inversion.refine`)
 """
 from __future__ import annotations
 
-from dataclasses import replace
 
 from .backends import _TIME_LIMIT, IPOPT_DEFAULTS, IPOPT_SQUARE_DEFAULTS, _newton, _Progress, _progress_of  # noqa: F401
 from .cache import _EQ_CACHE, _OCP_CACHE, _QS_LAST, _SERVO_CACHE, _TRANS_CACHE  # noqa: F401  (public handles)
@@ -17,8 +16,6 @@ from .cache import compiled_key as _compiled_key  # noqa: F401
 from .cache import equilibrium_solver as _equilibrium_solver  # noqa: F401
 from .cache import model_key, servo_model, transcription  # noqa: F401
 from .guess import _split, default_mesh, quasi_static_guess  # noqa: F401
-from .options import from_keywords
-from .problem import resolve_plan
 from .refine import interval_errors, refine  # noqa: F401
 from .result import Inverse
 from .square import _continuation, _solve, make_inverse, residuals, solve_square  # noqa: F401  (their former home)
@@ -74,19 +71,10 @@ def invert(model, reference, *, discretization=None, solver=None, horizon=None, 
         ``SingularDecouplingError`` (a ``RelativeDegreeError``), ``PositionOutputError``
         (a ``ModelError``).
     """
-    opts = from_keywords("invert", discretization=discretization, solver=solver, horizon=horizon, bounds=bounds,
-                         objective=objective, **keywords)
-    if opts.bounds is not None:
-        from .bounded import invert_bounded
+    from .solver import InversionSolver
 
-        return invert_bounded(model, reference, opts, warm_start=warm_start)
-    if opts.discretization.tol is not None:
-        T0, Tf, start, end, plan = resolve_plan(model, reference, opts.discretization, opts.horizon)
-        hz = replace(opts.horizon, T0=T0, Tf=Tf, start=start, end=end, plan=plan, plan_options=None)
-        opts = replace(opts, horizon=hz)
-        servo = servo_model(model, opts.discretization.formulation, opts.discretization.omega)
-        return refine(model, reference, opts, warm_start, lambda o, ws: solve_square(model, reference, o, ws), servo)
-    return solve_square(model, reference, opts, warm_start)
+    return InversionSolver(model, reference, discretization=discretization, solver=solver, horizon=horizon,
+                           bounds=bounds, objective=objective, **keywords).solve(warm_start=warm_start)
 
 
 # names kept for callers of the former single module

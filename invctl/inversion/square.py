@@ -17,11 +17,15 @@ from .cache import transcription
 from .options import Options
 from .problem import Setup, prepare
 from .result import Inverse
+from .servo import mapped
 
 
-def solve_square(model, reference, opts: Options, warm_start: Inverse | None = None, setup: Setup | None = None
-                 ) -> Inverse:
-    """The square (or input-energy underdetermined) servo-constraint BVP on one mesh."""
+def solve_square(model, reference, opts: Options, warm_start: Inverse | None = None, setup: Setup | None = None,
+                 tr=None, x0=None) -> Inverse:
+    """The square (or input-energy underdetermined) servo-constraint BVP on one mesh.
+
+    ``tr``: the transcription to use (a held solver's; default: the cached one); ``x0``: the
+    initial decision vector (default: ``warm_start`` or the quasi-static guess on the mesh)."""
     t_all = time.perf_counter()
     disc, slv = opts.discretization, opts.solver
     if setup is None:
@@ -34,10 +38,13 @@ def solve_square(model, reference, opts: Options, warm_start: Inverse | None = N
     else:
         weight = 1.0 if under else 0.0
     t_build = time.perf_counter()
-    tr = transcription(servo, sel, sch, N, weight, compiled=disc.compiled if not under else False)
+    if tr is None:
+        tr = transcription(servo, sel, sch, N, weight, compiled=disc.compiled if not under else False)
     build_s = setup.timings["build_s"] + time.perf_counter() - t_build
     tc = tr.collocation_times(t_mesh)
-    if warm_start is not None:
+    if x0 is not None:
+        pass
+    elif warm_start is not None:
         x0 = tr.pack(warm_start.X(t_mesh), warm_start.X(tc) if tc.size else None)
     else:
         x0 = tr.pack(setup.initial_guess(t_mesh), setup.initial_guess(tc) if tc.size else None)
@@ -51,7 +58,8 @@ def solve_square(model, reference, opts: Options, warm_start: Inverse | None = N
     x, info, solve_s, build_solver_s = _solve(tr, x0, p, **kw)
     build_s += build_solver_s
     cont_info = None
-    if not info["success"] and slv.continuation and warm_start is None and info["status"] not in _TIME_LIMIT:
+    if (not info["success"] and slv.continuation and warm_start is None and setup.guess is not None
+            and info["status"] not in _TIME_LIMIT):
         x, info, cont_info = _continuation(reference, tr, servo, t_mesh, x0, setup.E0, setup.Ef, theta, **kw)
         solve_s += cont_info.pop("solve_s")
     inv = make_inverse(model, reference, servo, sch, t_mesh, *tr.unpack(x), theta)
@@ -61,7 +69,8 @@ def solve_square(model, reference, opts: Options, warm_start: Inverse | None = N
         "backend": slv.backend, "scheme": sch.name, "N": int(N), "formulation": disc.formulation,
         "omega": disc.omega, "build_s": build_s, "solve_s": solve_s, "guess_s": setup.timings["guess_s"],
         "unknowns": tr.nX, "equations": tr.ng, "selection": sel.describe(), "T0": setup.T0, "Tf": setup.Tf,
-        "residuals": res, "continuation": cont_info, "compiled": tr.compiled, "dichotomy": setup.dichotomy,
+        "residuals": res, "continuation": cont_info, "compiled": tr.compiled,
+        "compiled_pieces": list(tr.compiled_pieces), "dichotomy": setup.dichotomy,
         "plan": None if setup.plan is None else setup.plan.to_dict(), "mesh": setup.mesh_kind,
         "wall_s": time.perf_counter() - t_all,
     })
@@ -175,7 +184,7 @@ def make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta, dX=No
         dX = np.zeros_like(Xmesh)
         if sch.is_hs:
             Yn = servo.reference_samples(reference, t_mesh)
-            dX = np.array(servo.rhs.map(t_mesh.size)(Xmesh, Yn, theta))
+            dX = np.array(mapped(servo.rhs, t_mesh.size)(Xmesh, Yn, theta))
     L = servo.layout
     return Inverse(sch.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
                    reference.t0, reference.tf, servo.names, {}, y_ref_fn=reference)
@@ -192,7 +201,7 @@ def residuals(inv: Inverse, servo, reference, theta, samples_per_interval: int =
     for name, t in (("mesh", tm), ("between", tt)):
         X = inv.X(t)
         Y = servo.reference_samples(reference, t)
-        pos, vel, acc = (np.array(r) for r in servo.residuals.map(t.size)(X, Y, theta))
+        pos, vel, acc = (np.array(r) for r in mapped(servo.residuals, t.size)(X, Y, theta))
         out[f"position_{name}"] = float(np.max(np.abs(pos))) if pos.size else 0.0
         nl = servo.layout.l
         out[f"holonomic_{name}"] = float(np.max(np.abs(pos[:nl]))) if nl else 0.0

@@ -1,0 +1,173 @@
+"""A held stable inversion: :class:`InversionSolver` builds the problem once and re-solves it.
+
+The model parameters ``theta``, the reference samples, the step sizes and both equilibria are
+parameters of the compiled transcription (:class:`~invctl.inversion.collocation.Transcription`),
+so ``solver.solve(m3=0.6)`` changes numbers, not the problem: it re-plans the horizon and the
+boundary selection from the previous quasi-static path (one batched Newton solve), solves the
+end equilibria from the previous ones and warm-starts the collocation from the last solution.
+When the new parameters move the automatic horizon the same transcription runs on the new mesh
+(``info["remapped"]``); a new boundary selection or ``N`` builds another one
+(``info["rebuilt"]``), never an error.  ``invert`` is a one-shot solver.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import ParameterError
+from .options import from_keywords
+from .problem import prepare, resolve_plan
+from .result import Inverse
+
+
+class InversionSolver:
+    """Stable inversion of ``model`` along ``reference`` (the options of
+    :func:`~invctl.inversion.invert`), held for repeated solves.
+
+    ``solve(**params)`` inverts the model with those parameter values (overrides of the model
+    given here, e.g. ``solve(m3=0.6)``; ``solve()`` is the model as given), warm-started from the
+    last solution unless ``warm=False``.  ``last`` is the last :class:`Inverse`; ``info`` says
+    what the last solve reused, remapped or rebuilt; ``builds`` counts the transcriptions built
+    or fetched (one per selection and mesh size).
+    """
+
+    def __init__(self, model, reference, *, discretization=None, solver=None, horizon=None, bounds=None,
+                 objective=None, **keywords):
+        self.opts = from_keywords("invert", discretization=discretization, solver=solver, horizon=horizon,
+                                  bounds=bounds, objective=objective, **keywords)
+        self.model, self.reference = model, reference
+        self.last: Inverse | None = None
+        self.info: dict = {}
+        self.builds = 0
+        self._setup = None
+        self._tr = None
+        self._x = None
+        self._path = None
+
+    @property
+    def transcription(self):
+        """The held transcription (``None`` before the first square solve)."""
+        return self._tr
+
+    def model_with(self, params: dict):
+        """The solver's model with ``params`` overriding its parameter values."""
+        if not params:
+            return self.model
+        known = set(self.model.params.names)
+        bad = sorted(set(params) - known)
+        if bad:
+            raise ParameterError(f"InversionSolver.solve: {bad} are not parameters of model {self.model.name!r}; "
+                                 f"its parameters are {sorted(self.model.params.names)}")
+        return self.model.with_params(**{k: float(v) for k, v in params.items()})
+
+    def solve(self, *, warm: bool = True, warm_start: Inverse | None = None, reference=None, **params) -> Inverse:
+        """The inverse with the parameter values ``params`` (and ``reference`` if given).
+
+        Raises what :func:`~invctl.inversion.invert` raises; the solver keeps its last solution
+        when a solve fails (``exc.partial`` is the failed iterate)."""
+        t_all = time.perf_counter()
+        model = self.model_with(params)
+        ref = self.reference if reference is None else reference
+        ws = warm_start if warm_start is not None else (self.last if warm else None)
+        opts = self.opts
+        if opts.bounds is not None or opts.discretization.tol is not None:
+            inv = self._solve_once(model, ref, ws)
+        else:
+            inv = self._solve_square(model, ref, ws, reference is not None)
+        inv.diagnostics["wall_s"] = time.perf_counter() - t_all
+        self.last = inv
+        return inv
+
+    # ------------------------------------------------------------ paths
+    def _solve_once(self, model, ref, ws) -> Inverse:
+        """Bounded problems and mesh refinement: the one-shot routes, warm-started."""
+        from .bounded import invert_bounded
+        from .refine import refine
+        from .solve import servo_model
+        from .square import solve_square
+
+        opts = self.opts
+        self.info = {"held": False, "route": "bounded" if opts.bounds is not None else "refine"}
+        if opts.bounds is not None:
+            return invert_bounded(model, ref, opts, warm_start=ws)
+        T0, Tf, start, end, plan = resolve_plan(model, ref, opts.discretization, opts.horizon)
+        hz = replace(opts.horizon, T0=T0, Tf=Tf, start=start, end=end, plan=plan, plan_options=None)
+        o = replace(opts, horizon=hz)
+        servo = servo_model(model, o.discretization.formulation, o.discretization.omega)
+        return refine(model, ref, o, ws, lambda oo, w: solve_square(model, ref, oo, w), servo)
+
+    def _plan(self, model, ref, new_reference: bool):
+        """``resolve_plan`` for ``model``, started from the last quasi-static path when only the
+        parameters changed."""
+        disc, hz = self.opts.discretization, self.opts.horizon
+        if hz.plan is None and (hz.plan_options is not None or not hz.complete) and self._path is not None \
+                and not new_reference:
+            from .plan import plan_inversion
+
+            plan = plan_inversion(model, ref, start=hz.start, end=hz.end, T0=hz.T0, Tf=hz.Tf,
+                                  formulation=disc.formulation, omega=disc.omega, q_guess=hz.q_guess,
+                                  path=self._path, **dict(hz.plan_options or {}))
+            return resolve_plan(model, ref, disc, replace(hz, plan=plan, plan_options=None))
+        return resolve_plan(model, ref, disc, hz)
+
+    def _solve_square(self, model, ref, ws, new_reference: bool) -> Inverse:
+        from .cache import transcription
+        from .square import solve_square
+
+        opts = self.opts
+        disc = opts.discretization
+        t0 = time.perf_counter()
+        first = self._setup is None
+        plan_result = self._plan(model, ref, new_reference)
+        ends = None if first or ws is None or new_reference else (self._setup.E0, self._setup.Ef)
+        plan = plan_result[4]
+        if ends is not None and plan is not None and plan.E0:  # the plan's equilibria: y_ref rests before t0, after tf
+            ends = (np.array(plan.E0), np.array(plan.Ef))
+        setup = prepare(model, ref, disc, opts.horizon, plan_result=plan_result, ends=ends)
+        if setup.plan is not None and setup.plan.path is not None:
+            self._path = setup.plan.path
+        info = {"held": True, "first": first, "reused": [], "remapped": None, "rebuilt": None}
+        under = setup.underdetermined
+        weight = opts.objective.energy if opts.objective is not None else (1.0 if under else 0.0)
+        old = self._setup
+        N = setup.t_mesh.size - 1
+        tr = self._tr
+        if tr is None or tr.upgradable() or (tr.selection.start, tr.selection.end, tr.N, tr.objective) != (
+                setup.selection.start, setup.selection.end, N, float(weight)):
+            if tr is not None and tr.selection != setup.selection:
+                info["rebuilt"] = f"boundary selection {old.selection.describe()} -> {setup.selection.describe()}"
+            elif tr is not None and tr.N != N:
+                info["rebuilt"] = f"N {tr.N} -> {N}"
+            elif tr is not None:
+                info["rebuilt"] = "functions compiled in the background are ready"
+            tr = transcription(setup.servo, setup.selection, setup.scheme, N, weight,
+                               compiled=disc.compiled if not under else False)
+            self.builds += 1
+            self._x = None
+        else:
+            info["reused"].append("transcription")
+        if old is not None and not np.allclose([old.T0, old.Tf], [setup.T0, setup.Tf], rtol=0,
+                                               atol=1e-12 * (setup.Tf - setup.T0)):
+            info["remapped"] = {"T0": [old.T0, setup.T0], "Tf": [old.Tf, setup.Tf],
+                                "why": "the automatic horizon moved with the parameters or the reference"}
+        x0 = None
+        if ws is not None and ws is self.last and self._x is not None and tr is self._tr \
+                and np.array_equal(old.t_mesh, setup.t_mesh):
+            x0 = self._x  # same mesh: the last solution vector itself
+            info["reused"].append("last solution")
+        elif ws is not None:
+            tc = tr.collocation_times(setup.t_mesh)
+            x0 = tr.pack(ws.X(setup.t_mesh), ws.X(tc) if tc.size else None)
+        info["setup_s"] = time.perf_counter() - t0
+        self._setup, self._tr = setup, tr
+        try:
+            inv = solve_square(model, ref, opts, ws if x0 is not None else None, setup=setup, tr=tr, x0=x0)
+        except BaseException:
+            self._x = None  # the next solve starts from ``last``, interpolated
+            raise
+        self._x = tr.pack(inv.X_mesh, inv.X_col)
+        inv.diagnostics["solver"] = info
+        self.info = info
+        return inv
