@@ -311,20 +311,32 @@ def analysis(scene, params: dict, settings: dict, smoke: bool = False) -> Tradeo
 
 
 #: scene kind -> {job: spec factory(scene, params, settings, smoke)}
-JOBS: dict[str, dict[str, Callable[..., TradeoffSpec]]] = {
-    "tracking": {"invert": tracking_invert, "simulate": tracking_simulate, "analyze": analysis},
-    "contact": {"simulate": contact_fine_step, "impacts": contact_impacts},
-    "switched": {"simulate": switched},
-}
+def tracking_jobs(scene) -> dict[str, Callable[..., TradeoffSpec]]:
+    """A tracking scene's jobs: inversion, closed loop and analysis (analysis alone without a reference)."""
+    if scene.tracking.reference is None:
+        return {"analyze": analysis}
+    return {"invert": tracking_invert, "simulate": tracking_simulate, "analyze": analysis}
+
+
+def contact_jobs(scene) -> dict[str, Callable[..., TradeoffSpec]]:
+    """A contact scene's jobs: the whole sequence to rest first when the scene gives it in closed form."""
+    jobs: dict[str, Callable[..., TradeoffSpec]] = {"simulate": contact_fine_step, "impacts": contact_impacts}
+    if scene.contact.exact_rest is not None and scene.contact.exact_impacts is not None:
+        jobs = {"rest": contact_rest, **jobs}
+    return jobs
+
+
+def switched_jobs(scene) -> dict[str, Callable[..., TradeoffSpec]]:
+    return {"simulate": switched}
 
 
 def jobs_of(scene) -> dict:
-    """The trade-off jobs a scene offers (its own ``studies`` first), default first."""
-    jobs = dict(JOBS.get(scene.kind, {}))
-    if scene.kind == "tracking" and scene.tracking.reference is None:
-        jobs = {"analyze": analysis}
-    if scene.kind == "contact" and scene.contact.exact_rest is not None and scene.contact.exact_impacts is not None:
-        jobs = {"rest": contact_rest, **jobs}
+    """The trade-off jobs a scene offers (its own ``studies`` first), default first; the kind's jobs come from
+    its workflow (:data:`invctl.studies.workflow.WORKFLOWS`)."""
+    from .workflow import WORKFLOWS
+
+    wf = WORKFLOWS.get(scene.kind)
+    jobs = wf.tradeoff_jobs(scene) if wf is not None else {}
     return {**dict(scene.studies), **jobs}
 
 

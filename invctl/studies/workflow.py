@@ -61,6 +61,13 @@ class Workflow:
     after_run: Callable[[Any, Any], Any] | None = None
     builds_model: bool = True
     run_size: Callable[..., tuple | None] | None = None
+    jobs: str = ""
+
+    def tradeoff_jobs(self, scene: Scene) -> dict:
+        """The kind's speed-versus-accuracy jobs for ``scene`` (``invctl study tradeoff --job``), default first."""
+        if not self.jobs:
+            return {}
+        return getattr(importlib.import_module("invctl.studies.tradeoff_specs"), self.jobs)(scene)
 
     @property
     def verbs(self) -> Verbs:
@@ -127,11 +134,12 @@ def _check_contact(scene, result):
 WORKFLOWS = {
     "tracking": Workflow("tracking", "invctl.studies.tracking_report",
                          lambda n, gaps, m, ny: 120 + 15 * (n + m + ny) + 2 * 4 * n, (6e-5, 6e-4, 260.0),
-                         run_size=_tracking_run_size),
+                         run_size=_tracking_run_size, jobs="tracking_jobs"),
     "contact": Workflow("contact", "invctl.studies.contact", lambda n, gaps, m, ny: 40 + 80 * n + 40 * gaps + 20 * m,
-                        (2e-7, 2e-7, 2.5), csv=False, after_run=_check_contact),
+                        (2e-7, 2e-7, 2.5), csv=False, after_run=_check_contact, jobs="contact_jobs"),
     "switched": Workflow("switched", "invctl.studies.switched_report", lambda n, gaps, m, ny: 100.0,
-                         plant_mismatch=False, builds_model=False, run_size=_switched_run_size),
+                         plant_mismatch=False, builds_model=False, run_size=_switched_run_size,
+                         jobs="switched_jobs"),
 }
 
 
