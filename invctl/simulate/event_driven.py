@@ -221,11 +221,11 @@ def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | Non
                 Up = W.T @ res.v_plus
                 for j in np.flatnonzero(inv):
                     events.append((t, "impact", int(j), float(U[j]), float(Up[j])))
-                    if res.p[i] > 0 and U[i] < -v_rest:
+                    if res.p[j] > 0 and U[j] < -v_rest:
                         imp["t"].append(t)
-                        imp["i"].append(int(i))
-                        imp["pre"].append(float(U[i]))
-                        imp["post"].append(float(Up[i]))
+                        imp["i"].append(int(j))
+                        imp["pre"].append(float(U[j]))
+                        imp["post"].append(float(Up[j]))
                         imp["vplus"].append(res.v_plus.copy())
                 v = res.v_plus
                 ts.append(t)
