@@ -182,7 +182,7 @@ class Trajectory:
         the figure there too; ``fields``: which signals the generic panels show. Returns the figure."""
         return self._generic_plot(ax, path=path, fields=options.get("fields", ("q", "u")))
 
-    def to_npz(self, path, meta: dict | None = None):  # pragma: no cover - every subclass writes its own
+    def to_npz(self, path, *, meta: dict | None = None):  # pragma: no cover - every subclass writes its own
         raise NotImplementedError
 
     @classmethod

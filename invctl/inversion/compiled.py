@@ -53,7 +53,7 @@ def _name(fn: ca.Function, flags, key: str | None = None) -> str:
     given, else from the serialization of ``fn`` (memoized per function object:
     serializing the right-hand-side Jacobian costs ~10 ms)."""
     if key is not None:
-        text = "|".join([key, fn.name(), " ".join(flags), ca.__version__])
+        text = "|".join([key, fn.name(), " ".join(flags), str(getattr(ca, "__version__", ""))])
         return f"{fn.name()}_{hashlib.sha1(text.encode()).hexdigest()[:16]}"
     hit = _NAMES.get((id(fn), tuple(flags)))
     if hit is not None and hit[0] is fn:
@@ -95,8 +95,8 @@ def _build(fn: ca.Function, name: str, flags) -> None:
     so = cache_dir() / f"{name}.so"
     sx_in = [fn.sx_in(i) for i in range(fn.n_in())]
     out = fn(*sx_in)
-    out = list(out) if isinstance(out, (list, tuple)) else [out]
-    renamed = ca.Function(name, sx_in, out, fn.name_in(), fn.name_out())
+    outs = list(out) if isinstance(out, (list, tuple)) else [out]
+    renamed = ca.Function(name, sx_in, outs, fn.name_in(), fn.name_out())
     with tempfile.TemporaryDirectory() as tmp:
         cg = ca.CodeGenerator(f"{name}.c", {"with_header": False})
         cg.add(renamed)

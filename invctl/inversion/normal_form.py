@@ -37,6 +37,8 @@ between the mesh points; otherwise :class:`~invctl.errors.InversionFailed` with 
 """
 from __future__ import annotations
 
+from typing import Any
+
 import hashlib
 import math
 import time
@@ -478,7 +480,7 @@ def _residuals(model, nf, inv, reference, theta, info, sol, setup) -> dict:
     a, lam, mu = (np.array(o) for o in fwd(X[b["q"]], X[b["v"]], X[b["u"]], np.tile(theta[:, None], (1, K))))
     scale = _scales(model, X)
     acc_scale = max(float(np.max(np.abs(Xd[b["v"]]))), 1e-12)
-    out = {"dynamics": float(np.max(np.abs(a - Xd[b["v"]]))) / acc_scale,
+    out: dict[str, Any] = {"dynamics": float(np.max(np.abs(a - Xd[b["v"]]))) / acc_scale,
            "kinematics": float(np.max(np.abs(Xd[b["q"]] - X[b["v"]]) / scale[b["v"], None])),
            "multipliers": max([float(np.max(np.abs(lam - X[b["lam"]]) / scale[b["lam"], None])) if model.ell else 0.0,
                                float(np.max(np.abs(mu - X[b["mu"]]) / scale[b["mu"], None])) if model.p else 0.0])}

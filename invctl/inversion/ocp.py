@@ -53,6 +53,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from types import SimpleNamespace
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -501,7 +502,8 @@ class OCPTranscription:
         Jg = ca.MX(sp_g, ca.mtimes(S_g, ca.vertcat(*[t[2] for t in trip])))
         R = ca.vec(resid)
         self.nR = int(R.shape[0])
-        sp_r, S_r = _assembly(*_block_triplets(n_res, iv_index, 0), (self.nR, self.nX))
+        rows_r, cols_r = _block_triplets(n_res, iv_index, 0)
+        sp_r, S_r = _assembly(rows_r, cols_r, (self.nR, self.nX))
         JR = ca.MX(sp_r, ca.mtimes(S_r, ca.vec(JR_blk)))
         # g with its assembled Jacobian (IPOPT never differentiates the mapped graph by AD)
         xs, ps = ca.MX.sym("x", self.nX), ca.MX.sym("p", self.np)
@@ -623,8 +625,9 @@ class OCPTranscription:
         nb, N = len(self.bounded), self.N
         h = np.diff(inv.t_mesh)
         slots = 2 if self.scheme.is_hs else self.scheme.degree - 1
+        deriv: list[Any] = []
         if self.scheme.is_hs:
-            deriv = []  # coefficients of d/ds of the cubic, per entry: (3 c3, 2 c2, c1) x N
+            # coefficients of d/ds of the cubic, per entry: (3 c3, 2 c2, c1) x N
             for i in self.bounded:
                 y0, y1 = inv.X_mesh[i, :-1], inv.X_mesh[i, 1:]
                 d0, d1 = h * inv.dX_mesh[i, :-1], h * inv.dX_mesh[i, 1:]
@@ -640,10 +643,10 @@ class OCPTranscription:
         else:
             basis = [np.polyder(np.poly1d(c)) for c in lagrange_basis(self.scheme)]
             d = self.scheme.degree
-            deriv = []
             for i in self.bounded:
                 vals = np.vstack([inv.X_mesh[i, :-1]] + [inv.X_col[i, q::d] for q in range(d)])  # (d+1) x N
-                coeffs = sum(np.outer(np.pad(b.coeffs, (d - 1 - b.order, 0)), vals[j]) for j, b in enumerate(basis))
+                coeffs = np.sum([np.outer(np.pad(b.coeffs, (d - 1 - b.order, 0)), vals[j]) for j, b in enumerate(basis)],
+                                axis=0)
                 deriv.append(coeffs)
         for e, D in enumerate(deriv):
             for k in range(N):
@@ -651,13 +654,13 @@ class OCPTranscription:
                 spread = [q / (slots + 1) for q in range(1, slots + 1)]
                 chosen = sorted(roots)[:slots]
                 chosen += [s for s in spread if all(abs(s - c) > 0.05 for c in chosen)][:slots - len(chosen)]
-                for q, s in enumerate(chosen):
-                    pts[q * nb + e, k] = s
+                for q, sq in enumerate(chosen):
+                    pts[q * nb + e, k] = sq
         return pts
 
     def pack(self, Xmesh, Xcol=None, S=None, tau=None, r=None) -> np.ndarray:
         """The decision vector from its parts (slacks and relaxations default to zero)."""
-        parts = [np.asarray(Xmesh, float).ravel(order="F")]
+        parts: list[Any] = [np.asarray(Xmesh, float).ravel(order="F")]
         if self.n_col:
             parts.append(np.asarray(Xcol, float).ravel(order="F"))
         if self.relaxed:

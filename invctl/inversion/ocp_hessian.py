@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
+from typing import Any
 
 from .assembly import _all_cached, _assembly, _block_triplets, _compile, quadrature_weights
 from .ocp import coll_points, hs_points
@@ -83,6 +84,9 @@ def structured_hessian(tr) -> ca.Function:
                        + h / 6 * ca.sumsqr(Gb_[nx:] + dGb[nx:]))
                + ca.dot(mu_s, hull(ca.SX.zeros(nx), ca.SX.zeros(nx), Fa_, Fb_, Gm_l[:nx], h)))
         dall = ca.vertcat(dGa, dGb, dGm)
+        wa: Any
+        wb: Any
+        wm: Any
         wa, wb, wm = (ca.substitute(ca.gradient(PHI, v), dall, ca.DM.zeros(3 * nG)) for v in (dGa, dGb, dGm))
         iv_w = ca.Function("ocp_hs_weights", [Ga_, Gb_, Gm_, JGm_, lam_s, mu_s, fs] + ipars, [wa, wb, wm])
         # second-order expansion in the local variables d
@@ -103,7 +107,7 @@ def structured_hessian(tr) -> ca.Function:
         Jm = ca.jacobian(ca.vertcat(dzm, *([dt_] if tau is not None else [])), zl)
         H2 = ca.hessian(PHI2, zl)[0] + ca.mtimes([Jm.T, Hm_, Jm])
         H2 = ca.substitute(H2, zl, ca.DM.zeros(zl.numel()))
-        tins = [Gta_, Gtb_, Gtm_] if tau is not None else []
+        tins: list[Any] = [Gta_, Gtb_, Gtm_] if tau is not None else []
         iv_h = ca.Function("ocp_hs_hess", [Ga_, Gb_, Gm_, JGa_, JGb_, JGm_] + tins + [lam_s, mu_s, fs, Hm_]
                            + ipars, [ca.densify(H2)])
     else:
@@ -162,7 +166,7 @@ def structured_hessian(tr) -> ca.Function:
             E = ca.DM(ca.Sparsity.triplet(nG, len(rate_rows), rate_rows, list(range(len(rate_rows)))), 1.0)
             Wn = Wn + ca.mtimes(E, mu_n)
         Hn = pt_hess.map(N + 1)(outs["zn"], outs["Yn"], *com2, Wn)
-        Hm = pt_hess.map(N)(outs["zm"], outs["Ym"], *com2, wm)
+        Hm: Any = pt_hess.map(N)(outs["zm"], outs["Ym"], *com2, wm)
         tins = [outs["Gtn"][:, :N], outs["Gtn"][:, 1:], outs["Gtm"]] if tau is not None else []
         Hb = iv_h.map(N)(Gn_[:, :N], Gn_[:, 1:], Gm_v, JGn_[:, :nz_pt * N], JGn_[:, nz_pt:], JGm_v, *tins,
                          lam_def, mu_ip, fsv, Hm, *ip2)
@@ -186,7 +190,8 @@ def structured_hessian(tr) -> ca.Function:
         i_loc = np.tile(np.arange(nzl), count * nzl)
         grow = index[k, i_loc]
         keep = grow <= c_
-        rr.append(grow[keep]), cc.append(c_[keep])
+        rr.append(grow[keep])
+        cc.append(c_[keep])
         vv.append(ca.vec(blk)[np.flatnonzero(keep).tolist()])
     sp_h, S_h = _assembly(np.concatenate(rr), np.concatenate(cc), (tr.nX, tr.nX), summed=True)
     H = ca.MX(sp_h, ca.mtimes(S_h, ca.vertcat(*vv)))

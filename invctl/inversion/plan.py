@@ -25,6 +25,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -102,7 +103,8 @@ class InversionPlan:
         """Grading rates of the default mesh before ``t0`` and after ``tf``: the tails decay
         like ``exp(-rate s)``, and a scheme of order ``p`` equidistributes its error with steps
         growing like ``exp(rate s / (p + 1))`` (``0``: no mode, the span is at rest)."""
-        return tuple(0.0 if r is None else r / (order + 1) for r in (self.rate_pre, self.rate_post))
+        pre, post = (0.0 if r is None else r / (order + 1) for r in (self.rate_pre, self.rate_post))
+        return pre, post
 
     def to_dict(self) -> dict:
         """JSON-able summary (what ``inv.diagnostics["plan"]`` holds)."""
@@ -342,7 +344,7 @@ def choose_rows(Z, W):
     return rows, float(sig[pick]), _sensitivity(Z[list(rows)], W[list(rows)])
 
 
-def _metrics(Z, W, rows):
+def _metrics(Z, W, rows) -> tuple[float, float]:
     """``(sigma_min, sensitivity)`` of given rows on ``Z`` (0 and inf when the count is wrong)."""
     if len(rows) != Z.shape[1]:
         return 0.0, math.inf
@@ -503,7 +505,7 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
     Ws_t, As = _invariant_subspace(Tt.T @ Afs @ Tt, lambda re: re < -thrf)
     Wf = Tt @ Ws_t if Ws_t.size else np.zeros((nx, 0))
     # horizon
-    spans = {}
+    spans: dict[str, tuple[Any, Any, Any]] = {}
     for key, M, given, anchor in (("pre", -Au, T0, t0), ("post", As, Tf, tf)):
         if M.size == 0:
             spans[key] = (0.0, None, 1.0)
@@ -516,7 +518,7 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
     (pre, rate_pre, k_pre), (post, rate_post, k_post) = spans["pre"], spans["post"]
     needed = tau + (pre if T0 is None else 0.0) + (post if Tf is None else 0.0)  # given spans are not capped
     if needed > cap:
-        slow = []
+        slow: list[str] = []
         if rate_pre is not None and T0 is None:
             slow.append(f"pre-actuation {pre:.4g} s from the slowest unstable internal rate {rate_pre:.4g}/s at "
                         "the start equilibrium")
@@ -538,9 +540,9 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
     # selection
     n_start, n_end = nx - ku0, kuf
     if (start is None) != (end is None):
-        given = resolve_selection(servo, start or {}, end or {}, allow_underdetermined=True)
-        side, have, need = (("start", len(given.start), n_start) if start is not None
-                            else ("end", len(given.end), n_end))
+        half = resolve_selection(servo, start or {}, end or {}, allow_underdetermined=True)
+        side, have, need = (("start", len(half.start), n_start) if start is not None
+                            else ("end", len(half.end), n_end))
         if have != need:
             raise BoundaryConditionError(
                 f"the given {side} selection has {have} conditions, but the inverse model of {model.name!r} has "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -20,9 +21,9 @@ from .guess import default_mesh, quasi_static_guess
 class Setup:
     """Everything an inversion needs before its solve (see module doc)."""
 
-    model: object
-    reference: object
-    servo: object
+    model: Any
+    reference: Any
+    servo: Any
     scheme: Scheme
     selection: Selection
     T0: float
@@ -33,7 +34,7 @@ class Setup:
     Ef: np.ndarray
     guess: np.ndarray | None
     guess_times: np.ndarray
-    plan: object = None
+    plan: Any = None
     dichotomy: dict | None = None
     underdetermined: bool = False
     rest: tuple = (False, False)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -49,7 +50,7 @@ class Inverse(Trajectory):
     tf: float
     names: dict = field(default_factory=dict)
     diagnostics: dict = field(default_factory=dict)
-    y_ref_fn: object = None
+    y_ref_fn: Callable | None = None
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -143,7 +144,7 @@ class Inverse(Trajectory):
         else:
             d = self._scheme.degree
             vals = np.vstack([self.X_mesh[row, :-1]] + [self.X_col[row, q::d] for q in range(d)])
-            C = sum(np.outer(b.coeffs, vals[j]) for j, b in enumerate(self._basis))
+            C = np.sum([np.outer(b.coeffs, vals[j]) for j, b in enumerate(self._basis)], axis=0)
         out = []
         for k in range(self.N):
             p = np.polyder(np.poly1d(C[:, k]), 2 if derivative else 1)

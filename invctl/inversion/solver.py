@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -128,7 +129,7 @@ class InversionSolver:
         setup = prepare(model, ref, disc, opts.horizon, plan_result=plan_result, ends=ends)
         if setup.plan is not None and setup.plan.path is not None:
             self._path = setup.plan.path
-        info = {"held": True, "first": first, "reused": [], "remapped": None, "rebuilt": None}
+        info: dict[str, Any] = {"held": True, "first": first, "reused": [], "remapped": None, "rebuilt": None}
         under = setup.underdetermined
         weight = opts.objective.energy if opts.objective is not None else (1.0 if under else 0.0)
         old = self._setup

@@ -20,7 +20,7 @@ from .result import Inverse
 from .servo import mapped
 
 
-def solve_square(model, reference, opts: Options, warm_start: Inverse | None = None, setup: Setup | None = None,
+def solve_square(model, reference, opts: Options, warm_start: Any = None, setup: Setup | None = None,
                  tr=None, x0=None) -> Inverse:
     """The square (or input-energy underdetermined) servo-constraint BVP on one mesh.
 
@@ -62,7 +62,8 @@ def solve_square(model, reference, opts: Options, warm_start: Inverse | None = N
             and info["status"] not in _TIME_LIMIT):
         x, info, cont_info = _continuation(reference, tr, servo, t_mesh, x0, setup.E0, setup.Ef, theta, **kw)
         solve_s += cont_info.pop("solve_s")
-    inv = make_inverse(model, reference, servo, sch, t_mesh, *tr.unpack(x), theta)
+    Xmesh, Xcol = tr.unpack(x)
+    inv = make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta)
     res = residuals(inv, servo, reference, theta)
     inv.diagnostics.update(info)
     inv.diagnostics.update({

@@ -25,6 +25,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -288,14 +289,14 @@ def feedback_design(scene, model, lin, reference, *, q0=None, overrides=None, t_
 class TrackingSetup:
     """Everything a run needs: models, reference, linearization, controller, inverse, start state."""
 
-    scene: object
-    model: object
-    plant: object
-    reference: object
-    lin: object
-    controller: object
-    inverse: object
-    design: object
+    scene: Any
+    model: Any
+    plant: Any
+    reference: Any
+    lin: Any
+    controller: Any
+    inverse: Any
+    design: Any
     q0: np.ndarray
     t_end: float
     dt: float
@@ -304,7 +305,7 @@ class TrackingSetup:
     timings: dict = field(default_factory=dict)
     integrator: dict = field(default_factory=dict)
     _loops: dict = field(default_factory=dict)
-    _c1: object = None
+    _c1: Any = None
 
     def c1_controller(self):
         """The funnel controller of the paper's C1 (003 (60)-(61)): the new reference (42) with (43), the
@@ -458,7 +459,7 @@ class TrackingStudy:
 
     runs: dict
     info: dict = field(default_factory=dict)
-    setup: object = field(default=None, repr=False, compare=False)
+    setup: Any = field(default=None, repr=False, compare=False)
 
     def reduction(self, kind: str = "output", a: str = "C1", b: str = "C2") -> float:
         """``1 - E_a / E_b`` for the cumulative error of ``kind`` (``"output"`` or a declared signal)."""

@@ -10,6 +10,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -51,7 +52,7 @@ def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> Comma
 
     if output_structure(model, point).r_bar == 2 * model.n:
         return _analyze_flat(scene, model, ref, point, samples, t0)
-    setup = {"point": point}
+    setup: dict[str, Any] = {"point": point}
     if ref is not None and model.region is None:
         from ..analysis.equilibrium import operating_points
 
@@ -221,7 +222,7 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
         plan = d.get("plan")
         if isinstance(plan, dict) and plan.get("describe"):
             lines.append("  automatic setup: " + plan["describe"].replace("\n", "\n  "))
-    worst = {}
+    worst: dict[str, Any] = {}
     for k, v in res.items():
         if isinstance(v, (int, float)):
             key = k.rsplit("_", 1)[0] if k.endswith(("_mesh", "_between")) else k
