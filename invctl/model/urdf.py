@@ -14,8 +14,8 @@ Conventions (the URDF specification's): a joint's frame is its child link's fram
 ``axis`` is in the joint frame (default ``1 0 0``); gravity is ``-g`` along the world ``z``.  The
 root link is fixed to the world.  Every link with a mass has the parameter ``m_<link>`` (its
 mass; its inertia scales with it, a change of density), every moving joint ``d_<joint>`` (viscous
-damping, default the URDF's ``dynamics damping``), every elastic joint ``k_<joint>`` (spring about
-``q = 0``), and ``g``.
+damping, default the URDF's ``dynamics damping``), every elastic joint ``k_<joint>`` (its spring,
+about ``q = 0`` or the rest position ``r_<joint>``), and ``g``.
 """
 from __future__ import annotations
 
@@ -345,23 +345,44 @@ class Robot:
         out = [ca.substitute(e, P.sym, th) for e in (M, bias, grav)]
         return ca.Function("rigid_body", [self.q, self.v], out, ["q", "v"], ["M", "bias", "gravity"])
 
-    def region(self, sample_span: float = math.pi):
-        """The joint limits as the operating region (continuous joints: free, sampled in ``[-pi, pi]``;
-        limits wider than ``sample_span`` around 0 are sampled in ``[-sample_span, sample_span]``)."""
+    def region(self, limits: Mapping[str, tuple] | None = None, sample_span: float = math.pi):
+        """The joint limits as the operating region; ``limits`` (joint -> (lower, upper)) replaces the
+        URDF's for the joints it names (the range the user operates in).  Free joints (continuous, or
+        limits wider than ``sample_span`` around 0) are sampled in ``[-sample_span, sample_span]``."""
         from .region import OperatingRegion
 
-        lo = [j.lower for j in self.joints]
-        hi = [j.upper for j in self.joints]
-        slo = [max(a, -sample_span) for a in lo]
-        shi = [min(b, sample_span) for b in hi]
-        text = ", ".join(f"{j.name} in [{a:.4g}, {b:.4g}]" for j, a, b in zip(self.joints, lo, hi)
+        limits = dict(limits or {})
+        for name, pair in limits.items():
+            self.joint_index(name)
+            if len(pair) != 2 or not pair[0] < pair[1]:
+                raise URDFError(f"limits[{name!r}] = {pair!r}: give (lower, upper) with lower < upper")
+        lo = [float(limits.get(j.name, (j.lower, j.upper))[0]) for j in self.joints]
+        hi = [float(limits.get(j.name, (j.lower, j.upper))[1]) for j in self.joints]
+        slo = [a if math.isfinite(a) and a >= -sample_span else -sample_span for a in lo]
+        shi = [b if math.isfinite(b) and b <= sample_span else sample_span for b in hi]
+        slo = [a if a < b else lo_ for a, b, lo_ in zip(slo, shi, lo)]  # a range away from 0: its own bounds
+        shi = [b if a < b else hi_ for a, b, hi_ in zip(slo, shi, hi)]
+        text = ", ".join(f"{j.name} in ({a:.4g}, {b:.4g})" for j, a, b in zip(self.joints, lo, hi)
                          if math.isfinite(a) or math.isfinite(b))
         return OperatingRegion(q_lower=lo, q_upper=hi, sample_bounds=(slo, shi), v_scale=1.0,
-                               description=f"joint limits of the URDF: {text or 'none'}")
+                               description=f"joint limits: {text or 'none'}")
+
+    def parameters(self, springs: Mapping | None = None, dampers: Mapping | None = None) -> dict:
+        """The parameter values of :meth:`model` with these ``springs`` and ``dampers``."""
+        values = dict(self.values)
+        for j, d in (dampers or {}).items():
+            values[_param_name("d_", self.q_names[self.joint_index(j)])] = float(d)
+        for j, k in (springs or {}).items():
+            self.joint_index(j)
+            k, r = (k, None) if np.ndim(k) == 0 else k
+            values[_param_name("k_", j)] = float(k)
+            if r is not None:
+                values[_param_name("r_", j)] = float(r)
+        return values
 
     def model(self, name: str, *, actuated: Sequence[str], output: Callable[["Robot"], ca.SX] | None = None,
               springs: Mapping[str, float] | None = None, dampers: Mapping[str, float] | None = None,
-              y_names: Sequence[str] | None = None, overrides: Mapping[str, float] | None = None, **kwargs):
+              limits: Mapping[str, tuple] | None = None, y_names: Sequence[str] | None = None, overrides: Mapping[str, float] | None = None, **kwargs):
         """An ordinary :class:`~invctl.model.Model`: ``M`` and ``f`` from the Lagrangian of the tree.
 
         Parameters
@@ -371,10 +392,13 @@ class Robot:
         output : callable, optional
             ``output(robot) -> SX``: the output as an expression of :meth:`position`, :meth:`rotation`
             and ``robot.q`` (as many components as ``actuated``).
-        springs : dict joint -> stiffness
-            Elastic joints: a spring ``-k q`` on the joint (parameter ``k_<joint>``).
+        springs : dict joint -> stiffness or (stiffness, rest position)
+            Elastic joints: a spring ``-k (q - q_rest)`` on the joint (parameters ``k_<joint>`` and, when a
+            rest position is given, ``r_<joint>``; default rest position 0).
         dampers : dict joint -> damping
             Viscous damping ``-d v`` on the joint (parameter ``d_<joint>``), replacing the URDF's value.
+        limits : dict joint -> (lower, upper)
+            The operating region's range of these joints, replacing the URDF's limits (:meth:`region`).
         overrides
             Parameter values (``m_<link>``, ``d_<joint>``, ``k_<joint>``, ``g``).
         """
@@ -385,21 +409,19 @@ class Robot:
         acts = [self.joint_index(j) for j in actuated]
         if len(set(acts)) != len(acts):
             raise URDFError(f"{name}: a joint is listed twice in actuated={list(actuated)}")
-        for j in (*springs, *dampers):
-            self.joint_index(j)
-        values = dict(self.values)
-        values.update({_param_name("d_", j): float(d) for j, d in dampers.items()})
-        values.update({_param_name("k_", j): float(k) for j, k in springs.items()})
+        values = self.parameters(springs, dampers)
+        rest = {j: _param_name("r_", j) for j in springs if _param_name("r_", j) in values}
         P = ParamSet(list(values))
         T, V = self.energies(P)
         for j in springs:
-            V = V + 0.5 * P[_param_name("k_", j)] * self.q[self.joint_index(j)] ** 2
+            stretch = self.q[self.joint_index(j)] - (P[rest[j]] if j in rest else 0)
+            V = V + 0.5 * P[_param_name("k_", j)] * stretch ** 2
         Q = ca.vertcat(*[-P[_param_name("d_", j.name)] * self.v[i] for i, j in enumerate(self.joints)])
         B = ca.DM.zeros(self.n, len(acts))
         for c, i in enumerate(acts):
             B[i, c] = 1
         h = output(self) if output is not None else None
-        kwargs.setdefault("region", self.region())
+        kwargs.setdefault("region", self.region(limits))
         return Model.from_lagrangian(name, self.q, self.v, P, values, T=T, V=V, Q=Q, B=B, h=h, overrides=overrides,
                                      q_names=self.q_names, u_names=[f"u_{j}" for j in actuated], y_names=y_names,
                                      **kwargs)
