@@ -348,7 +348,7 @@ class Robot:
     def region(self, limits: Mapping[str, tuple] | None = None, sample_span: float = math.pi):
         """The joint limits as the operating region; ``limits`` (joint -> (lower, upper)) replaces the
         URDF's for the joints it names (the range the user operates in).  Free joints (continuous, or
-        limits wider than ``sample_span`` around 0) are sampled in ``[-sample_span, sample_span]``."""
+        revolute without a range) are sampled in ``[-sample_span, sample_span]``."""
         from .region import OperatingRegion
 
         limits = dict(limits or {})
@@ -358,10 +358,8 @@ class Robot:
                 raise URDFError(f"limits[{name!r}] = {pair!r}: give (lower, upper) with lower < upper")
         lo = [float(limits.get(j.name, (j.lower, j.upper))[0]) for j in self.joints]
         hi = [float(limits.get(j.name, (j.lower, j.upper))[1]) for j in self.joints]
-        slo = [a if math.isfinite(a) and a >= -sample_span else -sample_span for a in lo]
-        shi = [b if math.isfinite(b) and b <= sample_span else sample_span for b in hi]
-        slo = [a if a < b else lo_ for a, b, lo_ in zip(slo, shi, lo)]  # a range away from 0: its own bounds
-        shi = [b if a < b else hi_ for a, b, hi_ in zip(slo, shi, hi)]
+        slo = [a if math.isfinite(a) else -sample_span for a in lo]
+        shi = [b if math.isfinite(b) else sample_span for b in hi]
         text = ", ".join(f"{j.name} in ({a:.4g}, {b:.4g})" for j, a, b in zip(self.joints, lo, hi)
                          if math.isfinite(a) or math.isfinite(b))
         return OperatingRegion(q_lower=lo, q_upper=hi, sample_bounds=(slo, shi), v_scale=1.0,
