@@ -20,7 +20,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from invctl.model.urdf import robot_from_urdf
+from invctl.model.urdf import check_values, robot_from_urdf
 from invctl.reference import Reference, poly9_timing_law
 from invctl.scenes import Scene, Tracking
 
@@ -67,6 +67,7 @@ def drawing(model):
 
 SCENE = Scene(
     "acrobot", build, params=PARAMS, positive=tuple(k for k in PARAMS if k.startswith("m_")),
+    validate=lambda values: check_values(values, "acrobot"),
     tracking=Tracking(reference=reference, plant={"m_link2": 1.2}, initial_configuration=initial_configuration),
     drawing=drawing,
     description="acrobot from example-robot-data's double-pendulum URDF: shoulder passive, elbow driven, output = "

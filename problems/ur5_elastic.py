@@ -22,7 +22,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from invctl.model.urdf import robot_from_urdf
+from invctl.model.urdf import check_values, robot_from_urdf
 from invctl.reference import Reference, poly9_timing_law
 from invctl.scenes import Scene, Tracking
 
@@ -83,7 +83,8 @@ def drawing(model):
 
 
 SCENE = Scene(
-    "ur5_elastic", build, params=PARAMS, positive=tuple(k for k in PARAMS if k.startswith("m_")), tracking=Tracking(
+    "ur5_elastic", build, params=PARAMS, positive=tuple(k for k in PARAMS if k.startswith("m_")),
+    validate=lambda values: check_values(values, "ur5_elastic"), tracking=Tracking(
         reference=reference, plant={"m_wrist_3_link": 1.2}, initial_configuration=initial_configuration,
         controllers=CONTROLLERS),
     drawing=drawing,

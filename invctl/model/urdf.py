@@ -437,8 +437,10 @@ class Robot:
                 raise URDFError(f"drawing view {view!r}: give two of x, y, z (e.g. 'xz') or a 2 x 3 matrix")
             Pm = ca.DM.zeros(2, 3)
             Pm[0, axes[view[0]]], Pm[1, axes[view[1]]] = 1, 1
+            labels = (f"world {view[0]} [m]", f"world {view[1]} [m]")
         else:
             Pm = ca.DM(np.asarray(view, float).reshape(2, 3))
+            labels = ("horizontal of the view [m]", "vertical of the view [m]")
         # keep frames that move or carry the tree: origins of every link
         shown = list(frames) if frames is not None else list(self._R)
         sub = lambda e: ca.substitute(e, self.q, model.q)  # noqa: E731  (the model's own symbol)
@@ -450,7 +452,16 @@ class Robot:
         for tip, (frame, offset) in (tips or {}).items():
             pts[tip] = sub(ca.mtimes(Pm, self.position(frame, offset)))
             links.append((frame, tip))
-        return Drawing(points=pts, links=links)
+        return Drawing(points=pts, links=links, axis_labels=labels)
+
+
+def check_values(values: Mapping[str, float], where: str) -> None:
+    """Reject negative dampers ``d_*``, springs ``k_*`` and gravity ``g`` (a scene's ``validate``)."""
+    from ..errors import ParameterError
+
+    bad = {k: v for k, v in values.items() if (k.startswith(("d_", "k_")) or k == "g") and v < 0}
+    if bad:
+        raise ParameterError(f"{where}: dampers d_*, springs k_* and g must be >= 0, got {bad}")
 
 
 def robot_from_urdf(path) -> Robot:
