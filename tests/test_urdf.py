@@ -233,6 +233,9 @@ def test_shipped_panda_mimic_and_missing_file_and_unknown_names(tmp_path):
         robot.position("gripper")
     with pytest.raises(URDFError, match="no moving joint 'knee'"):
         robot.model("x", actuated=["elbow_joint"], springs={"knee": 1.0})
+    rigid = _write(tmp_path, TREE.format(kind="fixed", extra="", more=""))
+    with pytest.raises(URDFError, match="every joint is fixed"):
+        Model.from_urdf(rigid, actuated=[])
 
 
 def test_cli_reports_a_missing_urdf_as_json_error(tmp_path, capsys):

@@ -254,7 +254,7 @@ class Robot:
     tree order, ``q_names``).
 
     ``position(frame, offset)`` and ``rotation(frame)`` are SX in ``q`` for any link ``frame``
-    (output expressions); ``theta`` are the parameters (``param_names``, ``values``)."""
+    (output expressions); ``values`` are the defaults of the parameters (masses, dampers, ``g``)."""
 
     def __init__(self, description: Description):
         self.description = d = description
@@ -403,6 +403,8 @@ class Robot:
         from .multibody import Model
         from .params import ParamSet
 
+        if self.n == 0:
+            raise URDFError(f"{self.description.path}: every joint is fixed; a model needs a moving joint")
         springs, dampers = dict(springs or {}), dict(dampers or {})
         acts = [self.joint_index(j) for j in actuated]
         if len(set(acts)) != len(acts):
