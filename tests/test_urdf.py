@@ -85,6 +85,9 @@ def test_frames_and_drawing_equal_pinocchio_kinematics(name, tmp_path):
     robot = robot_from_urdf(path)
     model = robot.model(name, actuated=robot.q_names, validate=False)
     drawing = robot.drawing(model, view="xz")
+    assert drawing.axis_labels == ("world x [m]", "world z [m]")
+    with pytest.raises(URDFError, match="give two of x, y, z"):
+        robot.drawing(model, view="side")
     pm = pin.buildModelFromUrdf(str(path))
     data = pm.createData()
     links = [f for f in robot.description.links]
