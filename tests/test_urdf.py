@@ -255,3 +255,26 @@ def test_cli_reports_a_missing_urdf_as_json_error(tmp_path, capsys):
     assert rc == 2
     err = json.loads(out)
     assert err["error"] == "URDFError" and "gone.urdf" in err["message"]
+
+
+def test_funnel_design_of_the_five_input_arm_is_bounded(monkeypatch):
+    """The automatic funnel design of ur5_elastic (25 refined coefficients) stops each Nelder-Mead refinement at
+    REFINE_MAX_EVALUATIONS cost evaluations (it took 71 000 in all before) and still meets (A1) at every design
+    point."""
+    import invctl.control.new_output as new_output
+    from invctl.scenes import load_scene
+    from invctl.studies.tracking import setup_tracking
+
+    calls = []
+    real = new_output.minimize
+
+    def counting(fun, x0, **kw):
+        out = real(fun, x0, **kw)
+        calls.append((x0.size, out.nfev))
+        return out
+
+    monkeypatch.setattr(new_output, "minimize", counting)
+    setup = setup_tracking(load_scene("ur5_elastic"), {}, invert=False)
+    assert calls and max(size for size, _ in calls) >= 20
+    assert max(nfev for _, nfev in calls) <= new_output.REFINE_MAX_EVALUATIONS
+    assert float(np.min(setup.design.a1_points)) > 0
