@@ -31,6 +31,10 @@ and 3 SCOTCH when MUMPS was built with them; 6 QAMD; 7 automatic).
 
 ``--smoke`` (alias ``--quick``): n = 2, both formulations, one run each (checks that the benchmark runs;
 its numbers are not the benchmark's).
+
+Robots from URDF (``--robots``, default ``ur5_elastic``; ``acrobot`` with ``--smoke``): the inversion time of
+the scene built from a robot description (docs/robots.md) beside the hand-written flexible arm with as many
+coordinates (angles, same run; the arm has one input, the UR5 five), fastest of ``--repeat`` runs each.
 """
 from __future__ import annotations
 
@@ -88,6 +92,24 @@ def worker(n: int, coordinates: str = "angles", pivot_order: int | None = None) 
     return out
 
 
+def robot_worker(name: str) -> dict:
+    """Inversion of a scene built from a URDF (the automatic setup, like the arm's)."""
+    from invctl.inversion import forward_check
+    from invctl.scenes import load_scene
+    from invctl.studies.tracking import invert_tracking, tracking_model
+
+    scene = load_scene(name)
+    t = time.perf_counter()
+    model, ref = tracking_model(scene, {})
+    out = {"scene": name, "n": model.n, "m": model.m, "model_s": time.perf_counter() - t}
+    t = time.perf_counter()
+    inv = invert_tracking(scene, model, ref)
+    out["inversion_s"] = time.perf_counter() - t
+    out["iterations"] = inv.diagnostics["iterations"]
+    out["forward_error"] = forward_check(model, inv, ref)["error"]
+    return out
+
+
 def _limit_memory(gb: float):
     """A ``preexec_fn`` capping the worker's address space (a MemoryError in the worker instead of the
     kernel's OOM killer acting on the whole machine: the cartesian n = 16 run reached 22 GB)."""
@@ -102,6 +124,8 @@ def run_worker(n: int, timeout: float, coordinates: str = "angles", pivot_order:
     """One fresh process for ``n``; its result dict, or ``{"n", "error"}``."""
     t = time.perf_counter()
     cmd = [sys.executable, __file__, "--worker", str(n), "--coordinates", coordinates]
+    if isinstance(n, str):
+        cmd = [sys.executable, __file__, "--robot-worker", n]
     if pivot_order is not None:
         cmd += ["--pivot-order", str(pivot_order)]
     try:
@@ -168,11 +192,19 @@ def main() -> None:
     ap.add_argument("--max-memory-gb", type=float, default=8.0,
                     help="address-space limit of each worker process (0: none); a formulation that exceeds it "
                          "skips its larger n")
+    ap.add_argument("--robots", nargs="*", default=None,
+                    help="scenes from URDF whose inversion time is compared (default ur5_elastic; acrobot with --smoke)")
     ap.add_argument("--worker", type=int, default=None)
+    ap.add_argument("--robot-worker", default=None)
     ap.add_argument("--smoke", "--quick", action="store_true", help="n = 2, one run: checks that the benchmark runs")
     args = ap.parse_args()
     if args.smoke:
         args.n, args.repeat = [2], 1
+    if args.robots is None:
+        args.robots = ["acrobot"] if args.smoke else ["ur5_elastic"]
+    if args.robot_worker is not None:
+        print("RESULT " + json.dumps(robot_worker(args.robot_worker)))
+        return
     if args.worker is not None:
         coords = "angles" if args.coordinates == "both" else args.coordinates
         print("RESULT " + json.dumps(worker(args.worker, coords, args.pivot_order)))
@@ -221,6 +253,32 @@ def main() -> None:
             print(f"  n = {ra['n']:3d}: {ra['inversion_s']:7.2f} s / {rc['inversion_s']:7.2f} s = "
                   f"{ra['inversion_s'] / rc['inversion_s']:6.2f}   (IPOPT solve {ra['inversion_parts']['solve_s']:.2f} / "
                   f"{rc['inversion_parts']['solve_s']:.2f} s)")
+    robots(args, rows.get("angles", []))
+
+
+def robots(args, arm_rows: list[dict]) -> None:
+    """The inversion time of the URDF scenes beside the hand-written arm with as many coordinates."""
+    if not args.robots:
+        return
+    print("\nrobots from URDF: inversion time beside the hand-written flexible arm (angles) with as many coordinates")
+    for name in args.robots:
+        runs = [run_worker(name, args.timeout, max_memory_gb=args.max_memory_gb) for _ in range(max(1, args.repeat))]
+        good = [r for r in runs if "error" not in r]
+        if not good:
+            print(f"  {name}: {runs[0]['error']}")
+            continue
+        r = min(good, key=lambda x: x["inversion_s"])
+        arm = [a for a in arm_rows if a.get("n") == r["n"] and "error" not in a]
+        if not arm:
+            arm = [a for a in (run_worker(r["n"], args.timeout, "angles", args.pivot_order, args.max_memory_gb)
+                               for _ in range(max(1, args.repeat))) if "error" not in a]
+        a = min(arm, key=lambda x: x["inversion_s"]) if arm else None
+        line = (f"  {name} (URDF, n = {r['n']}, m = {r['m']}): inversion {r['inversion_s']:.2f} s, {r['iterations']} it, "
+                f"fwd err {r['forward_error']:.1e}")
+        if a is not None:
+            line += (f"  |  flexible_arm n = {a['n']} (hand-written, m = 1): {a['inversion_s']:.2f} s, "
+                     f"{a['inversion_parts']['iterations']} it  |  ratio {r['inversion_s'] / a['inversion_s']:.2f}")
+        print(line, flush=True)
 
 
 if __name__ == "__main__":

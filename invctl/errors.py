@@ -320,6 +320,17 @@ class InfeasibleBoundsError(InversionFailed):
     hold the closest feasible relaxation found (``diagnostics["relaxation"]``)."""
 
 
+class URDFError(ModelError):
+    """A robot description (URDF) cannot be used: the file is missing or malformed (not XML, a
+    missing attribute, a number that is not one, a joint naming an unknown link), or a joint or
+    frame named in the model's declaration does not exist in it."""
+
+
+class UnsupportedURDFError(URDFError):
+    """A URDF uses an element invctl does not model (a closed kinematic loop, a mimic joint, a
+    floating or planar joint); the message names the element."""
+
+
 __all__ = [
     "InvctlError", "ModelError", "DimensionError", "ParameterError", "SceneError", "RelativeDegreeError",
     "CoordinateError", "ReferenceSignalError", "BoundaryConditionError", "InversionFailed", "SimulationFailed",
@@ -329,5 +340,6 @@ __all__ = [
     "LinearizationError", "ZeroError", "ResourceLimitError", "RecordingError", "LibraryError",
     "SingularHighGainError", "WallTimeLimitError", "NumericalError", "RunInterrupted", "watch_sigint",
     "remember_sigint", "check_interrupt", "is_interrupt", "INTERRUPT_LIKE",
-    "JugglingInfeasible", "OptionError", "BoundsError", "InfeasibleBoundsError",
+    "JugglingInfeasible", "OptionError", "BoundsError", "InfeasibleBoundsError", "URDFError",
+    "UnsupportedURDFError",
 ]

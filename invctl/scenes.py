@@ -31,7 +31,7 @@ from pathlib import Path
 from types import MappingProxyType, ModuleType
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
 
-from .errors import DimensionError, ModelError, ParameterError, SceneError
+from .errors import DimensionError, ModelError, ParameterError, SceneError, URDFError
 
 if TYPE_CHECKING:
     import casadi as ca
@@ -827,7 +827,7 @@ def load_scene(name_or_path, preset: str | None = None, **values) -> Scene:
                 raise SceneError(f"scene {text!r} imports a missing module {exc.name!r}") from None
             raise SceneError(f"no scene named {text!r}; shipped scenes: {', '.join(available_scenes())} "
                              "(or give a path to a scene file)") from None
-        except SceneError:
+        except (SceneError, URDFError):  # a robot description's own error names the file and the element
             raise
         except Exception as exc:
             raise SceneError(f"shipped scene {text!r} failed to import: {type(exc).__name__}: {exc}") from None
@@ -881,6 +881,9 @@ def _import_file(path: Path) -> ModuleType:
         where = _where(exc, str(resolved))
         if where:
             raise SceneError(f"{exc}{where}") from None
+        raise
+    except URDFError:  # the robot description the scene reads: its own error names the file and the element
+        sys.modules.pop(modname, None)
         raise
     except Exception as exc:
         sys.modules.pop(modname, None)

@@ -286,7 +286,7 @@ def test_internal_eigenvalues_equal_python_control_zeros(name, build, params):
 
 # ------------------------------------------------------------------ automatic setup and closed loop
 @pytest.mark.parametrize("name, params", [("cartpole", {}), ("two_link_arm", {}), ("mass_chain", {}),
-                                          ("passive_arm", {}), ("flexible_arm", {})])
+                                          ("passive_arm", {}), ("flexible_arm", {}), ("acrobot", {})])
 def test_automatic_inversion_and_funnel_pipeline(name, params):
     """The pipeline of every gallery scene with nothing declared but the reference and the plant
     mismatch: invert() chooses selection and horizon and passes the forward check (output error

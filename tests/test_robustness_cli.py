@@ -802,6 +802,8 @@ REJECTED = {
     "mass_chain": [("n=2.5", "integer"), ("k=-1", ">= 0"), ("k=0,c=0", "decouples")],
     "passive_arm": [("L1=0", "positive"), ("c2=-1", ">= 0")],
     "flexible_arm": [("n=0", "positive"), ("d=-1", ">= 0"), ("w=0", "colocated")],
+    "acrobot": [("m_link1=0", "positive"), ("d_joint1=-1", ">= 0")],
+    "ur5_elastic": [("m_forearm_link=-1", "positive"), ("k_elbow_joint=-1", ">= 0"), ("g=-9.81", ">= 0")],
 }
 
 

@@ -259,6 +259,12 @@ def design_new_output(Q_tilde, P_tilde, S, *, S_points=None, k_i=None, K=None, r
     return best
 
 
+#: cost evaluations of one Nelder-Mead refinement: the iteration limit alone (600 per coefficient) let a
+#: five-input arm (25 coefficients) take 71 000 evaluations and 200 s over its pairing candidates; the
+#: shipped scenes need at most a few hundred (crane: 169)
+REFINE_MAX_EVALUATIONS = 3000
+
+
 def _refine(Qt, Pt, res, spaces, S_all, indices):
     """Maximize ``min_w lambda_min(sym(D S~(w) E)) / ||D||_2`` over the eta2-row coefficients and free rows."""
     q, m = len(res.k_i), S_all.shape[1]
@@ -282,7 +288,8 @@ def _refine(Qt, Pt, res, spaces, S_all, indices):
         return 1e3 if nrm == 0 else -_margins(D, S_all, E).min() / nrm
 
     out = minimize(cost, x0, method="Nelder-Mead",
-                   options={"maxiter": 600 * x0.size, "xatol": 1e-10, "fatol": 1e-12})
+                   options={"maxiter": 600 * x0.size, "maxfev": REFINE_MAX_EVALUATIONS, "xatol": 1e-10,
+                            "fatol": 1e-12})
     if not -out.fun > res.relative_margin:
         return None
     x = out.x

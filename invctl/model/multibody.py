@@ -213,6 +213,16 @@ class Model:
             f = f + _col(Q, "Q")
         return cls(name, q, v, params, values, M=Mx, f=f, B=B, **kwargs)
 
+    @classmethod
+    def from_urdf(cls, path, *, actuated, output=None, name: str | None = None, **kwargs) -> "Model":
+        """A model of the robot described by the URDF file ``path`` (:mod:`invctl.model.urdf`):
+        ``actuated`` joints, ``output(robot) -> SX``, and ``springs``/``dampers`` of elastic joints
+        (keywords of :meth:`invctl.model.urdf.Robot.model`)."""
+        from .urdf import robot_from_urdf
+
+        robot = robot_from_urdf(path)
+        return robot.model(name or robot.description.name, actuated=actuated, output=output, **kwargs)
+
     def with_params(self, **overrides: float) -> "Model":
         """A copy with other parameter values (same symbolic model).
 

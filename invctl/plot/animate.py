@@ -59,6 +59,8 @@ class Drawing:
         Axis limits; by default from the whole motion and the fixed elements.
     point_style : dict, optional
         Marker style of the points (default :data:`POINT_STYLE`); ``{}`` hides them.
+    axis_labels : (str, str)
+        Labels of the drawing's horizontal and vertical axes, with units.
     """
 
     points: Mapping[str, Any]
@@ -66,6 +68,7 @@ class Drawing:
     segments: Sequence[tuple] = ()
     limits: tuple | None = None
     point_style: Mapping[str, Any] | None = None
+    axis_labels: tuple = ("x [m]", "y [m]")
     _sx: ca.SX = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -242,7 +245,8 @@ def _figure(drawing: Drawing, limits, figsize, dpi, title):
     fig = Figure(figsize=figsize, dpi=dpi, layout="constrained")
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
-    ax.set(xlim=limits[0], ylim=limits[1], aspect="equal", xlabel="x [m]", ylabel="y [m]")
+    ax.set(xlim=limits[0], ylim=limits[1], aspect="equal", xlabel=drawing.axis_labels[0],
+           ylabel=drawing.axis_labels[1])
     ax.grid(True, lw=0.4, alpha=0.5)
     for xy, style in drawing.segments:
         ax.plot(xy[:, 0], xy[:, 1], **style)
