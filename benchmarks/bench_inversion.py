@@ -178,7 +178,6 @@ def main():
     print("stable inversion of the manipulator, uniform meshes (Newton backend on the square system)")
     print(f"{'scheme':16s} {'N':>5s} {'build_s':>8s} {'solve_s':>8s} {'iter':>4s} {'rss_MB':>7s} {'fwd_err':>9s}")
     for sch in schemes:
-        prev = None
         for N in Ns:
             clear_caches()
             try:
@@ -199,7 +198,6 @@ def main():
                          "iterations": d["iterations"], "rss": rss_mb(), "error": err})
             print(f"{sch:16s} {N:5d} {d['build_s']:8.3f} {d['solve_s']:8.3f} {d['iterations']:4d} {rss_mb():7.0f} "
                   f"{err:9.2e}   (warm re-solve {warm * 1e3:.1f} ms)")
-            prev = inv
     print("\nobserved convergence order of the forward-check error (fit over N):")
     for sch in schemes:
         r = [x for x in rows if x["scheme"] == sch and x["error"] > 1e-12]
@@ -229,7 +227,7 @@ def main():
                         ("default (exact zero Hessian, MUMPS unscaled, AMD)", None)):
         clear_caches()
         base = invert_tracking(scene.SCENE, model, ref, N=100, ipopt_options=opts)
-        colds, cbs = [], []
+        colds = []
         for _ in range(ROUNDS):
             b = invert_tracking(scene.SCENE, model, ref, N=100, ipopt_options=opts)
             colds.append(b.diagnostics["solve_s"])

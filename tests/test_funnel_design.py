@@ -210,7 +210,7 @@ def test_manipulator_c1_and_c2_inside_the_funnels_on_the_mismatched_plant(manip,
     for label, feedback in (("auto", d.controller_options()), ("hand", {})):
         s = setup_tracking(scene.SCENE, inverse=manip_inverse, feedback=feedback)
         out[label] = {name: run_controller(s, name) for name in ("C1", "C2", "C1-inv")}
-    for name, r in out["auto"].items():
+    for r in out["auto"].values():
         assert r.status == "ok" and r.t[-1] == pytest.approx(2.0) and r.max_funnel_ratio < 1
         assert a1_margin_along(d, model, r.q, r.v).min_eig > 0
         assert a1_margin_along(d, model.scaled(**scene.PLANT_FACTORS), r.q, r.v).min_eig > 0

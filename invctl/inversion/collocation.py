@@ -102,7 +102,7 @@ class Transcription:
         self.nx, self.m4, self.ntheta = nx, m4, ntheta
         N = self.N
         rhs = servo.rhs
-        Xs, Ys, th = ca.SX.sym("X", nx), ca.SX.sym("Y", m4), ca.SX.sym("theta", ntheta)
+        th = ca.SX.sym("theta", ntheta)
         hs = ca.SX.sym("h")
         ub = L.blocks["u"]
         if scheme.is_hs:
@@ -269,7 +269,6 @@ class Transcription:
         h, Y, theta, _E0, _Ef = self._split_p(p)
         rj_sx = self.servo.rhs_jac
         rj = self._c(rj_sx)
-        I = ca.DM.eye(nx)  # noqa: E741
         vals = []
         if self.scheme.is_hs and not self.compiled and nx > NUMERIC_SOLVES_NX:
             # large blocks: the right-hand side Jacobian with numeric solves by M (ServoModel.rhs_jac_numeric),
@@ -495,7 +494,7 @@ class Transcription:
     def residual_and_jacobian(self, x, p, jacobian: bool = True):
         """The constraint vector ``g`` and its sparse Jacobian (scipy CSC), assembled from
         the mapped right-hand side and its Jacobian at the nodes (numpy, no loops over nodes)."""
-        nx, N, servo = self.nx, self.N, self.servo
+        nx, N = self.nx, self.N
         indices, indptr, perm, s0, sf = self._pattern()
         x = np.asarray(x, float).ravel()
         p = np.asarray(p, float).ravel()

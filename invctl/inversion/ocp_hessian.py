@@ -62,7 +62,6 @@ def structured_hessian(tr) -> ca.Function:
     npv = int(pvars.numel())
     pt_hess = ca.Function("ocp_point_hess", pin + [wv], [ca.densify(ca.hessian(ca.dot(wv, G), pvars)[0])])
     lam_s, mu_s, fs = ca.SX.sym("lam", n_def), ca.SX.sym("mu", n_ip), ca.SX.sym("fs")
-    tz = [tau] if tau is not None else []
     hd_sym = ca.SX.sym("dt") if tau is not None else ca.SX(0)
     h_d = h + (dh * hd_sym if tau is not None else 0)
     if hs:

@@ -40,7 +40,7 @@ from scipy.integrate import solve_ivp
 
 @lru_cache(maxsize=16)
 def _forward_functions(model, alpha: float):
-    n, l = model.n, model.ell  # noqa: E741
+    l = model.ell  # noqa: E741
     q, v = model.q, model.v
     u = ca.SX.sym("u", model.m)
     a, _lam, _mu = model.accel_and_multipliers(q, v, u, model.theta)

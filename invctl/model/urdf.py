@@ -201,7 +201,7 @@ def read_urdf(path) -> Description:
             raise URDFError(f"{where}: joint {el.get('name')!r} is declared twice")
         names.add(el.get("name"))
         joints.append(_joint(el, where, links))
-    parent_of = {}
+    parent_of: dict = {}
     for j in joints:
         if j.child in parent_of:
             raise UnsupportedURDFError(
@@ -216,7 +216,7 @@ def read_urdf(path) -> Description:
                             f"the links {roots} have no parent joint: the file describes {len(roots)} separate "
                             "trees; connect them with joints"))
     ordered, frontier = [], [roots[0]]
-    children = {}
+    children: dict = {}
     for j in joints:
         children.setdefault(j.parent, []).append(j)
     while frontier:
@@ -318,7 +318,7 @@ class Robot:
 
     def energies(self, P) -> tuple[ca.SX, ca.SX]:
         """Kinetic and gravitational potential energy with the masses and ``g`` of the parameters ``P``."""
-        T, V = 0, 0
+        T, V = ca.SX(0), ca.SX(0)
         for name in self.mass_links:
             link = self.description.links[name]
             m = P[_param_name("m_", name)]
