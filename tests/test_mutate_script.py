@@ -140,3 +140,50 @@ def test_refuses_uncommitted_changes(repo):
     assert r.returncode == 2
     assert "git status" in r.stderr
     assert path.read_text().endswith("# local edit\n")
+
+
+def test_per_folder_sampling_draws_from_every_folder(repo):
+    (repo / "other").mkdir()
+    (repo / "other" / "few.py").write_text("def f(a, b):\n    return a - b\n")
+    _git(repo, "add", ".")
+    _git(repo, "commit", "-q", "-m", "other")
+
+    def listed(*args):
+        r = _run(repo, "other", "--max-mutants", "2", "--list", *args)
+        assert r.returncode == 0, r.stderr
+        return [line.split(":")[0] for line in r.stdout.splitlines() if ":" in line]
+
+    per_folder = listed("--per-folder")
+    assert per_folder.count("pkg/tiny.py") == 2 and per_folder.count("other/few.py") == 1
+    assert len(listed()) == 2                    # without it: 2 in all
+    assert listed("--per-folder") == per_folder  # the seed fixes the sample
+
+
+def test_only_and_rerun(repo):
+    r = _run(repo, "--only", "pkg/tiny.py:12:+ -> -")
+    assert r.returncode == 0, r.stderr
+    assert [line.split()[1] for line in r.stdout.splitlines() if line.startswith("[")] == \
+        ["survived"]
+    earlier = repo / "earlier.txt"
+    earlier.write_text("[1/5] killed      1.0s  pkg/tiny.py:16:2 -> 1\n"
+                       "[2/5] survived    1.0s  pkg/tiny.py:12:+ -> -\n"
+                       "[3/5] timeout     3.0s  pkg/tiny.py:6:< -> >\n")
+    with open(repo / "tests" / "test_tiny.py", "a") as f:   # now kill the survivor
+        f.write("\n\ndef test_untested():\n    from pkg.tiny import untested\n"
+                "    assert untested(1, 2) == 3\n")
+    out = repo / "rerun.txt"
+    r = _run(repo, "--rerun", str(earlier), "--timeout", "3", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    status = {line.split(None, 3)[3]: line.split()[1:3]
+              for line in out.read_text().splitlines() if line.startswith("[")}
+    assert status["pkg/tiny.py:16:2 -> 1"] == ["killed", "0.0s"]      # carried over
+    assert status["pkg/tiny.py:12:+ -> -"][0] == "killed"              # re-run, now caught
+    assert status["pkg/tiny.py:6:< -> >"] == ["timeout", "0.0s"]
+    assert len(status) == 5 and "2 results carried over" in out.read_text()
+    assert out.read_text().startswith("# python tools/mutate.py ")
+    assert "survivors (1):\n  pkg/tiny.py:6:< -> <=\n" in out.read_text()   # the equivalent one
+    bad = _run(repo, "--only", "pkg/tiny.py:99:+ -> -")
+    assert bad.returncode == 2 and "no such mutant" in bad.stderr
+    earlier.write_text("[1/1] survived    1.0s  pkg/tiny.py:99:+ -> -\n")
+    bad = _run(repo, "--rerun", str(earlier))
+    assert bad.returncode == 2 and "not in this sample" in bad.stderr
