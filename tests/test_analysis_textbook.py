@@ -245,3 +245,36 @@ def test_analyze_command_on_a_scene_file(tmp_path, capsys):
                                             "PARAMS = {}\ndef build(**p):\n    return {}"))
     assert main(["analyze", str(bad)]) == 2
     assert "must return an invctl.model.Model" in capsys.readouterr().err
+
+
+# ------------------------------------------------- reported numbers of colocated_check
+def _two_masses(k, B, h, **kw):
+    from invctl.model import Model, ParamSet
+
+    P = ParamSet(["m1", "m2", "k"])
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    return Model("two_masses", q, v, P, {"m1": 2.0, "m2": 5.0, "k": k},
+                 M=ca.diag(ca.vertcat(P["m1"], P["m2"])), f=-q, B=B(P), h=h(P, q), **kw)
+
+
+def test_colocated_check_reports_gamma_extremes_and_scales_round_off():
+    """Two free masses (m1 = 2, m2 = 5), y = c k q and B = 0.3 k I with c = 0.1 + 0.2 (0.3 up to one ulp):
+    Gamma = h' M^-1 B = 0.3 c k^2 diag(1/m1, 1/m2), so its smallest eigenvalue is 0.3 c k^2 / 5 exactly (no
+    constraints: S = Gamma). h' - B^T = (c - 0.3) k I is round-off of size k 1e-16, which the colocation test
+    must accept at k = 1e6 (its tolerance scales with the parameters)."""
+    c, k = 0.1 + 0.2, 1e6
+    model = _two_masses(k, lambda P: 0.3 * P["k"] * ca.DM.eye(2), lambda P, q: c * P["k"] * q)
+    rep = colocated_check(model, samples=10)
+    assert 1e-12 < rep.max_mismatch < 1e-12 * k          # the case the scaled tolerance exists for
+    assert rep.colocated
+    np.testing.assert_allclose(rep.gamma_min_eig, 0.3 * c * k**2 / 5.0, rtol=1e-12)
+    np.testing.assert_allclose(rep.schur_min_eig, 0.3 * c * k**2 / 5.0, rtol=1e-12)
+    assert rep.gamma_max_asym == 0.0 and rep.samples == 10
+
+
+def test_relative_degree_error_names_the_output_without_constraints():
+    """No constraints (p = l = 0): auxiliary output 0 is the output itself, and y = q2 never sees the force
+    on mass 1 (diagonal M, no coupling)."""
+    model = _two_masses(1.0, lambda P: ca.DM([[1], [0]]), lambda P, q: q[1], y_names=["x2"])
+    with pytest.raises(RelativeDegreeError, match=r"auxiliary output 0 \(output x2\) is not influenced"):
+        relative_degree(model, samples=10)
