@@ -51,8 +51,8 @@ TEST_MAP = {
     "invctl/analysis/summary.py": ["tests/test_analysis_manipulator.py"],
     "invctl/analysis/zeros.py": ["tests/test_zeros.py", "tests/test_analysis_linear.py"],
     "invctl/contact/equilibria.py": ["tests/test_mechanisms_000.py", "tests/test_sixbar.py"],
-    "invctl/contact/lcp.py": ["tests/test_numbers_users_see.py", "tests/test_lcp_compiled.py",
-                              "tests/test_contact.py"],
+    "invctl/contact/lcp.py": ["tests/test_lcp_tolerances.py", "tests/test_numbers_users_see.py",
+                              "tests/test_lcp_compiled.py", "tests/test_contact.py"],
     "invctl/contact/linkage.py": ["tests/test_mechanisms_000.py"],
     "invctl/contact/mechanics.py": ["tests/test_contact.py", "tests/test_chain.py"],
     "invctl/contact/reduction.py": ["tests/test_chain.py"],
@@ -418,7 +418,8 @@ def main(argv=None):
     ap.add_argument("--per-folder", action="store_true",
                     help="stratify the --max-mutants sample over the --modules paths")
     ap.add_argument("--only", nargs="+", metavar="KEY", default=None,
-                    help="run just these mutants, keys as printed, e.g. 'invctl/x.py:12:< -> <='")
+                    help="run just these mutants, keys as printed, e.g. 'invctl/x.py:12:< -> <=' "
+                         "(--modules, --max-mutants and --per-folder are then ignored)")
     ap.add_argument("--shard", metavar="K/N", default=None,
                     help="run only every N-th mutant of the sample, starting at the K-th (1-based)")
     ap.add_argument("--rerun", nargs="+", metavar="REPORT", default=None,
@@ -441,7 +442,7 @@ def main(argv=None):
         ap.error(f"no such file or folder under {root}: {', '.join(missing)}")
     groups = {p: expand(root, [p]) for p in args.modules}
     files = [f for p in args.modules for f in groups[p]]
-    mutants = [m for f in files for m in find_mutants(root, f)]
+    mutants = [] if args.only else [m for f in files for m in find_mutants(root, f)]
     if args.max_mutants is not None:
         mutants = sample(mutants, args.max_mutants, args.seed,
                          groups if args.per_folder else None)
