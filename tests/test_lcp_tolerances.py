@@ -85,3 +85,32 @@ def test_lemke_first_pivot_breaks_ties_lexicographically():
     z, ok, pivots = (np.array(ca.evalf(x)).ravel() for x in lemke_sx(ca.DM(A), ca.DM(b)))
     assert ok[0] == 1 and pivots[0] == 2
     np.testing.assert_allclose(z, [0, 0, 1], atol=1e-14)
+
+
+# not a P-matrix (det < 0): z = (0.9/7, 0) (round-off residual r0 > 0 on w1), z = (0, 0.1) (exact) and an
+# interior point all solve it; enumeration visits active sets by size, {1} before {2}
+A_NP = np.array([[7.0, 10.0], [8.0, 9.0]])
+B_NP = np.array([-0.9, -0.9])
+Z_FIRST, Z_EXACT = np.array([0.9 / 7.0, 0.0]), np.array([0.0, 0.1])
+
+
+def test_enumeration_returns_the_first_solution_within_the_inclusive_tolerance():
+    """With tol scale = r0 exactly, the first active set's solution is within the tolerance (<=) and returned."""
+    r0 = np.max(np.abs(np.minimum(Z_FIRST, A_NP @ Z_FIRST + B_NP)))
+    assert r0 > 0 and np.max(np.abs(np.minimum(Z_EXACT, A_NP @ Z_EXACT + B_NP))) == 0.0
+    s = _scale(A_NP, B_NP, Z_FIRST)
+    tol = r0 / s
+    while tol * s != r0:                       # the tolerance that puts r0 exactly on the bound
+        tol = np.nextafter(tol, 1.0 if tol * s < r0 else 0.0)
+    sol = solve_lcp(A_NP, B_NP, method="enumeration", tol=tol, check_unique=False)
+    np.testing.assert_array_equal(sol.z, Z_FIRST)
+    assert sol.residual == r0
+
+
+def test_enumeration_keeps_the_smallest_residual_when_the_first_is_outside_tol():
+    """With tol below r0 / scale the first solution is not accepted; the exact one (residual 0) is."""
+    r0 = np.max(np.abs(np.minimum(Z_FIRST, A_NP @ Z_FIRST + B_NP)))
+    sol = solve_lcp(A_NP, B_NP, method="enumeration", tol=0.5 * r0 / _scale(A_NP, B_NP, Z_FIRST),
+                    check_unique=False)
+    np.testing.assert_array_equal(sol.z, Z_EXACT)
+    assert sol.residual == 0.0
