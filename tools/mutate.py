@@ -7,7 +7,12 @@ Slow and not part of CI. Run from the repository root, e.g.
 Each mutant rewrites one token on one source line, runs the mapped test files with
 ``pytest -x -q -p no:cacheprovider`` and restores the file byte-identical afterwards (also
 after Ctrl-C). The target files must be committed first, so a crash can never leave a planted
-bug unnoticed.
+bug unnoticed. The run over the core, two processes each in its own clone (two shards would
+see each other's mutants in one tree), then the survivors again after new tests:
+
+    python tools/mutate.py --max-mutants 16 --per-folder --shard 1/2 --out s1.txt   # clone 1
+    python tools/mutate.py --max-mutants 16 --per-folder --shard 2/2 --out s2.txt   # clone 2
+    python tools/mutate.py --max-mutants 16 --per-folder --rerun s1.txt s2.txt --out all.txt
 """
 from __future__ import annotations
 
