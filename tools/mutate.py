@@ -46,7 +46,8 @@ TEST_MAP = {
     "invctl/model/params.py": ["tests/test_model.py", "tests/test_sensitivity.py"],
     "invctl/model/region.py": ["tests/test_region_sampling.py", "tests/test_model.py"],
     "invctl/analysis/auxiliary.py": _ANALYSIS,
-    "invctl/analysis/equilibrium.py": _ANALYSIS + ["tests/test_statespace.py"],
+    "invctl/analysis/equilibrium.py": ["tests/test_equilibrium_solver.py"] + _ANALYSIS + [
+        "tests/test_statespace.py"],
     "invctl/analysis/identify.py": ["tests/test_identify.py"],
     "invctl/analysis/internal.py": ["tests/test_zeros.py"] + _ANALYSIS,
     "invctl/analysis/linearize.py": ["tests/test_identify.py", "tests/test_zeros.py",
