@@ -278,3 +278,32 @@ def test_relative_degree_error_names_the_output_without_constraints():
     model = _two_masses(1.0, lambda P: ca.DM([[1], [0]]), lambda P, q: q[1], y_names=["x2"])
     with pytest.raises(RelativeDegreeError, match=r"auxiliary output 0 \(output x2\) is not influenced"):
         relative_degree(model, samples=10)
+
+
+def test_velocity_output_with_numeric_mass_matrix_has_relative_degree_one():
+    """y = v1 with a numeric M = diag(2, 5) and the force on mass 1: L_K y = B^T M^-1 e1 = 1/2 is a nonzero
+    constant row, so r = 1 and Gamma = 1/2 everywhere."""
+    from invctl.model import Model, ParamSet
+
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    model = Model("numeric_masses", q, v, ParamSet([]), {}, M=ca.DM([[2.0, 0.0], [0.0, 5.0]]), f=-q,
+                  B=ca.DM([[1.0], [0.0]]), h=v[0])
+    rd = relative_degree(model, samples=5)
+    assert rd.r_aux == (1,)
+    assert rd.min_singular_value == pytest.approx(0.5, rel=1e-15)
+
+
+def test_reported_worst_point_is_the_smallest_relative_singular_value():
+    """y = (q1, q2 + q1^2 / 2), M = diag(2, 5), B = I: Gamma = h' M^-1 = [[1/2, 0], [q1/2, 1/5]] in closed
+    form. Over the sampled points the worst condition number, its point (smallest sigma_min / sigma_max) and
+    the smallest singular value are those of the closed form at the reported samples."""
+    model = _two_masses(1.0, lambda P: ca.DM.eye(2), lambda P, q: ca.vertcat(q[0], q[1] + q[0] ** 2 / 2))
+    rd = relative_degree(model, samples=40)
+    qs = rd.diagnostics["q"]
+    sv = np.array([np.linalg.svd([[0.5, 0.0], [q[0] / 2, 0.2]], compute_uv=False) for q in qs])
+    k = int(np.argmin(sv[:, 1] / sv[:, 0]))
+    assert np.ptp(sv[:, 1] / sv[:, 0]) > 0.1                   # the points differ
+    np.testing.assert_array_equal(rd.min_singular_point[0], qs[k])
+    np.testing.assert_array_equal(rd.worst_point[0], qs[k])
+    assert rd.worst_condition == pytest.approx(sv[k, 0] / sv[k, 1], rel=1e-12)
+    assert rd.min_singular_value == pytest.approx(sv[:, 1].min(), rel=1e-12)
