@@ -307,3 +307,20 @@ def test_reported_worst_point_is_the_smallest_relative_singular_value():
     np.testing.assert_array_equal(rd.worst_point[0], qs[k])
     assert rd.worst_condition == pytest.approx(sv[k, 0] / sv[k, 1], rel=1e-12)
     assert rd.min_singular_value == pytest.approx(sv[:, 1].min(), rel=1e-12)
+
+
+def test_sect3_rejects_a_velocity_output_of_relative_degree_two():
+    """y = q1 + v2 with the force on mass 1 (diagonal M): L_K y = e2^T M^-1 e1 = 0 and the damper couples v1
+    into v2', so r_hat = 2 although y depends on v; the Sect. 3 coordinates need a position output."""
+    from invctl.model import Model, ParamSet
+
+    P = ParamSet(["m1", "m2", "k2", "d2"])
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    spring = P["k2"] * (q[1] - q[0]) + P["d2"] * (v[1] - v[0])
+    model = Model("msd_qv", q, v, P, {"m1": 1.0, "m2": 0.5, "k2": 3.0, "d2": 0.2},
+                  M=ca.diag(ca.vertcat(P["m1"], P["m2"])), f=ca.vertcat(spring, -spring), B=ca.DM([[1], [0]]),
+                  h=q[0] + v[1])
+    assert relative_degree(model, samples=10).r_hat == 2
+    for phi in (None, lambda m: ca.vertcat(m.q[1], m.v[0])):   # default and user coordinates
+        with pytest.raises(CoordinateError, match="position output"):
+            internal_dynamics(model, "sect3", phi, point=[0, 0])
