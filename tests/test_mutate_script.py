@@ -187,3 +187,18 @@ def test_only_and_rerun(repo):
     earlier.write_text("[1/1] survived    1.0s  pkg/tiny.py:99:+ -> -\n")
     bad = _run(repo, "--rerun", str(earlier))
     assert bad.returncode == 2 and "not in this sample" in bad.stderr
+
+
+def test_keys_of_removed_calls_survive_a_report_round_trip(repo):
+    """``abs(x) -> (x)`` has an empty replacement; its key has no trailing blank, so --only, --rerun and the
+    equivalent list find it again."""
+    (repo / "pkg" / "tiny.py").write_text(MODULE + "\n\ndef size(x):\n    return abs(x)\n")
+    _git(repo, "commit", "-qam", "abs")
+    key = "pkg/tiny.py:30:abs ->"
+    r = _run(repo, "--list")
+    assert key in [line.split("    [")[0] for line in r.stdout.splitlines()]
+    earlier = repo / "earlier.txt"
+    earlier.write_text(f"[1/1] killed      1.0s  {key}\n")
+    r = _run(repo, "--only", key + " ", "--rerun", str(earlier))
+    assert r.returncode == 0, r.stderr
+    assert f"killed      0.0s  {key}" in r.stdout

@@ -133,7 +133,7 @@ class Mutant:
     @property
     def key(self):
         more = f" ({self.nth})" if self.nth > 1 else ""
-        return f"{self.path}:{self.line}:{self.old} -> {self.new}{more}"
+        return f"{self.path}:{self.line}:{self.old} -> {self.new}{more}".rstrip()
 
     def apply(self, source):
         lines = source.splitlines(keepends=True)
@@ -459,6 +459,7 @@ def main(argv=None):
                          groups if args.per_folder else None)
     earlier = {}
     if args.only:
+        args.only = [k.strip() for k in args.only]
         paths = sorted({k.split(":")[0] for k in args.only if (root / k.split(":")[0]).is_file()})
         known = {m.key: m for f in paths for m in find_mutants(root, f)}
         unknown = [k for k in args.only if k not in known]
