@@ -516,11 +516,11 @@ def main(argv=None):
         try:
             for i, m in enumerate(mutants, 1):
                 tests = tests_for(root, m.path)
-                t0 = time.monotonic()
                 if earlier.get(m.key) in ("killed", "timeout") or (
                         earlier.get(m.key) == "survived" and m.key in equivalent):
                     status = earlier[m.key]    # carried over: tests were only added since
                     carried += 1
+                    t0 = time.monotonic()
                 else:
                     key = tuple(tests)
                     if key not in baseline:
@@ -529,6 +529,7 @@ def main(argv=None):
                         if m.path not in failed_baseline:
                             failed_baseline.append(m.path)
                         continue
+                    t0 = time.monotonic()
                     status = run_mutant(root, m, tests, args.timeout, backup_dir)
                 results.append((m, status))
                 say(f"[{i}/{len(mutants)}] {status:8s} {time.monotonic() - t0:6.1f}s  {m.key}")
