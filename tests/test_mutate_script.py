@@ -182,6 +182,10 @@ def test_only_and_rerun(repo):
     assert len(status) == 5 and "2 results carried over" in out.read_text()
     assert out.read_text().startswith("# python tools/mutate.py ")
     assert "survivors (1):\n  pkg/tiny.py:6:< -> <=\n" in out.read_text()   # the equivalent one
+    merged = _run(repo, "--rerun", str(earlier), "--merge")   # survivors carried too: nothing re-run
+    assert merged.returncode == 0, merged.stderr
+    assert "3 results carried over" in merged.stdout
+    assert "survived    0.0s  pkg/tiny.py:12:+ -> -" in merged.stdout
     bad = _run(repo, "--only", "pkg/tiny.py:99:+ -> -")
     assert bad.returncode == 2 and "no such mutant" in bad.stderr
     earlier.write_text("[1/1] survived    1.0s  pkg/tiny.py:99:+ -> -\n")

@@ -13,6 +13,8 @@ see each other's mutants in one tree), then the survivors again after new tests:
     python tools/mutate.py --max-mutants 16 --per-folder --shard 1/2 --out s1.txt   # clone 1
     python tools/mutate.py --max-mutants 16 --per-folder --shard 2/2 --out s2.txt   # clone 2
     python tools/mutate.py --max-mutants 16 --per-folder --rerun s1.txt s2.txt --out all.txt
+
+(with ``--shard`` again on the re-run, ``--merge --rerun all1.txt all2.txt`` joins the halves).
 """
 from __future__ import annotations
 
@@ -431,6 +433,9 @@ def main(argv=None):
     ap.add_argument("--only", nargs="+", metavar="KEY", default=None,
                     help="run just these mutants, keys as printed, e.g. 'invctl/x.py:12:< -> <=' "
                          "(--modules, --max-mutants and --per-folder are then ignored)")
+    ap.add_argument("--merge", action="store_true",
+                    help="with --rerun: carry survivors over as well, run only mutants missing from the "
+                         "reports (merges shard reports into one)")
     ap.add_argument("--shard", metavar="K/N", default=None,
                     help="run only every N-th mutant of the sample, starting at the K-th (1-based)")
     ap.add_argument("--rerun", nargs="+", metavar="REPORT", default=None,
@@ -517,7 +522,7 @@ def main(argv=None):
             for i, m in enumerate(mutants, 1):
                 tests = tests_for(root, m.path)
                 if earlier.get(m.key) in ("killed", "timeout") or (
-                        earlier.get(m.key) == "survived" and m.key in equivalent):
+                        earlier.get(m.key) == "survived" and (args.merge or m.key in equivalent)):
                     status = earlier[m.key]    # carried over: tests were only added since
                     carried += 1
                     t0 = time.monotonic()
