@@ -114,3 +114,16 @@ def test_enumeration_keeps_the_smallest_residual_when_the_first_is_outside_tol()
                     check_unique=False)
     np.testing.assert_array_equal(sol.z, Z_EXACT)
     assert sol.residual == 0.0
+
+
+def test_lcp_sx_methods_are_the_named_ones():
+    """Murty's LCP (14 Lemke pivots): method='lemke' is Lemke with its default budget of 11 pivots, so it flags
+    the solve; method='pivoting' (block principal pivoting) solves it, z = (1, 0, 1, 0, 1)."""
+    m = 5
+    A = ca.DM(np.eye(m) + 2 * np.triu(np.ones((m, m)), 1))
+    b = ca.DM(-np.arange(m, 0, -1.0))
+    _, ok = lcp_sx(A, b, method="lemke", with_flag=True)
+    assert float(ca.evalf(ok)) == 0.0
+    z, ok = lcp_sx(A, b, method="pivoting", with_flag=True)
+    assert float(ca.evalf(ok)) == 1.0
+    np.testing.assert_allclose(np.array(ca.evalf(z)).ravel(), [1, 0, 1, 0, 1], atol=1e-12)
