@@ -382,3 +382,12 @@ def test_pairing_is_needed_and_works_for_a_pendulum_on_the_second_axis():
     u = np.array(ctrl.core(0.3, np.array([0.01, 0.0, 0.0]), np.zeros(3), [], ctrl.eta2_ref(0.3))[0]).ravel()
     ebar = np.array(ctrl.core(0.3, np.array([0.01, 0.0, 0.0]), np.zeros(3), [], ctrl.eta2_ref(0.3))[2]).ravel()
     assert np.sign(u[0]) == -np.sign(ebar[1]) and abs(u[0] / u[1]) == pytest.approx(abs(ebar[1] / ebar[0]))
+
+
+@pytest.mark.parametrize("name", ["expected_fraction", "final_factor", "level_factor", "transient_factor",
+                                  "decay", "kappa_rate", "kappa_bar_rate"])
+def test_design_rule_constants_must_be_positive_not_zero(name):
+    from invctl.control.funnel_design import DesignRules
+
+    with pytest.raises(ParameterError, match=f"DesignRules.{name} must be > 0, got 0.0"):
+        DesignRules(**{name: 0.0})
