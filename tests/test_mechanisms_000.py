@@ -311,3 +311,34 @@ def test_scene_commands_json_and_figure(name, values, controller, tmp_path, caps
     assert main(["analyze", name, "--json"]) == 0
     d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert d["reports"]
+
+
+class _LoopModel:
+    """Two coordinates tied by the closure q1 = q2 (one clearance-free DoF along (1, 1)), input matrix B."""
+
+    def __init__(self, B):
+        from types import SimpleNamespace
+
+        import casadi as ca
+
+        self.q, self.theta, self.theta_values = ca.SX.sym("q", 2), ca.SX.sym("th", 0), np.zeros(0)
+        self.linkage = SimpleNamespace(closure=self.q[0] - self.q[1])
+        self.n, self.m, self._B = 2, B.shape[1], B
+
+    def function(self, name):
+        import casadi as ca
+
+        return ca.Function(name, [self.q, self.theta], [ca.DM(self._B)])
+
+
+@pytest.mark.parametrize("B, kind, rank", [(np.eye(2), "overactuated", 1),           # 2 inputs, 1 DoF
+                                           (np.array([[1.0], [-1.0]]), "underactuated", 0),  # acts across it
+                                           (np.array([[1.0], [0.0]]), "fully actuated", 1)])
+def test_clearance_free_degree_of_actuation(B, kind, rank):
+    """000 Assumption 1 on the clearance-free system: E = N^T B with N = (1, 1)/sqrt 2 spanning its tangent
+    space; p = m inputs against dim q_wc = 1 and rank E."""
+    from invctl.contact.structure import _clearance_free
+
+    out = _clearance_free(_LoopModel(B), np.zeros(2))
+    assert out["clearance-free DoFs (dim q_wc)"] == 1 and out["rank E_wc"] == rank
+    assert out["clearance-free system (000 Assumption 1)"].startswith(kind + " (")
