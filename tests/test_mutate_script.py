@@ -206,3 +206,16 @@ def test_keys_of_removed_calls_survive_a_report_round_trip(repo):
     r = _run(repo, "--only", key + " ", "--rerun", str(earlier))
     assert r.returncode == 0, r.stderr
     assert f"killed      0.0s  {key}" in r.stdout
+
+
+def test_every_core_module_is_mapped_to_existing_tests():
+    """No core module falls back to the name heuristics or to unrelated fallback tests."""
+    sys.path.insert(0, str(SCRIPT.parent))
+    try:
+        import mutate
+    finally:
+        sys.path.remove(str(SCRIPT.parent))
+    root = SCRIPT.parents[1]
+    modules = [m for m in mutate.expand(root, mutate.CORE) if not m.endswith("__init__.py")]
+    assert modules and not [m for m in modules if m not in mutate.TEST_MAP]
+    assert all((root / t).is_file() for tests in mutate.TEST_MAP.values() for t in tests)
