@@ -127,3 +127,16 @@ def test_lcp_sx_methods_are_the_named_ones():
     z, ok = lcp_sx(A, b, method="pivoting", with_flag=True)
     assert float(ca.evalf(ok)) == 1.0
     np.testing.assert_allclose(np.array(ca.evalf(z)).ravel(), [1, 0, 1, 0, 1], atol=1e-12)
+
+
+def test_lcp_sx_lemke_keeps_its_pivot_budget_below_max_enum():
+    """m = 3 <= max_enum: method='lemke' is still Lemke (Murty's LCP of size 3 needs 6 pivots, more than
+    max_iter = 3), not the enumeration 'auto' would pick, which solves it: z = (1, 0, 1)."""
+    m = 3
+    A = ca.DM(np.eye(m) + 2 * np.triu(np.ones((m, m)), 1))
+    b = ca.DM(-np.arange(m, 0, -1.0))
+    _, ok = lcp_sx(A, b, method="lemke", max_iter=3, with_flag=True)
+    assert float(ca.evalf(ok)) == 0.0
+    z, ok = lcp_sx(A, b, with_flag=True)
+    assert float(ca.evalf(ok)) == 1.0
+    np.testing.assert_allclose(np.array(ca.evalf(z)).ravel(), [1, 0, 1], atol=1e-12)
