@@ -186,6 +186,9 @@ def test_only_and_rerun(repo):
     assert merged.returncode == 0, merged.stderr
     assert "3 results carried over" in merged.stdout
     assert "survived    0.0s  pkg/tiny.py:12:+ -> -" in merged.stdout
+    only = _run(repo, "--rerun", str(earlier), "--merge", "--report-only")   # runs nothing at all
+    assert only.returncode == 0, only.stderr
+    assert "not run (2):\n  pkg/tiny.py:6:< -> <=\n  pkg/tiny.py:16:* -> /" in only.stdout
     bad = _run(repo, "--only", "pkg/tiny.py:99:+ -> -")
     assert bad.returncode == 2 and "no such mutant" in bad.stderr
     earlier.write_text("[1/1] survived    1.0s  pkg/tiny.py:99:+ -> -\n")

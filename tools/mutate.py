@@ -436,6 +436,8 @@ def main(argv=None):
     ap.add_argument("--merge", action="store_true",
                     help="with --rerun: carry survivors over as well, run only mutants missing from the "
                          "reports (merges shard reports into one)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="with --merge: run nothing; mutants missing from the reports are listed as not run")
     ap.add_argument("--shard", metavar="K/N", default=None,
                     help="run only every N-th mutant of the sample, starting at the K-th (1-based)")
     ap.add_argument("--rerun", nargs="+", metavar="REPORT", default=None,
@@ -505,7 +507,7 @@ def main(argv=None):
     signal.signal(signal.SIGTERM, _interrupt)
 
     results, baseline, failed_baseline = [], {}, []
-    interrupted, carried = False, 0
+    interrupted, carried, not_run = False, 0, []
     log = open(args.out, "w") if args.out else None
 
     def say(text):
@@ -526,6 +528,9 @@ def main(argv=None):
                     status = earlier[m.key]    # carried over: tests were only added since
                     carried += 1
                     t0 = time.monotonic()
+                elif args.report_only:
+                    not_run.append(m.key)
+                    continue
                 else:
                     key = tuple(tests)
                     if key not in baseline:
@@ -547,6 +552,9 @@ def main(argv=None):
            f"from {', '.join(args.rerun)} (0.0s lines)" if args.rerun else ""))
     say("")
     say(report(results, equivalent, failed_baseline))
+    if not_run:
+        say(f"not run ({len(not_run)}):")
+        say("\n".join(f"  {k}" for k in not_run))
     if log:
         log.close()
     return 130 if interrupted else 0
