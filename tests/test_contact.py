@@ -315,3 +315,16 @@ def test_rest_time_is_the_first_sample_after_the_last_unsettled_one():
     tr.stats["Un"] = np.zeros((1, 8))
     assert ContactTrajectory(t, z, z, z, z.astype(bool), 0 * gaps, t * 0, t * 0, 0.1,
                              stats={"Un": np.zeros((1, 8))}).rest_time() == 0.0
+
+
+def test_preload_with_as_many_inputs_as_contacts_is_feasible():
+    """p = m_u' = 1: an actuated mass touching a free one (gap q2 - q1) with E_hat of full rank: one input
+    suffices for one contact (000 Corollary 1 needs p >= m_u', Lemma 1 rank E_hat = m_u')."""
+    from invctl.control.preload import preload_check
+
+    P = ParamSet(["m"])
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    model = Model("pair", q, v, P, {"m": 1.0}, M=ca.SX.eye(2), f=ca.SX.zeros(2), B=ca.DM([[1.0], [0.0]]),
+                  gaps=[Gap("c12", q[1] - q[0])])
+    chk = preload_check(model, [0.0, 0.0], [0.0, 0.0], [0], raise_=False)
+    assert chk.feasible and chk.rank == 1
