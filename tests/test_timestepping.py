@@ -358,3 +358,23 @@ def test_persistent_contact_phase_vs_event_driven():
     errs = [np.max(np.abs(mj.run([0.0, 0.05], [0.0, 0.0], 1.0, h).q[:, -1] - ref.q[:, -1])) for h in (2e-4, 1e-4, 5e-5)]
     assert errs[2] < errs[1] < errs[0] < 1e-3
     assert 0.8 <= _slope(np.array([2e-4, 1e-4, 5e-5]), np.array(errs)) <= 2.2
+
+
+def test_pd_plus_tracking_input_and_lyapunov_function_closed_form():
+    """One mass m on a line, no potential, q_d = sin t: 000 (48) gives u = m qdd_d - Kv (v - qd_d) - Kp (q - q_d)
+    and (50) V = m (v - qd_d)^2 / 2 + Kp (q - q_d)^2 / 2."""
+    import casadi as ca
+
+    from invctl.control.pdplus import pd_plus_tracking
+    from invctl.model import Model, ParamSet
+
+    P = ParamSet(["m"])
+    q, v = ca.SX.sym("q", 1), ca.SX.sym("v", 1)
+    model = Model("mass", q, v, P, {"m": 2.0}, M=P["m"] * ca.SX.eye(1), f=ca.SX.zeros(1), B=ca.DM.eye(1), h=q)
+    Kp, Kv, m = 3.0, 0.5, 2.0
+    law = pd_plus_tracking(model, Kp=Kp, Kv=Kv, q_d=ca.sin)
+    for qq, vv, t in ((0.3, -0.2, 0.7), (-1.0, 0.4, 2.0)):
+        u, V = law.function(model)([qq], [vv], t, model.theta_values, law.values())
+        e, ev = qq - np.sin(t), vv - np.cos(t)
+        assert float(u) == pytest.approx(-m * np.sin(t) - Kv * ev - Kp * e, rel=1e-13)
+        assert float(V) == pytest.approx(0.5 * m * ev**2 + 0.5 * Kp * e**2, rel=1e-13)
