@@ -222,3 +222,12 @@ def test_every_core_module_is_mapped_to_existing_tests():
     modules = [m for m in mutate.expand(root, mutate.CORE) if not m.endswith("__init__.py")]
     assert modules and not [m for m in modules if m not in mutate.TEST_MAP]
     assert all((root / t).is_file() for tests in mutate.TEST_MAP.values() for t in tests)
+
+
+def test_baseline_failure_skips_the_module_unless_told_not_to_check(repo):
+    with open(repo / "tests" / "test_tiny.py", "a") as f:
+        f.write("\n\ndef test_broken():\n    assert False\n")
+    r = _run(repo, "--timeout", "3")
+    assert r.returncode == 0 and "skipped pkg/tiny.py: its tests fail without any mutation" in r.stdout
+    r = _run(repo, "--timeout", "3", "--no-baseline", "--only", "pkg/tiny.py:12:+ -> -")
+    assert "killed" in r.stdout            # the unchecked broken test "kills" everything: hence the warning

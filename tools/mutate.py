@@ -436,6 +436,8 @@ def main(argv=None):
     ap.add_argument("--merge", action="store_true",
                     help="with --rerun: carry survivors over as well, run only mutants missing from the "
                          "reports (merges shard reports into one)")
+    ap.add_argument("--no-baseline", action="store_true",
+                    help="skip the unmutated run of each test set (only when it just passed, e.g. re-runs)")
     ap.add_argument("--report-only", action="store_true",
                     help="with --merge: run nothing; mutants missing from the reports are listed as not run")
     ap.add_argument("--shard", metavar="K/N", default=None,
@@ -534,7 +536,7 @@ def main(argv=None):
                 else:
                     key = tuple(tests)
                     if key not in baseline:
-                        baseline[key] = run_tests(root, tests, args.timeout) == "passed"
+                        baseline[key] = args.no_baseline or run_tests(root, tests, args.timeout) == "passed"
                     if not baseline[key]:
                         if m.path not in failed_baseline:
                             failed_baseline.append(m.path)
