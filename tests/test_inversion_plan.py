@@ -341,3 +341,16 @@ def test_reference_smoothness_declared_and_measured():
     # smooth references pass (also a fast one)
     check_reference(cp.reference(md))
     check_reference(Reference(t, 0.5 * poly9_timing_law(t, 0, 2) * (1 + 0.1 * ca.sin(30 * t)), 0, 2, smoothness=4))
+
+
+def test_describe_shows_imaginary_parts_above_round_off_only():
+    """Internal eigenvalues with |imag| <= 1e-12 are real up to round-off and shown as real numbers."""
+    from invctl.inversion.plan import InversionPlan
+
+    plan = InversionPlan(
+        start={}, end={}, T0=-1.0, Tf=2.0, t0=0.0, tf=1.0, eigenvalues_start=(1.5 + 1e-12j, -2.0 + 2e-12j),
+        eigenvalues_end=(), rate_pre=None, rate_post=None, tail_pre=0.0, tail_post=0.0, kappa_pre=1.0,
+        kappa_post=1.0, conditioning_start=1.0, conditioning_end=1.0, sensitivity_start=0.0, sensitivity_end=0.0,
+        pins_start={}, pins_end={}, drift_rate=None, scale={}, tol=1e-8, max_horizon=10.0, formulation="sect3",
+        omega=0.0, derived=())
+    assert "internal eigenvalues: +1.5, -2+2e-12i at the start, none at the end" in plan.describe()
