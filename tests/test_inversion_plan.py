@@ -354,3 +354,10 @@ def test_describe_shows_imaginary_parts_above_round_off_only():
         pins_start={}, pins_end={}, drift_rate=None, scale={}, tol=1e-8, max_horizon=10.0, formulation="sect3",
         omega=0.0, derived=())
     assert "internal eigenvalues: +1.5, -2+2e-12i at the start, none at the end" in plan.describe()
+
+
+def test_graded_mesh_without_decay_is_uniform_on_each_span():
+    """decay = (0, 0): the spans outside [t0, tf] are at rest and get one interval each, the transition the
+    other 28 uniform ones: [-1, linspace(0, 1, 29), 2]."""
+    t = graded_mesh(-1.0, 2.0, 0.0, 1.0, 30)
+    np.testing.assert_allclose(t, np.r_[-1.0, np.linspace(0.0, 1.0, 29), 2.0], atol=1e-15)
