@@ -378,3 +378,15 @@ def test_pd_plus_tracking_input_and_lyapunov_function_closed_form():
         e, ev = qq - np.sin(t), vv - np.cos(t)
         assert float(u) == pytest.approx(-m * np.sin(t) - Kv * ev - Kp * e, rel=1e-13)
         assert float(V) == pytest.approx(0.5 * m * ev**2 + 0.5 * Kp * e**2, rel=1e-13)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_symbolic_small_solve_matches_numpy(n):
+    """A^-1 B by the adjugate formulas (n <= 3) and symbolic QR beyond, against numpy's LU solve."""
+    from invctl.simulate.codegen import small_solve
+
+    rng = np.random.default_rng(n)
+    A, B = rng.standard_normal((n, n)) + n * np.eye(n), rng.standard_normal((n, 2))
+    As, Bs = ca.SX.sym("A", n, n), ca.SX.sym("B", n, 2)
+    X = ca.Function("x", [As, Bs], [small_solve(As, Bs)])(A, B)
+    np.testing.assert_allclose(np.array(X), np.linalg.solve(A, B), rtol=1e-12, atol=1e-12)
