@@ -361,3 +361,16 @@ def test_graded_mesh_without_decay_is_uniform_on_each_span():
     other 28 uniform ones: [-1, linspace(0, 1, 29), 2]."""
     t = graded_mesh(-1.0, 2.0, 0.0, 1.0, 30)
     np.testing.assert_allclose(t, np.r_[-1.0, np.linspace(0.0, 1.0, 29), 2.0], atol=1e-15)
+
+
+def test_objective_output_weights_per_output():
+    """One weight per output is used as given; a tuple of the wrong length names the outputs."""
+    from types import SimpleNamespace
+
+    from invctl.errors import OptionError
+    from invctl.inversion.options import Objective
+
+    model = SimpleNamespace(m=2, y_names=("y1", "y2"))
+    np.testing.assert_array_equal(Objective(output=(1.0, 3.0)).output_weights(model), [1.0, 3.0])
+    with pytest.raises(OptionError, match=r"1 output weights for 2 outputs \['y1', 'y2'\]"):
+        Objective(output=(1.0,)).output_weights(model)
