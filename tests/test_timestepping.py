@@ -390,3 +390,13 @@ def test_symbolic_small_solve_matches_numpy(n):
     As, Bs = ca.SX.sym("A", n, n), ca.SX.sym("B", n, 2)
     X = ca.Function("x", [As, Bs], [small_solve(As, Bs)])(A, B)
     np.testing.assert_allclose(np.array(X), np.linalg.solve(A, B), rtol=1e-12, atol=1e-12)
+
+
+def test_active_set_changes_counted_in_the_loop_equal_the_record(ball):
+    """stats['n_changes'] (accumulated in the compiled loop) equals the steps whose active or loaded set differs
+    from the previous step's, counted on the complete record (starting from nothing active)."""
+    tr = ball.run([1.0], [0.0], 5.0, 1e-3)
+    zero = np.zeros((tr.active.shape[0], 1), bool)
+    act, load = np.hstack([zero, tr.active]), np.hstack([zero, tr.P > 0])
+    changed = np.any(act[:, 1:] != act[:, :-1], axis=0) | np.any(load[:, 1:] != load[:, :-1], axis=0)
+    assert tr.stats["n_changes"] == int(changed.sum()) > tr.stats["n_impacts"] > 10
