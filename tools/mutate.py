@@ -46,7 +46,8 @@ TEST_MAP = {
     "invctl/model/linalg.py": ["tests/test_linear_solves.py", "tests/test_model.py"],
     "invctl/model/multibody.py": ["tests/test_model.py", "tests/test_analysis_textbook.py"],
     "invctl/model/params.py": ["tests/test_model.py", "tests/test_sensitivity.py"],
-    "invctl/model/region.py": ["tests/test_region_sampling.py", "tests/test_model.py"],
+    "invctl/model/region.py": ["tests/test_region_closed_form.py", "tests/test_region_sampling.py",
+                               "tests/test_model.py"],
     "invctl/analysis/auxiliary.py": _ANALYSIS,
     "invctl/analysis/equilibrium.py": ["tests/test_equilibrium_solver.py"] + _ANALYSIS + [
         "tests/test_statespace.py"],
