@@ -245,3 +245,82 @@ def test_analyze_command_on_a_scene_file(tmp_path, capsys):
                                             "PARAMS = {}\ndef build(**p):\n    return {}"))
     assert main(["analyze", str(bad)]) == 2
     assert "must return an invctl.model.Model" in capsys.readouterr().err
+
+
+# ------------------------------------------------- reported numbers of colocated_check
+def _two_masses(k, B, h, **kw):
+    from invctl.model import Model, ParamSet
+
+    P = ParamSet(["m1", "m2", "k"])
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    return Model("two_masses", q, v, P, {"m1": 2.0, "m2": 5.0, "k": k},
+                 M=ca.diag(ca.vertcat(P["m1"], P["m2"])), f=-q, B=B(P), h=h(P, q), **kw)
+
+
+def test_colocated_check_reports_gamma_extremes_and_scales_round_off():
+    """Two free masses (m1 = 2, m2 = 5), y = c k q and B = 0.3 k I with c = 0.1 + 0.2 (0.3 up to one ulp):
+    Gamma = h' M^-1 B = 0.3 c k^2 diag(1/m1, 1/m2), so its smallest eigenvalue is 0.3 c k^2 / 5 exactly (no
+    constraints: S = Gamma). h' - B^T = (c - 0.3) k I is round-off of size k 1e-16, which the colocation test
+    must accept at k = 1e6 (its tolerance scales with the parameters)."""
+    c, k = 0.1 + 0.2, 1e6
+    model = _two_masses(k, lambda P: 0.3 * P["k"] * ca.DM.eye(2), lambda P, q: c * P["k"] * q)
+    rep = colocated_check(model, samples=10)
+    assert 1e-12 < rep.max_mismatch < 1e-12 * k          # the case the scaled tolerance exists for
+    assert rep.colocated
+    np.testing.assert_allclose(rep.gamma_min_eig, 0.3 * c * k**2 / 5.0, rtol=1e-12)
+    np.testing.assert_allclose(rep.schur_min_eig, 0.3 * c * k**2 / 5.0, rtol=1e-12)
+    assert rep.gamma_max_asym == 0.0 and rep.samples == 10
+
+
+def test_relative_degree_error_names_the_output_without_constraints():
+    """No constraints (p = l = 0): auxiliary output 0 is the output itself, and y = q2 never sees the force
+    on mass 1 (diagonal M, no coupling)."""
+    model = _two_masses(1.0, lambda P: ca.DM([[1], [0]]), lambda P, q: q[1], y_names=["x2"])
+    with pytest.raises(RelativeDegreeError, match=r"auxiliary output 0 \(output x2\) is not influenced"):
+        relative_degree(model, samples=10)
+
+
+def test_velocity_output_with_numeric_mass_matrix_has_relative_degree_one():
+    """y = v1 with a numeric M = diag(2, 5) and the force on mass 1: L_K y = B^T M^-1 e1 = 1/2 is a nonzero
+    constant row, so r = 1 and Gamma = 1/2 everywhere."""
+    from invctl.model import Model, ParamSet
+
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    model = Model("numeric_masses", q, v, ParamSet([]), {}, M=ca.DM([[2.0, 0.0], [0.0, 5.0]]), f=-q,
+                  B=ca.DM([[1.0], [0.0]]), h=v[0])
+    rd = relative_degree(model, samples=5)
+    assert rd.r_aux == (1,)
+    assert rd.min_singular_value == pytest.approx(0.5, rel=1e-15)
+
+
+def test_reported_worst_point_is_the_smallest_relative_singular_value():
+    """y = (q1, q2 + q1^2 / 2), M = diag(2, 5), B = I: Gamma = h' M^-1 = [[1/2, 0], [q1/2, 1/5]] in closed
+    form. Over the sampled points the worst condition number, its point (smallest sigma_min / sigma_max) and
+    the smallest singular value are those of the closed form at the reported samples."""
+    model = _two_masses(1.0, lambda P: ca.DM.eye(2), lambda P, q: ca.vertcat(q[0], q[1] + q[0] ** 2 / 2))
+    rd = relative_degree(model, samples=40)
+    qs = rd.diagnostics["q"]
+    sv = np.array([np.linalg.svd([[0.5, 0.0], [q[0] / 2, 0.2]], compute_uv=False) for q in qs])
+    k = int(np.argmin(sv[:, 1] / sv[:, 0]))
+    assert np.ptp(sv[:, 1] / sv[:, 0]) > 0.1                   # the points differ
+    np.testing.assert_array_equal(rd.min_singular_point[0], qs[k])
+    np.testing.assert_array_equal(rd.worst_point[0], qs[k])
+    assert rd.worst_condition == pytest.approx(sv[k, 0] / sv[k, 1], rel=1e-12)
+    assert rd.min_singular_value == pytest.approx(sv[:, 1].min(), rel=1e-12)
+
+
+def test_sect3_rejects_a_velocity_output_of_relative_degree_two():
+    """y = q1 + v2 with the force on mass 1 (diagonal M): L_K y = e2^T M^-1 e1 = 0 and the damper couples v1
+    into v2', so r_hat = 2 although y depends on v; the Sect. 3 coordinates need a position output."""
+    from invctl.model import Model, ParamSet
+
+    P = ParamSet(["m1", "m2", "k2", "d2"])
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    spring = P["k2"] * (q[1] - q[0]) + P["d2"] * (v[1] - v[0])
+    model = Model("msd_qv", q, v, P, {"m1": 1.0, "m2": 0.5, "k2": 3.0, "d2": 0.2},
+                  M=ca.diag(ca.vertcat(P["m1"], P["m2"])), f=ca.vertcat(spring, -spring), B=ca.DM([[1], [0]]),
+                  h=q[0] + v[1])
+    assert relative_degree(model, samples=10).r_hat == 2
+    for phi in (None, lambda m: ca.vertcat(m.q[1], m.v[0])):   # default and user coordinates
+        with pytest.raises(CoordinateError, match="position output"):
+            internal_dynamics(model, "sect3", phi, point=[0, 0])

@@ -297,3 +297,34 @@ def test_long_contact_runs_are_saved_decimated_by_default(scene, values, control
     assert d.max_energy_increase == f.max_energy_increase and d.max_V_increase == f.max_V_increase
     np.testing.assert_array_equal(d.q[:, -1], f.q[:, -1])
     np.testing.assert_array_equal(d.q, f.q[:, d.stats["step_index"]])  # recorded samples are steps of the run
+
+
+def test_rest_time_is_the_first_sample_after_the_last_unsettled_one():
+    """A hand-made record: the contact closes at sample 2, bounces (U_n = 0.5) at sample 3 and stays still from
+    sample 4 on, so it rests from t[4]; a record that is unsettled at its end never rests (nan)."""
+    from invctl.simulate.contact_record import ContactTrajectory
+
+    t = 0.1 * np.arange(8)
+    gaps = np.array([[1.0, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    Un = np.array([[-1.0, -1.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.0]])
+    z = np.zeros((1, 8))
+    tr = ContactTrajectory(t, z, z, z, z.astype(bool), gaps, t * 0, t * 0, 0.1, stats={"Un": Un})
+    assert tr.rest_time() == t[4]
+    tr.stats["Un"] = np.array([[-1.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5]])
+    assert np.isnan(tr.rest_time())
+    tr.stats["Un"] = np.zeros((1, 8))
+    assert ContactTrajectory(t, z, z, z, z.astype(bool), 0 * gaps, t * 0, t * 0, 0.1,
+                             stats={"Un": np.zeros((1, 8))}).rest_time() == 0.0
+
+
+def test_preload_with_as_many_inputs_as_contacts_is_feasible():
+    """p = m_u' = 1: an actuated mass touching a free one (gap q2 - q1) with E_hat of full rank: one input
+    suffices for one contact (000 Corollary 1 needs p >= m_u', Lemma 1 rank E_hat = m_u')."""
+    from invctl.control.preload import preload_check
+
+    P = ParamSet(["m"])
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    model = Model("pair", q, v, P, {"m": 1.0}, M=ca.SX.eye(2), f=ca.SX.zeros(2), B=ca.DM([[1.0], [0.0]]),
+                  gaps=[Gap("c12", q[1] - q[0])])
+    chk = preload_check(model, [0.0, 0.0], [0.0, 0.0], [0], raise_=False)
+    assert chk.feasible and chk.rank == 1

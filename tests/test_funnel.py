@@ -225,3 +225,26 @@ def test_controller_rejects_funnels_outside_phi_k(design):
         funnel_controller(model, ref, lin, funnels=[lambda t: 2 + ca.sin(t**2) / (1 + t), (1, 3, 0.05)])
     with pytest.raises(ParameterError, match="phi_bar not in Phi_1"):
         funnel_controller(model, ref, lin, phi_bar=lambda t: 1 / (1 + t))
+
+
+def test_sampled_check_reports_the_smallest_value_and_a_sign_change():
+    """phi = 1 + sin(t) / 2 has min 1/2 (at t = 3 pi / 2, on the dense grid to 1e-4); phi = 1/2 + sin(t)
+    is negative near t = 3 pi / 2, which the check must report."""
+    import casadi as ca
+
+    from invctl.control.funnel import Funnel
+
+    ok = Funnel.from_callable(lambda t: 1 + ca.sin(t) / 2, "wavy").check(0)
+    assert ok.method == "sampled" and ok.min_positive == pytest.approx(0.5, abs=1e-4)
+    bad = Funnel.from_callable(lambda t: 0.5 + ca.sin(t), "dips").check(0)
+    assert not bad.passed and bad.min_positive == pytest.approx(-0.5, abs=1e-4)
+    assert any("phi(t) <= 0" in p for p in bad.problems)
+
+
+def test_compiled_funnel_functions_are_named_after_the_funnel():
+    """The CasADi Function (and generated C symbol) is '<name>_d<order>' with the name made an identifier;
+    a name without letters or digits falls back to 'phi'."""
+    from invctl.control.funnel import Funnel
+
+    assert Funnel.constant(0.5, "my funnel").function(1).name() == "my_funnel_d1"
+    assert Funnel.constant(0.5, "+++").function(0).name() == "phi_d0"

@@ -189,3 +189,53 @@ def test_linearization_features_of_the_scene_match_its_split(base):
     f = linearization_features(lin)
     np.testing.assert_allclose(f["TinvP"], lin.T @ lin.P, rtol=1e-12)
     np.testing.assert_allclose(f["TinvP"][1], lin.P_tilde[0], rtol=1e-12)
+
+
+# ----------------------------------------------------------------------------- tolerances, on tiny problems
+def test_imaginary_round_off_relative_to_the_largest_eigenvalue_is_not_complex():
+    """Eigenvalues 1e6 and 2 +- 1e-9 i: the imaginary part is below 1e-12 max|lambda| = 1e-6, so it counts as
+    round-off of a double real eigenvalue, whose (real) eigenvectors coincide: 'defective', not 'complex'."""
+    Q = np.zeros((3, 3))
+    Q[0, 0], Q[1:, 1:] = 1e6, [[2.0, 1e-9], [-1e-9, 2.0]]
+    with pytest.raises(ParameterError, match="defective"):
+        eigen_split(Q, np.eye(3))
+
+
+def test_a_parameter_with_a_tiny_column_is_insensitive():
+    """f = (a b, a, 1e-12 e) at a = b = e = 1 in log coordinates: the Jacobian columns are (1, 1, 0),
+    (1, 0, 0) and (0, 0, 1e-12); e's norm is below rank_tol = 1e-8 times the largest singular value (about
+    1.6), so e is insensitive (though not exactly zero), and the fit's rank is 2."""
+    import casadi as ca
+
+    from invctl.model import Model, ParamSet
+
+    P = ParamSet(["a", "b", "e"])
+    q, v = ca.SX.sym("q", 1), ca.SX.sym("v", 1)
+    model = Model("tiny", q, v, P, {"a": 1.0, "b": 1.0, "e": 1.0}, M=ca.SX.eye(1), f=-q, B=ca.DM.eye(1), h=q)
+
+    def evaluate(m):
+        a, b, e = (m.values[k] for k in "abe")
+        return {"f": np.array([a * b, a, 1e-12 * e])}
+
+    fit = identify(model, ["a", "b", "e"], [Target("f", np.array([1.0, 1.0, 1e-12]), 1.0)], evaluate,
+                   n_starts=0)
+    assert fit.insensitive == ("e",) and fit.rank == 2
+
+
+def test_negative_minima_are_each_listed_once():
+    """f = ((a + 2)^2 - 1)^2 with target 0, a fitted linearly in (-4, -0.5) from 13 starts: the minima are
+    a = -3 and a = -1 (double roots, so each start stops about 1e-6 away); starts that land on the same
+    minimum agree to 1e-3 relative to |a|, so one is the fit and the other the single alternative."""
+    import casadi as ca
+
+    from invctl.model import Model, ParamSet
+
+    P = ParamSet(["a"])
+    q, v = ca.SX.sym("q", 1), ca.SX.sym("v", 1)
+    model = Model("double_roots", q, v, P, {"a": -1.2}, M=ca.SX.eye(1), f=-q, B=ca.DM.eye(1), h=q)
+    evaluate = lambda m: {"f": np.array([((m.values["a"] + 2) ** 2 - 1) ** 2])}  # noqa: E731
+    fit = identify(model, ["a"], [Target("f", np.array([0.0]), 1.0)], evaluate, n_starts=12, log=False,
+                   bounds={"a": (-4.0, -0.5)})
+    assert len(fit.alternatives) == 1
+    found = sorted([fit.values["a"], fit.alternatives[0]["values"]["a"]])
+    np.testing.assert_allclose(found, [-3.0, -1.0], rtol=1e-4)

@@ -341,3 +341,36 @@ def test_reference_smoothness_declared_and_measured():
     # smooth references pass (also a fast one)
     check_reference(cp.reference(md))
     check_reference(Reference(t, 0.5 * poly9_timing_law(t, 0, 2) * (1 + 0.1 * ca.sin(30 * t)), 0, 2, smoothness=4))
+
+
+def test_describe_shows_imaginary_parts_above_round_off_only():
+    """Internal eigenvalues with |imag| <= 1e-12 are real up to round-off and shown as real numbers."""
+    from invctl.inversion.plan import InversionPlan
+
+    plan = InversionPlan(
+        start={}, end={}, T0=-1.0, Tf=2.0, t0=0.0, tf=1.0, eigenvalues_start=(1.5 + 1e-12j, -2.0 + 2e-12j),
+        eigenvalues_end=(), rate_pre=None, rate_post=None, tail_pre=0.0, tail_post=0.0, kappa_pre=1.0,
+        kappa_post=1.0, conditioning_start=1.0, conditioning_end=1.0, sensitivity_start=0.0, sensitivity_end=0.0,
+        pins_start={}, pins_end={}, drift_rate=None, scale={}, tol=1e-8, max_horizon=10.0, formulation="sect3",
+        omega=0.0, derived=())
+    assert "internal eigenvalues: +1.5, -2+2e-12i at the start, none at the end" in plan.describe()
+
+
+def test_graded_mesh_without_decay_is_uniform_on_each_span():
+    """decay = (0, 0): the spans outside [t0, tf] are at rest and get one interval each, the transition the
+    other 28 uniform ones: [-1, linspace(0, 1, 29), 2]."""
+    t = graded_mesh(-1.0, 2.0, 0.0, 1.0, 30)
+    np.testing.assert_allclose(t, np.r_[-1.0, np.linspace(0.0, 1.0, 29), 2.0], atol=1e-15)
+
+
+def test_objective_output_weights_per_output():
+    """One weight per output is used as given; a tuple of the wrong length names the outputs."""
+    from types import SimpleNamespace
+
+    from invctl.errors import OptionError
+    from invctl.inversion.options import Objective
+
+    model = SimpleNamespace(m=2, y_names=("y1", "y2"))
+    np.testing.assert_array_equal(Objective(output=(1.0, 3.0)).output_weights(model), [1.0, 3.0])
+    with pytest.raises(OptionError, match=r"1 output weights for 2 outputs \['y1', 'y2'\]"):
+        Objective(output=(1.0,)).output_weights(model)

@@ -313,3 +313,64 @@ def test_scene_commands_json_and_figure(name, values, controller, tmp_path, caps
     assert main(["analyze", name, "--json"]) == 0
     d = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert d["reports"]
+
+
+class _LoopModel:
+    """Two coordinates tied by the closure q1 = q2 (one clearance-free DoF along (1, 1)), input matrix B."""
+
+    def __init__(self, B):
+        from types import SimpleNamespace
+
+        import casadi as ca
+
+        self.q, self.theta, self.theta_values = ca.SX.sym("q", 2), ca.SX.sym("th", 0), np.zeros(0)
+        self.linkage = SimpleNamespace(closure=self.q[0] - self.q[1])
+        self.n, self.m, self._B = 2, B.shape[1], B
+
+    def function(self, name):
+        import casadi as ca
+
+        return ca.Function(name, [self.q, self.theta], [ca.DM(self._B)])
+
+
+@pytest.mark.parametrize("B, kind, rank", [(np.eye(2), "overactuated", 1),           # 2 inputs, 1 DoF
+                                           (np.array([[1.0], [-1.0]]), "underactuated", 0),  # acts across it
+                                           (np.array([[1.0], [0.0]]), "fully actuated", 1)])
+def test_clearance_free_degree_of_actuation(B, kind, rank):
+    """000 Assumption 1 on the clearance-free system: E = N^T B with N = (1, 1)/sqrt 2 spanning its tangent
+    space; p = m inputs against dim q_wc = 1 and rank E."""
+    from invctl.contact.structure import _clearance_free
+
+    out = _clearance_free(_LoopModel(B), np.zeros(2))
+    assert out["clearance-free DoFs (dim q_wc)"] == 1 and out["rank E_wc"] == rank
+    assert out["clearance-free system (000 Assumption 1)"].startswith(kind + " (")
+
+
+def test_joints_are_immutable():
+    from dataclasses import FrozenInstanceError
+
+    from invctl.contact.linkage import GROUND, Joint
+
+    joint = Joint("J1", "revolute", GROUND, (0.0, 0.0), "A", "start")
+    with pytest.raises(FrozenInstanceError):
+        joint.clearance = 1e-3
+
+
+def test_plan_vs_run_reports_absolute_differences():
+    """Two planned impacts (t, wall, q2, q2'): (1, 1, 0.5, -0.2) and (2, 2, 0.7, 0.3); the run hits wall 1
+    early at 0.9 and wall 2 late at 2.05, with q2 = t / 2 and post-impact q2' = -0.25 and 0.35: the largest
+    differences are |0.9 - 1| = 0.1 in time (the early one), |1.025 - 0.7| in q2 and 0.05 in q2'."""
+    from types import SimpleNamespace
+
+    from invctl.control.juggling_design import plan_vs_run
+
+    plan = SimpleNamespace(impact_table=lambda: [(1.0, 1, 0.5, -0.2), (2.0, 2, 0.7, 0.3)])
+    t = np.linspace(0.0, 3.0, 301)
+    tr = SimpleNamespace(t=t, q=np.vstack([0 * t, t / 2]),
+                         stats={"impact_t": [0.9, 2.05], "impact_contact": [0, 1],
+                                "impact_v_plus": [[0.0, -0.25], [0.0, 0.35]]})
+    out = plan_vs_run(plan, tr)
+    assert out["planned impacts"] == 2 and out["realized impacts"] == 2
+    assert out["max |t_run - t_plan|"] == pytest.approx(0.1, abs=1e-12)
+    assert out["max |q2_run - q2_plan| at the impacts"] == pytest.approx(max(abs(0.45 - 0.5), abs(1.025 - 0.7)))
+    assert out["max |q2'_run - q2'_plan| after the impacts"] == pytest.approx(0.05, abs=1e-12)

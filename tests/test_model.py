@@ -94,3 +94,19 @@ def test_wrong_G_is_reported():
 def test_indefinite_mass_matrix_is_reported():
     with pytest.raises(ModelError, match="not positive definite"):
         _pendulum(M=ca.diag(ca.SX([1, -1])))
+
+
+def test_too_many_constraints_and_inputs_counts_non_holonomic_ones():
+    """n = 2 with one non-holonomic constraint (p = 1) and two inputs/outputs: l + p + m = 3 > n."""
+    P = ParamSet(["m"])
+    q, v = ca.SX.sym("q", 2), ca.SX.sym("v", 2)
+    with pytest.raises((DimensionError, ModelError), match=r"l \+ p \+ m = 0 \+ 1 \+ 2 > n = 2"):
+        Model("overdetermined", q, v, P, {"m": 1.0}, M=P["m"] * ca.SX.eye(2), f=ca.SX.zeros(2), B=ca.DM.eye(2),
+              h=q, J=ca.horzcat(ca.SX(1), ca.SX(1)), j=ca.SX.zeros(1))
+
+
+def test_mass_matrix_symmetry_is_relative_to_its_largest_entry():
+    """M = [[1, -1e6 + 1e-5], [-1e6, 1]]: the asymmetry 1e-5 is round-off relative to max |M| = 1e6, so what
+    is reported is that M is indefinite (eigenvalues 1 -+ 1e6)."""
+    with pytest.raises(ModelError, match="not positive definite"):
+        _pendulum(M=ca.SX(ca.DM([[1.0, -1e6 + 1e-5], [-1e6, 1.0]])))

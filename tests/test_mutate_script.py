@@ -140,3 +140,94 @@ def test_refuses_uncommitted_changes(repo):
     assert r.returncode == 2
     assert "git status" in r.stderr
     assert path.read_text().endswith("# local edit\n")
+
+
+def test_per_folder_sampling_draws_from_every_folder(repo):
+    (repo / "other").mkdir()
+    (repo / "other" / "few.py").write_text("def f(a, b):\n    return a - b\n")
+    _git(repo, "add", ".")
+    _git(repo, "commit", "-q", "-m", "other")
+
+    def listed(*args):
+        r = _run(repo, "other", "--max-mutants", "2", "--list", *args)
+        assert r.returncode == 0, r.stderr
+        return [line.split(":")[0] for line in r.stdout.splitlines() if ":" in line]
+
+    per_folder = listed("--per-folder")
+    assert per_folder.count("pkg/tiny.py") == 2 and per_folder.count("other/few.py") == 1
+    assert len(listed()) == 2                    # without it: 2 in all
+    assert listed("--per-folder") == per_folder  # the seed fixes the sample
+
+
+def test_only_and_rerun(repo):
+    r = _run(repo, "--only", "pkg/tiny.py:12:+ -> -")
+    assert r.returncode == 0, r.stderr
+    assert [line.split()[1] for line in r.stdout.splitlines() if line.startswith("[")] == \
+        ["survived"]
+    earlier = repo / "earlier.txt"
+    earlier.write_text("[1/5] killed      1.0s  pkg/tiny.py:16:2 -> 1\n"
+                       "[2/5] survived    1.0s  pkg/tiny.py:12:+ -> -\n"
+                       "[3/5] timeout     3.0s  pkg/tiny.py:6:< -> >\n")
+    with open(repo / "tests" / "test_tiny.py", "a") as f:   # now kill the survivor
+        f.write("\n\ndef test_untested():\n    from pkg.tiny import untested\n"
+                "    assert untested(1, 2) == 3\n")
+    out = repo / "rerun.txt"
+    r = _run(repo, "--rerun", str(earlier), "--timeout", "3", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    status = {line.split(None, 3)[3]: line.split()[1:3]
+              for line in out.read_text().splitlines() if line.startswith("[")}
+    assert status["pkg/tiny.py:16:2 -> 1"] == ["killed", "0.0s"]      # carried over
+    assert status["pkg/tiny.py:12:+ -> -"][0] == "killed"              # re-run, now caught
+    assert status["pkg/tiny.py:6:< -> >"] == ["timeout", "0.0s"]
+    assert len(status) == 5 and "2 results carried over" in out.read_text()
+    assert out.read_text().startswith("# python tools/mutate.py ")
+    assert "survivors (1):\n  pkg/tiny.py:6:< -> <=\n" in out.read_text()   # the equivalent one
+    merged = _run(repo, "--rerun", str(earlier), "--merge")   # survivors carried too: nothing re-run
+    assert merged.returncode == 0, merged.stderr
+    assert "3 results carried over" in merged.stdout
+    assert "survived    0.0s  pkg/tiny.py:12:+ -> -" in merged.stdout
+    only = _run(repo, "--rerun", str(earlier), "--merge", "--report-only")   # runs nothing at all
+    assert only.returncode == 0, only.stderr
+    assert "not run (2):\n  pkg/tiny.py:6:< -> <=\n  pkg/tiny.py:16:* -> /" in only.stdout
+    bad = _run(repo, "--only", "pkg/tiny.py:99:+ -> -")
+    assert bad.returncode == 2 and "no such mutant" in bad.stderr
+    earlier.write_text("[1/1] survived    1.0s  pkg/tiny.py:99:+ -> -\n")
+    bad = _run(repo, "--rerun", str(earlier))
+    assert bad.returncode == 2 and "not in this sample" in bad.stderr
+
+
+def test_keys_of_removed_calls_survive_a_report_round_trip(repo):
+    """``abs(x) -> (x)`` has an empty replacement; its key has no trailing blank, so --only, --rerun and the
+    equivalent list find it again."""
+    (repo / "pkg" / "tiny.py").write_text(MODULE + "\n\ndef size(x):\n    return abs(x)\n")
+    _git(repo, "commit", "-qam", "abs")
+    key = "pkg/tiny.py:30:abs ->"
+    r = _run(repo, "--list")
+    assert key in [line.split("    [")[0] for line in r.stdout.splitlines()]
+    earlier = repo / "earlier.txt"
+    earlier.write_text(f"[1/1] killed      1.0s  {key}\n")
+    r = _run(repo, "--only", key + " ", "--rerun", str(earlier))
+    assert r.returncode == 0, r.stderr
+    assert f"killed      0.0s  {key}" in r.stdout
+
+
+def test_every_core_module_is_mapped_to_existing_tests():
+    """No core module falls back to the name heuristics or to unrelated fallback tests."""
+    sys.path.insert(0, str(SCRIPT.parent))
+    try:
+        import mutate
+    finally:
+        sys.path.remove(str(SCRIPT.parent))
+    root = SCRIPT.parents[1]
+    modules = [m for m in mutate.expand(root, mutate.CORE) if not m.endswith("__init__.py")]
+    assert modules and not [m for m in modules if m not in mutate.TEST_MAP]
+    assert all((root / t).is_file() for tests in mutate.TEST_MAP.values() for t in tests)
+
+
+def test_baseline_failure_skips_the_module_unless_told_not_to_check(repo):
+    with open(repo / "tests" / "test_tiny.py", "a") as f:
+        f.write("\n\ndef test_broken():\n    assert False\n")
+    r = _run(repo, "--timeout", "3")
+    assert r.returncode == 0 and "skipped pkg/tiny.py: its tests fail without any mutation" in r.stdout
+    r = _run(repo, "--timeout", "3", "--no-baseline", "--only", "pkg/tiny.py:12:+ -> -")
+    assert "killed" in r.stdout            # the unchecked broken test "kills" everything: hence the warning

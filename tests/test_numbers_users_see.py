@@ -173,6 +173,59 @@ def test_newton_stops_on_the_absolute_residual():
     assert info["iterations"] >= 1
 
 
+
+class _Atan:
+    """``g(x) = atan(x)``: Newton's full step overshoots, and from |x0| near 1.3917 (where it cycles) barely
+    decreases |g|; the step and its residual are closed forms, x1 = x0 - atan(x0) (1 + x0^2)."""
+
+    def banded_pattern(self):
+        return None
+
+    def evaluators(self):
+        return (lambda x, p: np.arctan(x),
+                lambda x, p: (np.arctan(x), sp.csc_matrix(np.diag(1 / (1 + x**2)))))
+
+
+def _atan_start(ratio):
+    """x0 whose full Newton step gives |g(x1)| = ratio |g(x0)| (bisection on the closed form)."""
+    from scipy.optimize import brentq
+
+    step = lambda x: x - np.arctan(x) * (1 + x**2)
+    x0 = brentq(lambda x: abs(np.arctan(step(x))) / np.arctan(x) - ratio, 1.0, 1.3917, xtol=1e-15)
+    return x0, step(x0)
+
+
+def test_newton_line_search_is_armijo_with_1e_4_and_reports_the_last_residual():
+    """A full step that decreases |g| by 5e-4 (more than the sufficient decrease 1e-4 s) is taken undamped;
+    after max_iter = 1 the iterate, its residual (negative) and the status are the closed forms."""
+    x0, x1 = _atan_start(1 - 5e-4)
+    x, info = _newton(_Atan(), np.array([x0]), None, max_iter=1, max_wall_time=60.0, tol=1e-12, progress=False,
+                      label="t", banded=False)
+    np.testing.assert_allclose(x, [x1], rtol=1e-12)
+    assert info["status"] == "Maximum_Iterations_Exceeded" and not info["success"]
+    assert info["iterations"] == 1 and info["factorizations"] == 1
+    assert info["max_constraint_violation"] == pytest.approx(abs(np.arctan(x1)), rel=1e-12)
+
+
+class _OvershootLinear:
+    """``g(x) = x`` with the Jacobian off by a factor 2 (0.5): the full step from x0 = 1 lands on -1 exactly."""
+
+    def banded_pattern(self):
+        return None
+
+    def evaluators(self):
+        return lambda x, p: x, lambda x, p: (x, sp.csc_matrix([[0.5]]))
+
+
+def test_newton_accepts_a_step_as_converged_only_below_tol():
+    """With tol = 1 the full step lands exactly on max |g| = tol: that is neither a decrease nor converged
+    (max |g| < tol, strict, as at the start of every iteration), so the step is halved and lands on the root."""
+    x, info = _newton(_OvershootLinear(), np.array([1.0]), None, max_iter=1, max_wall_time=60.0, tol=1.0,
+                      progress=False, label="t", banded=False)
+    assert x.tolist() == [0.0]
+    assert info["success"] and info["iterations"] == 1 and info["max_constraint_violation"] == 0.0
+
+
 # ------------------------------------------------------------ closed loop: Baumgarte-stabilized plant
 def _kkt_acceleration(model, q, v, u, alpha, beta):
     """Numpy solution of ``[M -G^T; G 0] [a; lam] = [f + B u; -(G v)' v - 2 alpha G v - beta^2 g]``."""

@@ -38,3 +38,4 @@ def test_a_constraint_that_rejects_everything_is_reported():
     region = replace(cartpole.REGION, constraints=(lambda q: -1.0,))
     with pytest.raises(ModelError, match="could not sample"):
         region.sample(10, 0, max_tries=3)
+

@@ -178,3 +178,38 @@ def test_not_an_equilibrium_or_off_the_manifold_is_reported():
         plant_linearization(man, q)
     with pytest.raises(DimensionError, match="q0 must be 5 finite numbers"):
         plant_linearization(man, [0.0, 1.0])
+
+
+def test_holding_input_residual_is_the_unheld_torque_either_way():
+    """Cart-pole at rest with the pole tilted by -+0.3: the cart force cannot hold the pole; what is left is
+    the gravity torque mp g l sin(0.3) (closed form), whatever its sign."""
+    from invctl.analysis.statespace import holding_input
+
+    model = cartpole.build()
+    p = model.values
+    for th in (0.3, -0.3):
+        u, lam, mu, res = holding_input(model, [0.0, th])
+        assert res == pytest.approx(p["mp"] * p["g"] * p["l"] * np.sin(0.3), rel=1e-12)
+        assert u == pytest.approx([0.0], abs=1e-15)
+
+
+def test_off_the_manifold_on_either_side_is_reported():
+    """The manipulator moved off its two loop constraints along -+ G^+ (1, 1) (so both residuals are about
+    -+0.01): negative residuals are off the manifold as much as positive ones."""
+    man = manip.build()
+    q0 = manip.initial_configuration(man)
+    g = ca.Function("g", [man.q, man.theta], [man.g])
+    G = man.evaluate("G", q0).reshape(man.ell, man.n)
+    for sign in (1.0, -1.0):
+        q = q0 + sign * 0.01 * np.linalg.pinv(G) @ np.ones(man.ell)
+        phi = np.array(g(q, man.theta_values)).ravel()
+        assert np.all(sign * phi > 0.005)
+        with pytest.raises(ModelError, match="not on the constraint manifold"):
+            plant_linearization(man, q)
+
+
+def test_unknown_state_names_are_rejected():
+    model = manip.build()
+    q0 = manip.initial_configuration(model)
+    with pytest.raises(DimensionError, match="states must be 6 = 2n - 2l - p distinct names"):
+        plant_linearization(model, q0, states=["s2", "beta", "gamma", "s2_dot", "beta_dot", "bogus"])

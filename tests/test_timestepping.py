@@ -358,3 +358,45 @@ def test_persistent_contact_phase_vs_event_driven():
     errs = [np.max(np.abs(mj.run([0.0, 0.05], [0.0, 0.0], 1.0, h).q[:, -1] - ref.q[:, -1])) for h in (2e-4, 1e-4, 5e-5)]
     assert errs[2] < errs[1] < errs[0] < 1e-3
     assert 0.8 <= _slope(np.array([2e-4, 1e-4, 5e-5]), np.array(errs)) <= 2.2
+
+
+def test_pd_plus_tracking_input_and_lyapunov_function_closed_form():
+    """One mass m on a line, no potential, q_d = sin t: 000 (48) gives u = m qdd_d - Kv (v - qd_d) - Kp (q - q_d)
+    and (50) V = m (v - qd_d)^2 / 2 + Kp (q - q_d)^2 / 2."""
+    import casadi as ca
+
+    from invctl.control.pdplus import pd_plus_tracking
+    from invctl.model import Model, ParamSet
+
+    P = ParamSet(["m"])
+    q, v = ca.SX.sym("q", 1), ca.SX.sym("v", 1)
+    model = Model("mass", q, v, P, {"m": 2.0}, M=P["m"] * ca.SX.eye(1), f=ca.SX.zeros(1), B=ca.DM.eye(1), h=q)
+    Kp, Kv, m = 3.0, 0.5, 2.0
+    law = pd_plus_tracking(model, Kp=Kp, Kv=Kv, q_d=ca.sin)
+    for qq, vv, t in ((0.3, -0.2, 0.7), (-1.0, 0.4, 2.0)):
+        u, V = law.function(model)([qq], [vv], t, model.theta_values, law.values())
+        e, ev = qq - np.sin(t), vv - np.cos(t)
+        assert float(u) == pytest.approx(-m * np.sin(t) - Kv * ev - Kp * e, rel=1e-13)
+        assert float(V) == pytest.approx(0.5 * m * ev**2 + 0.5 * Kp * e**2, rel=1e-13)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_symbolic_small_solve_matches_numpy(n):
+    """A^-1 B by the adjugate formulas (n <= 3) and symbolic QR beyond, against numpy's LU solve."""
+    from invctl.simulate.codegen import small_solve
+
+    rng = np.random.default_rng(n)
+    A, B = rng.standard_normal((n, n)) + n * np.eye(n), rng.standard_normal((n, 2))
+    As, Bs = ca.SX.sym("A", n, n), ca.SX.sym("B", n, 2)
+    X = ca.Function("x", [As, Bs], [small_solve(As, Bs)])(A, B)
+    np.testing.assert_allclose(np.array(X), np.linalg.solve(A, B), rtol=1e-12, atol=1e-12)
+
+
+def test_active_set_changes_counted_in_the_loop_equal_the_record(ball):
+    """stats['n_changes'] (accumulated in the compiled loop) equals the steps whose active or loaded set differs
+    from the previous step's, counted on the complete record (starting from nothing active)."""
+    tr = ball.run([1.0], [0.0], 5.0, 1e-3)
+    zero = np.zeros((tr.active.shape[0], 1), bool)
+    act, load = np.hstack([zero, tr.active]), np.hstack([zero, tr.P > 0])
+    changed = np.any(act[:, 1:] != act[:, :-1], axis=0) | np.any(load[:, 1:] != load[:, :-1], axis=0)
+    assert tr.stats["n_changes"] == int(changed.sum()) > tr.stats["n_impacts"] > 10

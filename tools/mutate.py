@@ -7,7 +7,14 @@ Slow and not part of CI. Run from the repository root, e.g.
 Each mutant rewrites one token on one source line, runs the mapped test files with
 ``pytest -x -q -p no:cacheprovider`` and restores the file byte-identical afterwards (also
 after Ctrl-C). The target files must be committed first, so a crash can never leave a planted
-bug unnoticed.
+bug unnoticed. The run over the core, two processes each in its own clone (two shards would
+see each other's mutants in one tree), then the survivors again after new tests:
+
+    python tools/mutate.py --max-mutants 16 --per-folder --shard 1/2 --out s1.txt   # clone 1
+    python tools/mutate.py --max-mutants 16 --per-folder --shard 2/2 --out s2.txt   # clone 2
+    python tools/mutate.py --max-mutants 16 --per-folder --rerun s1.txt s2.txt --out all.txt
+
+(with ``--shard`` again on the re-run, ``--merge --rerun all1.txt all2.txt`` joins the halves).
 """
 from __future__ import annotations
 
@@ -16,6 +23,8 @@ import ast
 import io
 import os
 import random
+import re
+import shlex
 import shutil
 import signal
 import subprocess
@@ -26,22 +35,81 @@ import tokenize
 from dataclasses import dataclass
 from pathlib import Path
 
-# Module -> test files that cover it. Modules not listed fall back to name heuristics
+# Module -> test files that cover it (files that import it, directly or through the
+# function users call). Modules not listed fall back to name heuristics
 # (tests/test_*<stem>*.py), then to FALLBACK_TESTS.
+_ANALYSIS = ["tests/test_analysis_linear.py", "tests/test_analysis_textbook.py",
+             "tests/test_normal_form.py"]
+_OCP = ["tests/test_ocp.py", "tests/test_bounds_between_nodes.py"]
+_INVERSION = ["tests/test_inversion.py", "tests/test_inversion_plan.py"]
 TEST_MAP = {
-    "invctl/contact/lcp.py": ["tests/test_lcp_compiled.py", "tests/test_contact.py"],
-    "invctl/contact/mechanics.py": ["tests/test_contact.py", "tests/test_chain.py"],
-    "invctl/analysis/relative_degree.py": ["tests/test_analysis_linear.py",
-                                           "tests/test_analysis_textbook.py",
-                                           "tests/test_normal_form.py"],
-    "invctl/analysis/zeros.py": ["tests/test_zeros.py", "tests/test_analysis_linear.py"],
+    "invctl/model/linalg.py": ["tests/test_linear_solves.py", "tests/test_model.py"],
+    "invctl/model/multibody.py": ["tests/test_model.py", "tests/test_analysis_textbook.py"],
+    "invctl/model/params.py": ["tests/test_model.py", "tests/test_sensitivity.py"],
+    "invctl/model/region.py": ["tests/test_region_closed_form.py", "tests/test_region_sampling.py",
+                               "tests/test_model.py"],
+    "invctl/analysis/auxiliary.py": _ANALYSIS,
+    "invctl/analysis/equilibrium.py": ["tests/test_equilibrium_solver.py"] + _ANALYSIS + [
+        "tests/test_statespace.py"],
+    "invctl/analysis/identify.py": ["tests/test_identify.py"],
+    "invctl/analysis/internal.py": ["tests/test_zeros.py"] + _ANALYSIS,
+    "invctl/analysis/linearize.py": ["tests/test_identify.py", "tests/test_zeros.py",
+                                     "tests/test_statespace.py"],
+    "invctl/analysis/relative_degree.py": _ANALYSIS + ["tests/test_numbers_users_see.py"],
     "invctl/analysis/statespace.py": ["tests/test_statespace.py"],
-    "invctl/inversion/backends.py": ["tests/test_inversion.py", "tests/test_ocp.py"],
-    "invctl/inversion/normal_form.py": ["tests/test_normal_form.py"],
-    "invctl/inversion/sensitivity.py": ["tests/test_sensitivity.py"],
+    "invctl/analysis/summary.py": ["tests/test_analysis_manipulator.py"],
+    "invctl/analysis/zeros.py": ["tests/test_zeros.py", "tests/test_analysis_linear.py"],
+    "invctl/contact/equilibria.py": ["tests/test_mechanisms_000.py", "tests/test_sixbar.py"],
+    "invctl/contact/lcp.py": ["tests/test_lcp_tolerances.py", "tests/test_numbers_users_see.py",
+                              "tests/test_contact.py", "tests/test_lcp_compiled.py"],
+    "invctl/contact/linkage.py": ["tests/test_mechanisms_000.py"],
+    "invctl/contact/mechanics.py": ["tests/test_contact.py", "tests/test_chain.py"],
+    "invctl/contact/reduction.py": ["tests/test_chain.py"],
+    "invctl/contact/structure.py": ["tests/test_mechanisms_000.py", "tests/test_sixbar.py",
+                                    "tests/test_chain.py"],
     "invctl/control/funnel.py": ["tests/test_funnel.py"],
     "invctl/control/funnel_design.py": ["tests/test_funnel_design.py"],
+    "invctl/control/funnel_nmp.py": ["tests/test_funnel.py", "tests/test_funnel_design.py",
+                                     "tests/test_normal_form.py"],
+    "invctl/control/juggling.py": ["tests/test_clearance.py", "tests/test_contact.py"],
+    "invctl/control/juggling_design.py": ["tests/test_mechanisms_000.py",
+                                          "tests/test_clearance.py"],
+    "invctl/control/new_output.py": ["tests/test_funnel_design.py"],
+    "invctl/control/pdplus.py": ["tests/test_timestepping.py", "tests/test_chain.py"],
+    "invctl/control/preload.py": ["tests/test_contact.py", "tests/test_timestepping.py"],
     "invctl/control/switched.py": ["tests/test_switched_sim.py", "tests/test_switched_stability.py"],
+    "invctl/inversion/assembly.py": _OCP,
+    "invctl/inversion/backends.py": ["tests/test_numbers_users_see.py", "tests/test_inversion.py",
+                                     "tests/test_ocp.py"],
+    "invctl/inversion/banded.py": _INVERSION,
+    "invctl/inversion/boundary.py": ["tests/test_bounds_between_nodes.py",
+                                     "tests/test_analysis_manipulator.py"],
+    "invctl/inversion/bounded.py": _OCP,
+    "invctl/inversion/cache.py": _OCP,
+    "invctl/inversion/collocation.py": _INVERSION + _OCP,
+    "invctl/inversion/compiled.py": ["tests/test_library.py"] + _INVERSION,
+    "invctl/inversion/guess.py": _INVERSION + _OCP,
+    "invctl/inversion/internal_bvp.py": ["tests/test_normal_form.py"],
+    "invctl/inversion/mintime.py": _OCP,
+    "invctl/inversion/normal_form.py": ["tests/test_normal_form.py"],
+    "invctl/inversion/ocp.py": _OCP,
+    "invctl/inversion/ocp_hessian.py": _OCP,
+    "invctl/inversion/options.py": _INVERSION + _OCP,
+    "invctl/inversion/plan.py": ["tests/test_inversion_plan.py"],
+    "invctl/inversion/problem.py": _OCP,
+    "invctl/inversion/refine.py": _INVERSION + _OCP,
+    "invctl/inversion/result.py": ["tests/test_bounds_between_nodes.py", "tests/test_inversion.py"],
+    "invctl/inversion/sensitivity.py": ["tests/test_sensitivity.py"],
+    "invctl/inversion/servo.py": ["tests/test_linear_solves.py"],
+    "invctl/inversion/solve.py": _INVERSION,
+    "invctl/inversion/square.py": _INVERSION + _OCP,
+    "invctl/inversion/verify.py": ["tests/test_numbers_users_see.py", "tests/test_inversion.py"],
+    "invctl/simulate/closed_loop.py": ["tests/test_numbers_users_see.py", "tests/test_closed_loop.py",
+                                       "tests/test_closed_loop_setup.py"],
+    "invctl/simulate/codegen.py": ["tests/test_timestepping.py"],
+    "invctl/simulate/contact_record.py": ["tests/test_contact.py", "tests/test_results_shape.py"],
+    "invctl/simulate/event_driven.py": ["tests/test_timestepping.py", "tests/test_mechanisms_000.py"],
+    "invctl/simulate/switched.py": ["tests/test_switched_sim.py", "tests/test_switched_cli.py"],
     "invctl/simulate/timestepping.py": ["tests/test_timestepping.py"],
 }
 FALLBACK_TESTS = ["tests/test_inversion.py", "tests/test_model.py", "tests/test_contact.py"]
@@ -68,7 +136,7 @@ class Mutant:
     @property
     def key(self):
         more = f" ({self.nth})" if self.nth > 1 else ""
-        return f"{self.path}:{self.line}:{self.old} -> {self.new}{more}"
+        return f"{self.path}:{self.line}:{self.old} -> {self.new}{more}".rstrip()
 
     def apply(self, source):
         lines = source.splitlines(keepends=True)
@@ -206,12 +274,17 @@ def find_mutants(root, path):
             continue
         seen.add((m.line, m.col, m.old, m.new))
         m.nth = 1 + sum((o.line, o.old, o.new) == (m.line, m.old, m.new) for o in out)
-        try:
-            ast.parse(m.apply(source))
-        except SyntaxError:
-            continue
         out.append(m)
     return out
+
+
+def parses(root, mutant):
+    """Does the mutated file still parse? (Every mutation kind keeps the syntax; checked anyway.)"""
+    try:
+        ast.parse(mutant.apply((root / mutant.path).read_text()))
+    except SyntaxError:
+        return False
+    return True
 
 
 def tests_for(root, path):
@@ -284,21 +357,25 @@ def run_mutant(root, mutant, tests, timeout, backup_dir):
 
 def report(results, equivalent, baseline_failed):
     lines, survivors, equiv = [], [], []
-    by_module = {}
+    by_module, by_folder = {}, {}
+    zero = {"killed": 0, "survived": 0, "timeout": 0, "equivalent": 0}
     for m, status in results:
         if status == "survived" and m.key in equivalent:
             status = "equivalent"
             equiv.append(f"  {m.key}  # {equivalent[m.key]}")
         elif status == "survived":
             survivors.append(f"  {m.key}")
-        by_module.setdefault(m.path, {"killed": 0, "survived": 0, "timeout": 0,
-                                      "equivalent": 0})[status] += 1
+        by_module.setdefault(m.path, dict(zero))[status] += 1
+        by_folder.setdefault(str(Path(m.path).parent.as_posix()) + "/", dict(zero))[status] += 1
     lines.append(f"{'module':45s} killed survived timeout equivalent  kill rate")
-    total = {"killed": 0, "survived": 0, "timeout": 0, "equivalent": 0}
+    total = dict(zero)
     for path, c in sorted(by_module.items()):
         for k in total:
             total[k] += c[k]
         lines.append(_row(path, c))
+    if len(by_folder) > 1:
+        lines.append(f"{'folder':45s}")
+        lines += [_row(path, c) for path, c in sorted(by_folder.items())]
     lines.append(_row("total", total))
     lines.append("kill rate = (killed + timeout) / (mutants - equivalent)")
     for path in baseline_failed:
@@ -317,6 +394,31 @@ def _row(name, c):
             f"{c['equivalent']:10d}  {rate}")
 
 
+LINE = re.compile(r"^\[\d+/\d+\]\s+(killed|survived|timeout)\s+[\d.]+s\s+(.+?)\s*$")
+
+
+def read_results(paths):
+    """Mutant key -> status from the per-mutant lines of earlier reports (later files win)."""
+    out = {}
+    for path in paths:
+        for raw in Path(path).read_text().splitlines():
+            hit = LINE.match(raw)
+            if hit:
+                out[hit.group(2)] = hit.group(1)
+    return out
+
+
+def sample(mutants, n, seed, per_folder=None):
+    """``n`` mutants drawn with ``seed``; with ``per_folder`` (folder -> files), ``n`` from each."""
+    rng = random.Random(seed)
+    groups = per_folder or {None: None}
+    out = []
+    for files in groups.values():
+        pool = [m for m in mutants if files is None or m.path in files]
+        out += pool if len(pool) <= n else rng.sample(pool, n)
+    return sorted(out, key=lambda m: (m.path, m.line, m.col, m.new))
+
+
 def _interrupt(*_):
     raise KeyboardInterrupt
 
@@ -325,7 +427,26 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--modules", nargs="+", default=CORE, metavar="PATHS",
                     help="files or folders to mutate, relative to --root (default: the core)")
-    ap.add_argument("--max-mutants", type=int, default=None, metavar="N")
+    ap.add_argument("--max-mutants", type=int, default=None, metavar="N",
+                    help="sample N mutants (with --per-folder: N from each --modules path)")
+    ap.add_argument("--per-folder", action="store_true",
+                    help="stratify the --max-mutants sample over the --modules paths")
+    ap.add_argument("--only", nargs="+", metavar="KEY", default=None,
+                    help="run just these mutants, keys as printed, e.g. 'invctl/x.py:12:< -> <=' "
+                         "(--modules, --max-mutants and --per-folder are then ignored)")
+    ap.add_argument("--merge", action="store_true",
+                    help="with --rerun: carry survivors over as well, run only mutants missing from the "
+                         "reports (merges shard reports into one)")
+    ap.add_argument("--no-baseline", action="store_true",
+                    help="skip the unmutated run of each test set (only when it just passed, e.g. re-runs)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="with --merge: run nothing; mutants missing from the reports are listed as not run")
+    ap.add_argument("--shard", metavar="K/N", default=None,
+                    help="run only every N-th mutant of the sample, starting at the K-th (1-based)")
+    ap.add_argument("--rerun", nargs="+", metavar="REPORT", default=None,
+                    help="re-run the survivors listed in these earlier reports (the same "
+                         "--modules, --max-mutants, --per-folder and --seed) and carry their "
+                         "killed and timeout results over")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--timeout", type=float, default=300.0, metavar="S",
                     help="seconds per mutant's test run; longer counts as killed (timeout)")
@@ -340,11 +461,39 @@ def main(argv=None):
     missing = [p for p in args.modules if not (root / p).exists()]
     if missing:
         ap.error(f"no such file or folder under {root}: {', '.join(missing)}")
-    files = expand(root, args.modules)
-    mutants = [m for f in files for m in find_mutants(root, f)]
-    if args.max_mutants is not None and len(mutants) > args.max_mutants:
-        mutants = random.Random(args.seed).sample(mutants, args.max_mutants)
-        mutants.sort(key=lambda m: (m.path, m.line, m.col, m.new))
+    groups = {p: expand(root, [p]) for p in args.modules}
+    files = [f for p in args.modules for f in groups[p]]
+    mutants = [] if args.only else [m for f in files for m in find_mutants(root, f)]
+    if args.max_mutants is not None:
+        mutants = sample(mutants, args.max_mutants, args.seed,
+                         groups if args.per_folder else None)
+    earlier = {}
+    if args.only:
+        args.only = [k.strip() for k in args.only]
+        paths = sorted({k.split(":")[0] for k in args.only if (root / k.split(":")[0]).is_file()})
+        known = {m.key: m for f in paths for m in find_mutants(root, f)}
+        unknown = [k for k in args.only if k not in known]
+        if unknown:
+            ap.error("no such mutant (run with --list to see the keys): " + "; ".join(unknown))
+        mutants = [known[k] for k in args.only]
+    if args.rerun:
+        earlier = read_results(args.rerun)
+        keys = {m.key for m in mutants}
+        unknown = sorted(set(earlier) - keys)
+        if unknown:
+            ap.error(f"{len(unknown)} mutants of {', '.join(args.rerun)} are not in this sample "
+                     f"(source changed, or other --modules/--max-mutants/--seed?), e.g. "
+                     f"{unknown[0]}")
+    if args.shard:
+        k, _, n = args.shard.partition("/")
+        if not (k.isdigit() and n.isdigit() and 1 <= int(k) <= int(n)):
+            ap.error(f"--shard {args.shard}: expected K/N with 1 <= K <= N, e.g. 1/2")
+        mutants = mutants[int(k) - 1::int(n)]
+    broken = [m for m in mutants if not parses(root, m)]
+    if broken:
+        print(f"dropped {len(broken)} mutants that do not parse: " + "; ".join(m.key for m in broken),
+              file=sys.stderr)
+        mutants = [m for m in mutants if m not in broken]
     if args.list:
         for m in mutants:
             print(f"{m.key}    [{', '.join(tests_for(root, m.path))}]")
@@ -361,30 +510,56 @@ def main(argv=None):
     signal.signal(signal.SIGTERM, _interrupt)
 
     results, baseline, failed_baseline = [], {}, []
-    interrupted = False
+    interrupted, carried, not_run = False, 0, []
+    log = open(args.out, "w") if args.out else None
+
+    def say(text):
+        print(text, flush=True)
+        if log:
+            log.write(text + "\n")
+            log.flush()
+
+    say(f"# python tools/mutate.py {' '.join(shlex.quote(a) for a in (argv or sys.argv[1:]))}")
+    say(f"# seed {args.seed}, {len(mutants)} mutants, started "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
     with tempfile.TemporaryDirectory(prefix="mutate-") as backup_dir:
         try:
             for i, m in enumerate(mutants, 1):
                 tests = tests_for(root, m.path)
-                if m.path not in baseline:
-                    baseline[m.path] = run_tests(root, tests, args.timeout) == "passed"
-                    if not baseline[m.path]:
-                        failed_baseline.append(m.path)
-                if not baseline[m.path]:
+                if earlier.get(m.key) in ("killed", "timeout") or (
+                        earlier.get(m.key) == "survived" and (args.merge or m.key in equivalent)):
+                    status = earlier[m.key]    # carried over: tests were only added since
+                    carried += 1
+                    t0 = time.monotonic()
+                elif args.report_only:
+                    not_run.append(m.key)
                     continue
-                t0 = time.monotonic()
-                status = run_mutant(root, m, tests, args.timeout, backup_dir)
+                else:
+                    key = tuple(tests)
+                    if key not in baseline:
+                        baseline[key] = args.no_baseline or run_tests(root, tests, args.timeout) == "passed"
+                    if not baseline[key]:
+                        if m.path not in failed_baseline:
+                            failed_baseline.append(m.path)
+                        continue
+                    t0 = time.monotonic()
+                    status = run_mutant(root, m, tests, args.timeout, backup_dir)
                 results.append((m, status))
-                print(f"[{i}/{len(mutants)}] {status:8s} {time.monotonic() - t0:6.1f}s  {m.key}",
-                      flush=True)
+                say(f"[{i}/{len(mutants)}] {status:8s} {time.monotonic() - t0:6.1f}s  {m.key}")
         except KeyboardInterrupt:
             interrupted = True
             print("interrupted; the mutated file was restored; partial report follows",
                   file=sys.stderr)
-    text = report(results, equivalent, failed_baseline)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
+    say(f"# finished {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}"
+        + (f"; {carried} results carried over "
+           f"from {', '.join(args.rerun)} (0.0s lines)" if args.rerun else ""))
+    say("")
+    say(report(results, equivalent, failed_baseline))
+    if not_run:
+        say(f"not run ({len(not_run)}):")
+        say("\n".join(f"  {k}" for k in not_run))
+    if log:
+        log.close()
     return 130 if interrupted else 0
 
 
