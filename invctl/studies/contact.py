@@ -407,6 +407,9 @@ class Session:
     def finish(self, runs, out):
         return [], {}
 
+    def interrupted(self, runs, out, note):
+        return []
+
 
 def session(scene, params: dict, settings: dict, **options) -> Session:
     return Session(scene, params, settings, **options)

@@ -59,6 +59,10 @@ class Session(Protocol):
         """The comparison of the runs: report lines, data, figures in ``out``."""
         ...
 
+    def interrupted(self, runs: dict[str, Trajectory], out: Path, note: str) -> None:
+        """After a Ctrl-C: write what makes the complete ``runs`` loadable as a whole (or nothing)."""
+        ...
+
 
 def run_pipeline(scene: Scene, session: Session, params: dict, *, out_dir, animate: bool = True) -> CommandResult:
     """Run every controller of ``session`` and compare them, writing runs, figures and animations to ``out_dir``.
@@ -77,6 +81,8 @@ def run_pipeline(scene: Scene, session: Session, params: dict, *, out_dir, anima
             ri = exc if isinstance(exc, RunInterrupted) else RunInterrupted("interrupted")
             ri.args = (f"{ri} (controller {name}); complete runs: {', '.join(runs) or 'none'}",)
             ri.diagnostics.update(run_file=f"run_{name}.npz", complete=[str(out / f"run_{k}.npz") for k in runs])
+            if runs:
+                ri.diagnostics["complete"] += session.interrupted(runs, out, str(ri)) or []
             raise ri from None
         step.trajectory.to_npz(out / f"run_{name}.npz", meta=session.meta(name))
         session.figure(name, step, out)

@@ -406,6 +406,15 @@ class Session:
         close(study.plot(out))
         return [study.table()], study.to_dict()
 
+    def interrupted(self, runs, out, note):
+        """The complete runs as a study (``study.json``, loadable with ``invctl.load``), marked partial."""
+        from ..scenes import jsonable
+        from .tracking import TrackingStudy
+
+        study = TrackingStudy(runs, {"scene": self.scene.name, "partial": note}, self.setup)
+        (Path(out) / "study.json").write_text(json.dumps(jsonable(study.to_dict()), indent=1))
+        return [str(Path(out) / "study.json")]
+
 
 def session(scene, params: dict, settings: dict, **options) -> Session:
     return Session(scene, params, **options)
