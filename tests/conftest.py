@@ -1,5 +1,6 @@
 import os
 import signal
+from pathlib import Path
 
 import matplotlib
 import pytest
@@ -17,6 +18,17 @@ def pytest_configure(config):
     which the children then inherit."""
     if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+#: node ids of the tests measured slow (tests/slow_tests.txt): `pytest -m "not slow"` is the quick tier
+_SLOW = {line.strip() for line in (Path(__file__).parent / "slow_tests.txt").read_text().splitlines()
+         if line.strip() and not line.startswith("#")}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.nodeid in _SLOW:
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture(scope="session")
