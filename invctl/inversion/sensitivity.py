@@ -121,6 +121,11 @@ def parameter_chain(model, names=None, *, derived: bool = True) -> np.ndarray:
                 vals[k] = ca.SX(rule(vals))
         expr = ca.vertcat(*[vals[k] for k in pnames])
         allsym = ca.vertcat(*sym.values())
+        # a rule CasADi only seemed to trace (math.sqrt of a symbol gives a constant nan) does not reproduce the
+        # resolved values: then central differences
+        traced = np.array(ca.Function("theta_of_p", [allsym], [expr])(model.theta_values)).ravel()
+        if not np.allclose(traced, model.theta_values, rtol=1e-12, atol=0.0):
+            raise ValueError("a derived-parameter rule is not traced by CasADi")
         jac = ca.Function("dtheta_dp", [allsym], [ca.jacobian(expr, allsym)])
         full = np.array(jac(model.theta_values))
         for j in follow:
