@@ -262,10 +262,27 @@ class Contact:
                 f"{' '.join(f'--set {k}={v:g}' for k, v in bad.items())}")
 
 
+#: the plants a switched scene may declare, and the parameters each one needs beside the rigid arm's
+SWITCHED_PLANTS = {"rigid_wall": (), "compliant_wrist": ("Mt", "kt", "bt")}
+
+
 @dataclass(frozen=True)
 class Switched:
-    """Marks a switched position/force scene (002): ``build`` returns a
-    :class:`invctl.studies.switched.SwitchedProblem`."""
+    """A switched position/force scene (002): ``build`` returns a
+    :class:`invctl.studies.switched.SwitchedProblem`, and the scene declares its plant: ``"rigid_wall"`` (the arm
+    against the Kelvin-Voigt wall, 002 Sect. 4) or ``"compliant_wrist"`` (a compliant wrist between the arm and
+    the wall, 002 Sect. 6, analysed through its reduced model (27)-(28); it needs ``Mt``, ``kt``, ``bt``)."""
+
+    plant: str = "rigid_wall"
+
+    def _check(self, scene: str) -> None:
+        if self.plant not in SWITCHED_PLANTS:
+            raise SceneError(f"scene {scene!r}: switched.plant must be one of {sorted(SWITCHED_PLANTS)}, "
+                             f"got {self.plant!r}")
+
+    @property
+    def wrist(self) -> bool:
+        return self.plant == "compliant_wrist"
 
 
 @dataclass(frozen=True)
@@ -639,6 +656,14 @@ class Scene:
         elif kind == "switched" and not hasattr(obj, "error_system"):
             raise SceneError(f"scene {self.name!r}: build() returned {type(obj).__name__}; a switched scene "
                              f"must return an invctl.studies.switched.SwitchedProblem{at}")
+        elif kind == "switched":
+            wrist_params = [k for k in SWITCHED_PLANTS["compliant_wrist"] if k in obj.params]
+            if self.switched.wrist and len(wrist_params) < len(SWITCHED_PLANTS["compliant_wrist"]):
+                raise SceneError(f"scene {self.name!r} declares plant='compliant_wrist', but its parameters lack "
+                                 f"{sorted(set(SWITCHED_PLANTS['compliant_wrist']) - set(wrist_params))}{at}")
+            if not self.switched.wrist and wrist_params:
+                raise SceneError(f"scene {self.name!r} declares plant='rigid_wall', but its parameters include "
+                                 f"the wrist's {wrist_params}; declare Switched(plant='compliant_wrist'){at}")
 
     # ------------------------------------------------------------ the Python front door
     def bind(self, preset: str | None = None, **values) -> "Scene":

@@ -44,7 +44,7 @@ SCENE = Scene(
     "compliant_wrist", build, params=PARAMS, validate=_check,
     positive=("M", "ke", "Ma", "ke_hat", "t_b", "gamma1", "gamma2", "t_end", "h_max",
               "Mt", "kt", "bt"),
-    switched=Switched(),
+    switched=Switched(plant="compliant_wrist"),
     description="manipulator with a compliant wrist against a stiff wall (002 Sect. 5), analysed by its reduced "
                 "model (27)-(28)",
 )

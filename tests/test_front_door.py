@@ -221,3 +221,19 @@ def test_a_ctrl_c_swallowed_inside_a_python_call_is_honoured(monkeypatch):
     monkeypatch.setattr(invctl.inversion, "forward_check", swallowing)
     with pytest.raises(invctl.RunInterrupted, match="as the command finished"):
         invctl.load_scene("cartpole").invert(N=60, quiet=True)
+
+
+@pytest.mark.parametrize("declared, source, match", [
+    ("rigid_wall", "compliant_wrist", "declare Switched\\(plant='compliant_wrist'\\)"),
+    ("compliant_wrist", "stiff_wall", "lack \\['Mt', 'bt', 'kt'\\]"),
+    ("spring_wall", "stiff_wall", "switched.plant must be one of"),
+])
+def test_a_switched_scene_declares_its_plant(declared, source, match, tmp_path):
+    """The plant is the scene's declaration, checked against its parameters (not guessed from them)."""
+    path = tmp_path / "wall.py"
+    path.write_text(f"from problems.{source} import PARAMS, build\n"
+                    "from invctl.scenes import Scene, Switched\n"
+                    f"SCENE = Scene('wall', build, params=PARAMS, switched=Switched(plant={declared!r}))\n")
+    with pytest.raises(invctl.SceneError, match=match):
+        invctl.load_scene(str(path)).model()
+    assert invctl.load_scene("compliant_wrist").switched.wrist and not invctl.load_scene("stiff_wall").switched.wrist

@@ -261,8 +261,10 @@ def simulate_scenario(p: dict, *, reduced: bool = False, t_end: float | None = N
 # ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class SwitchedProblem:
-    """Parameters of a switched position/force scenario (rigid wall, or compliant wrist when ``kt`` is
-    a parameter) and what is built from them; a switched scene's ``build`` returns one."""
+    """Parameters of a switched position/force scenario and what is built from them; a switched scene's ``build``
+    returns one. The scene declares its plant (``Switched(plant=...)``), and loading checks that the parameters
+    are that plant's (the wrist's ``Mt, kt, bt`` exactly when it declares ``"compliant_wrist"``), so the functions
+    here, which take the parameter dict, can tell the plants apart by them."""
 
     name: str
     params: dict

@@ -13,7 +13,7 @@ from ..errors import OptionError, RunInterrupted, SceneError, StabilityError
 from ..scenes import CommandResult
 from .pipeline import Step
 from .switched import (design_bf_min, design_bt_min, design_bt_visible, design_kt_max, effective_wall, error_system,
-                       is_wrist, lambda_map, lambda_point, lambda_sweep, reduction_check, simulate_scenario)
+                       lambda_map, lambda_point, lambda_sweep, reduction_check, simulate_scenario)
 
 __all__ = ["analyze", "simulate", "design", "session"]
 
@@ -29,7 +29,7 @@ def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> Comma
     rep = analyze_system(s, with_iss=True, n_angles=min(int(samples), 720))
     head = f"scene {scene.name}: switched motion/force control against a stiff wall (002)"
     data = rep.to_dict()
-    if is_wrist(p):
+    if scene.switched.wrist:
         ke_bar, be_bar = effective_wall(p["kt"], p["bt"], p["ke"])
         head += (f"\n  compliant wrist analysed by its reduced model (27)-(28): ke_bar = {ke_bar:.6g} N/m, "
                  f"be_bar = {be_bar:.6g} Ns/m")
@@ -68,7 +68,7 @@ def _run(scene, params: dict, t_end=None):
     text = sim.summary()
     data = sim.to_dict()
     red = None
-    if is_wrist(p):
+    if scene.switched.wrist:
         try:
             red = simulate_scenario(p, reduced=True, t_end=t_end, label=f"{name} (reduced model)")
         except RunInterrupted as exc:  # the full model's run is complete: that is what --out writes
@@ -120,7 +120,7 @@ def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
     name = scene.name
     data: dict = {}
     lines = [f"scene {name}: design by Theorem 1 (002 Sect. 5.3)"]
-    if not is_wrist(p):
+    if not scene.switched.wrist:
         bf_min = design_bf_min(p)
         data["bf_min"] = bf_min
         data["bf_min_numerical"] = design_bf_min(p, method="numerical")
@@ -131,7 +131,7 @@ def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
                      f"(numerical return map: {data['bf_min_numerical']:.8g})")
         lines.append(f"  at bf = {p['bf']:.6g}: " + ("visible eigenvector" if q.visible else
                                                      f"Lambda = {q.Lambda:.6g}") + f", GUAS {q.guas}")
-    if is_wrist(p):
+    if scene.switched.wrist:
         bt_min = design_bt_min(p)
         data["bt_min"] = bt_min
         data["bt_min_numerical"] = design_bt_min(p, method="numerical")
@@ -165,7 +165,7 @@ def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
 
         from ..plot.switched import plot_lambda_curve, plot_lambda_map
 
-        if is_wrist(p):
+        if scene.switched.wrist:
             m = lambda_map(p, np.geomspace(3e3, 1e6, 40), np.geomspace(10, 3000, 40))
             ax = plot_lambda_map(m["kt"], m["bt"], m["Lambda"], m["visible"], design=(p["kt"], p["bt"]))
         else:
