@@ -14,7 +14,7 @@ import problems.prismatic_clearance as pc
 from invctl.contact.equilibria import static_equilibrium
 from invctl.contact.linkage import GROUND, Joint, Linkage, bar
 from invctl.contact.structure import open_structure
-from invctl.control.juggling_design import (Juggler, JugglerState, design, design_cycle, juggling_plan_law,
+from problems._juggling_design import (Juggler, JugglerState, design, design_cycle, juggling_plan_law,
                                             plan_vs_run)
 from invctl.errors import JugglingInfeasible, ModelError, ParameterError
 from invctl.model import ParamSet
@@ -362,7 +362,7 @@ def test_plan_vs_run_reports_absolute_differences():
     differences are |0.9 - 1| = 0.1 in time (the early one), |1.025 - 0.7| in q2 and 0.05 in q2'."""
     from types import SimpleNamespace
 
-    from invctl.control.juggling_design import plan_vs_run
+    from problems._juggling_design import plan_vs_run
 
     plan = SimpleNamespace(impact_table=lambda: [(1.0, 1, 0.5, -0.2), (2.0, 2, 0.7, 0.3)])
     t = np.linspace(0.0, 3.0, 301)

@@ -39,8 +39,8 @@ from typing import Sequence
 import casadi as ca
 import numpy as np
 
-from ..errors import JugglingInfeasible, ParameterError
-from .pdplus import FeedbackLaw
+from invctl.control.pdplus import FeedbackLaw
+from invctl.errors import JugglingInfeasible, ParameterError
 
 __all__ = ["Juggler", "JugglerState", "Flight", "Cycle", "JugglingPlan", "design_cycle", "design",
            "juggling_plan_law", "plan_vs_run"]
