@@ -190,7 +190,9 @@ def _atan_start(ratio):
     """x0 whose full Newton step gives |g(x1)| = ratio |g(x0)| (bisection on the closed form)."""
     from scipy.optimize import brentq
 
-    step = lambda x: x - np.arctan(x) * (1 + x**2)
+    def step(x):
+        return x - np.arctan(x) * (1 + x**2)
+
     x0 = brentq(lambda x: abs(np.arctan(step(x))) / np.arctan(x) - ratio, 1.0, 1.3917, xtol=1e-15)
     return x0, step(x0)
 
