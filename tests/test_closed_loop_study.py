@@ -28,7 +28,8 @@ def study(setup):
 
 @pytest.fixture(scope="module")
 def study_default():
-    return run_tracking_study(scene.SCENE, progress=False)
+    """The former default parameters (``--preset guess``: m3 = 0.5 kg, c = 5, D = 0.05)."""
+    return run_tracking_study(scene.SCENE, scene.PRESETS["guess"], progress=False)
 
 
 def test_feedforward_is_causal_and_matches_reference_model(setup):
