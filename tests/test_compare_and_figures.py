@@ -132,3 +132,19 @@ def test_contact_figure_zooms_to_where_things_happen():
     import matplotlib.pyplot as plt
 
     plt.close("all")
+
+
+def test_single_run_figure_takes_the_units_recorded_in_the_run():
+    """``invctl simulate --plot``: the run's meta carries the scene's units; mixed output units are said so."""
+    from invctl.plot.tracking import plot_run
+
+    u = np.vstack([np.sin(T), np.cos(T)])
+    r = _run("C1", T, REF + 0.01, REF, u, np.vstack([0.2 * np.ones_like(T)]))
+    r.meta = {"units": {"x": "m", "a": "rad", "u1": "N", "u2": "N"}}
+    fig = plot_run(r)
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert "u1, u2 [N]" in labels and "outputs (mixed units)" in labels and "phi|e| [-] (boundary 1)" in labels
+    assert all(ax.get_xlabel() == "t [s]" for ax in fig.axes)
+    import matplotlib.pyplot as plt
+
+    plt.close("all")

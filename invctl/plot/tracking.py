@@ -19,9 +19,10 @@ def _plt():
 
 
 def plot_run(res, path=None, units=None):
-    """One run: outputs vs reference, errors, inputs, funnel ratios (``units``: name -> unit)."""
+    """One run: outputs vs reference, errors, inputs, funnel ratios (``units``: name -> unit; default the
+    scene's, recorded in the run's ``meta``)."""
     plt = _plt()
-    units = dict(units or {})
+    units = dict(units or (res.meta or {}).get("units") or {})
     fig, ax = plt.subplots(2, 2, figsize=(10, 6.5), constrained_layout=True)
     t = res.t
     ynames = res.y_names or [f"y{i + 1}" for i in range(res.y.shape[0])]

@@ -382,7 +382,8 @@ class TrackingSetup:
         from ..scenes import scene_reference
 
         return {"scene": scene_reference(scene), "params": dict(self.params),
-                "plant": {k: v for k, v in self.plant.values.items() if v != self.model.values.get(k)}}
+                "plant": {k: v for k, v in self.plant.values.items() if v != self.model.values.get(k)},
+                "units": dict(scene.tracking.units)}
 
 
 def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, invert=True, t_end=None, dt=1e-3,
