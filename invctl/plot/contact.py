@@ -4,19 +4,20 @@ from __future__ import annotations
 import numpy as np
 
 
-def active_window(tr, rel: float = 1e-3, pad: float = 0.1):
-    """``(t_start, t_stop)`` that holds everything that happens: the span where the velocities or the impulses
-    exceed ``rel`` times their largest value, padded by ``pad`` of its length; ``None`` if that is more than
-    half of the run (nothing to zoom)."""
+def active_window(tr, rel: float = 1e-2, pad: float = 0.1):
+    """``(t_start, t_stop)`` that holds everything that happens: the span where the velocities or the changes
+    of the impulses from step to step exceed ``rel`` times their largest value (a persistent contact with a
+    constant impulse is no event), padded by ``pad`` of its length; ``None`` if that is more than half of the
+    run (nothing to zoom)."""
     t = np.asarray(tr.t, float)
     if t.size < 3:
         return None
     v = np.max(np.abs(np.atleast_2d(tr.v)), axis=0) if np.size(tr.v) else np.zeros_like(t)
     act = v > rel * max(float(v.max(initial=0.0)), 1e-300)
     P = np.atleast_2d(tr.P) if np.size(tr.P) else np.zeros((0, 0))
-    if P.size:
-        p = np.max(np.abs(P), axis=0)
-        act[:p.size] |= p > rel * max(float(p.max()), 1e-300)
+    if P.shape[-1] > 1:
+        p = np.max(np.abs(np.diff(P, axis=1)), axis=0)
+        act[1:p.size + 1] |= p > rel * max(float(p.max()), 1e-300)
     idx = np.flatnonzero(act)
     if idx.size == 0:
         return None
@@ -74,7 +75,7 @@ def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = N
         for a in (ax[0, 1], ax[1, 0], ax[1, 1]):
             a.set_xlim(*win)
             a.set_xlabel(f"t [s] (zoomed to [{win[0]:.3g}, {win[1]:.3g}] of [{tr.t[0]:.3g}, {tr.t[-1]:.3g}]; "
-                         "nothing moves outside)")
+                         "motion < 1 % of its peak outside)")
     if title:
         fig.suptitle(title)
     fig.tight_layout()
