@@ -137,6 +137,14 @@ class Tracking:
         ``{"reduction": {"output": 0.40, "end effector": 0.50}}``).
     controllers : tuple of str
         The runs ``invctl pipeline`` compares.
+    funnel_levels : {"per-output", "shared"}
+        How the automatic design chooses funnels and gains: per output and level (invctl's extension,
+        default) or one funnel and one gain per level shared by all outputs, the rule of 003 Sect. 6
+        (``phi_i,j = phi_j``, ``kappa_i,j = kappa_j``, ``phi = phi_2``); declare ``"shared"`` where the paper's
+        rules apply.
+    units : dict
+        Units of the named quantities for figures and reports, ``name -> unit`` (outputs, inputs,
+        coordinates and signals by their names, e.g. ``{"s2": "m", "u1": "N"}``); unnamed ones are unlabelled.
     """
 
     reference: ReferenceHook | None = None
@@ -154,11 +162,19 @@ class Tracking:
     a1: Mapping[str, Mapping] = field(default_factory=dict)
     printed: Mapping[str, Any] = field(default_factory=dict)
     controllers: tuple = ("C1", "C2", "C3")
+    funnel_levels: str = "per-output"
+    units: Mapping[str, str] = field(default_factory=dict)
 
     def _check(self, scene: str) -> None:
         for name in ("reference", "initial_configuration", "internal_coordinates"):
             _callable(getattr(self, name), f"tracking.{name}", scene)
-        for name in ("plant", "inversion", "feedback", "signals", "a1", "printed"):
+        if self.funnel_levels not in ("per-output", "shared"):
+            raise SceneError(f"scene {scene!r}: tracking.funnel_levels must be 'per-output' or 'shared', "
+                             f"got {self.funnel_levels!r}")
+        for k, v in dict(self.units).items():
+            if not (isinstance(k, str) and isinstance(v, str)):
+                raise SceneError(f"scene {scene!r}: tracking.units maps names to unit strings, got {k!r}: {v!r}")
+        for name in ("plant", "inversion", "feedback", "signals", "a1", "printed", "units"):
             object.__setattr__(self, name, _frozen(getattr(self, name), f"tracking.{name}", scene))
         for k, v in self.signals.items():
             _callable(v, f"tracking.signals[{k!r}]", scene, optional=False)

@@ -82,7 +82,8 @@ def _check(v: dict) -> None:
 
 SCENE = Scene(
     "cartpole", build, params=PARAMS, positive=("mc", "mp", "l", "I", "g"), validate=_check,
-    tracking=Tracking(reference=reference, plant={"mp": 1.2}, initial_configuration=lambda model: [0.0, 0.0]),
+    tracking=Tracking(reference=reference, plant={"mp": 1.2}, initial_configuration=lambda model: [0.0, 0.0],
+                      units={"x": "m", "theta": "rad", "F": "N"}),
     drawing=drawing,
     description="cart-pole, output = cart position: non-minimum phase (the zero dynamics are the inverted "
                 "pendulum); the simulated plant has a 20 % heavier pole",

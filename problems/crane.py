@@ -142,7 +142,8 @@ def drawing(model: Model):
 
 SCENE = Scene(
     "crane", build, params=PARAMS, positive=("mc", "mL", "Jw", "k", "H", "g"),
-    tracking=Tracking(reference=reference, plant={"mL": 1.2}, initial_configuration=initial_configuration),
+    tracking=Tracking(reference=reference, plant={"mL": 1.2}, initial_configuration=initial_configuration,
+                      units={"x": "m", "ell": "m", "xL": "m", "yL": "m", "F": "N", "u_w": "N"}),
     drawing=drawing,
     description="overhead crane with an elastic rope and a winch, output = load position: flat (vector relative "
                 "degree (4, 4), no internal dynamics), so the inverse is algebraic and needs no pre-actuation; the "

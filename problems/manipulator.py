@@ -22,12 +22,7 @@ m_i and L_i under ``--set`` unless set themselves.
 
 Two parameter sets:
 
-* the default (``PARAMS``): round guesses m1 = m2 = 1 kg, m3 = 0.5 kg,
-  c = 5 N m/rad, D = 0.05 N m s/rad, made before the paper's own set was
-  recovered; kept because every other study of this scene (inversion
-  benchmarks, trade-offs, robustness) is measured with it, and as a second,
-  lighter plant on which the same controllers are compared;
-* ``--preset paper`` (``PRESETS["paper"]``): m3 = 3.4 kg, c = 50 N m/rad,
+* the default (``PARAMS``, also ``--preset paper``): m3 = 3.4 kg, c = 50 N m/rad,
   D = 0.25 N m s/rad, identified from the printed T^-1 Q T and T^-1 P of
   Sect. 6 by :func:`invctl.analysis.identify.identify` (``PRINTED_LINEARIZATION``;
   T's columns of unit length with negative last entry, the normalization the
@@ -39,6 +34,9 @@ Two parameter sets:
   Freeing L2 and L3 too (with d, L1 from the printed geometry) returns
   L2 = 0.99989, L3 = 0.50007 (condition 1e3): the printed numbers confirm
   the lengths.  See docs/reproduction.md.
+* ``--preset guess`` (``PRESETS["guess"]``): the round guesses of the first
+  version, m3 = 0.5 kg, c = 5 N m/rad, D = 0.05 N m s/rad (a lighter, softer
+  plant; older measurements in docs/inversion.md and docs/tradeoffs.md used it).
 """
 from __future__ import annotations
 
@@ -52,12 +50,12 @@ from invctl.reference import Reference, poly9_timing_law
 from invctl.scenes import Report, Scene, Tracking
 
 PARAMS = {
-    "m1": 1.0, "m2": 1.0, "m3": 0.5,
+    "m1": 1.0, "m2": 1.0, "m3": 3.4,
     "L1": 0.5, "L2": 1.0, "L3": 0.5,
-    "I1": 1.0 / 48, "I2": 1.0 / 12, "I3": 0.5 * 0.25 / 12,
+    "I1": 1.0 / 48, "I2": 1.0 / 12, "I3": 3.4 * 0.25 / 12,
     "X3": 0.25,
     "d": 0.8,
-    "c": 5.0, "D": 0.05,
+    "c": 50.0, "D": 0.25,
 }
 
 DERIVED = {
@@ -67,8 +65,9 @@ DERIVED = {
     "I3": lambda p: p["m3"] * p["L3"] ** 2 / 12,
 }
 
-#: named parameter sets (``--preset NAME``); "paper": identified from the printed numbers of Sect. 6
-PRESETS = {"paper": {"m3": 3.4, "c": 50.0, "D": 0.25}}
+#: named parameter sets (``--preset NAME``): "paper" = the defaults (identified from the printed numbers of
+#: Sect. 6), "guess" = the round guesses of the first version (a lighter, softer plant)
+PRESETS = {"paper": {"m3": 3.4, "c": 50.0, "D": 0.25}, "guess": {"m3": 0.5, "c": 5.0, "D": 0.05}}
 
 #: the linearization printed in 003 Sect. 6 (4 decimals), with the normalization of T it needs:
 #: T = unit-length eigenvector columns of Q (eigenvalues ascending) with negative last entry
@@ -242,7 +241,9 @@ INVERSION = {"T0": -1.0, "Tf": 2.0, "N": 200, "scheme": "hermite-simpson", **BOU
 
 # --- feedback and closed loop (003 Sect. 5, 6) -----------------------------
 #
-# The new output is the printed one (A1_PAPER); Table 2 (funnel parameters) is
+# The new output is the printed one (A1_PAPER); the paper's rule "for both errors,
+# we choose the same funnel function and the same amplification factor" is
+# declared (Tracking(funnel_levels="shared")); Table 2 (funnel parameters) is
 # missing, so the scene declares only K, k_i, rho and lets the automatic design
 # (invctl.control.funnel_design: gains 5/T, kappa_bar from the (A1) margin,
 # funnel widths from the expected error) choose the rest, by rules that do not
@@ -332,7 +333,9 @@ SCENE = Scene(
         printed={"reduction": {"output": 0.40, "end effector": 0.50},
                  "figures": {"states": "003 Fig. 5", "path_end_effector": "003 Fig. 6", "errors": "003 Fig. 7",
                              "inputs": "003 Fig. 8", "funnel": "003 Fig. 9"}},
-        controllers=("C1", "C2", "C3", "C1-inv")),
+        controllers=("C1", "C2", "C3", "C1-inv"), funnel_levels="shared",
+        units={"s1": "m", "s2": "m", "alpha": "rad", "beta": "rad", "gamma": "rad", "beta+delta*gamma": "rad",
+               "u1": "N", "u2": "N", "end effector": "m"}),
     reports=(Report("003 Sect. 6: T^-1 Q T and T^-1 P (printed numbers)", printed_linearization_report,
                     command="analyze", printed={"T^-1 Q T": PRINTED_LINEARIZATION["TinvQT"],
                                                 "T^-1 P": PRINTED_LINEARIZATION["TinvP"]}),),

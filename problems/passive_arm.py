@@ -167,7 +167,8 @@ def _check(v: dict) -> None:
 SCENE = Scene(
     "passive_arm", build, params=PARAMS, positive=("m1", "m2", "L1", "L2", "lc1", "lc2", "I1", "I2", "g"),
     validate=_check,
-    tracking=Tracking(reference=reference, plant={"m2": 1.2}, initial_configuration=initial_configuration),
+    tracking=Tracking(reference=reference, plant={"m2": 1.2}, initial_configuration=initial_configuration,
+                      units={"q1": "rad", "q2": "rad", "tip_angle": "rad", "u": "N m"}),
     drawing=drawing,
     description="two-link arm with a passive elastic elbow, output = tip angle q1 + w q2 (non-colocated): "
                 "non-minimum phase for w > b/(b + c0); the simulated plant's second link is 20 % heavier",

@@ -88,11 +88,15 @@ def _outcome(setup, name="C2", **kw):
         return "left region", exc.partial
 
 
+#: the former default parameters (m3 = 0.5 kg, c = 5, D = 0.05): the extremes below were measured on them
+GUESS = scene.SCENE.split({}, preset="guess")[0]
+
+
 def test_tight_funnel():
     """A final width of 2 mm on the last level (50x tighter): the funnel law keeps every level inside (003
     Sect. 5: the gain 1/(1 - phi^2 |e|^2) grows as the error nears the boundary), at the price of larger
-    peak ratios; the inputs stay of the size of the nominal run's (< 20 N)."""
-    s = setup_tracking(scene.SCENE, invert=False, feedback={"phi_bar": (1.0, 3.0, 0.002)})
+    peak ratios; the inputs stay of the size of the nominal run's (< 20 N; 'guess' parameters)."""
+    s = setup_tracking(scene.SCENE, GUESS, invert=False, feedback={"phi_bar": (1.0, 3.0, 0.002)})
     kind, r = _outcome(s)
     assert kind == "inside", r.message
     assert 0.5 < r.max_funnel_ratio < 1 and np.all(r.input_peaks < 20)
@@ -156,7 +160,7 @@ def test_shorter_transitions_fail_with_specific_errors(tf, t_max):
     alpha below 0 during the transition, out of the operating region U of 003 Sect. 6 where Gamma is regular
     (det Gamma ~ sin alpha); the run stops there with SimulationFailed naming the region exit, inside the
     funnel and with the run so far - never a bare integrator error."""
-    s = setup_tracking(scene.SCENE, invert=False, reference=lambda m: scene.reference(m, tf=tf))
+    s = setup_tracking(scene.SCENE, GUESS, invert=False, reference=lambda m: scene.reference(m, tf=tf))
     kind, r = _outcome(s)
     assert kind == "left region"
     exit_ = r.stats["left_region"]
@@ -172,11 +176,11 @@ def test_unknown_controller_and_plant_parameter(c2_setup):
 
 
 def test_mismatch_beyond_the_operating_region_is_explained():
-    """m3 = 3 kg (6x): C2 drives alpha out of (0, pi/2), where Gamma is singular (det ~ sin alpha); the run
+    """m3 = 3 kg (6x the 'guess' parameters' 0.5 kg): C2 drives alpha out of (0, pi/2), where Gamma is singular (det ~ sin alpha); the run
     stops with a specific error naming the region exit, never a bare integrator error."""
     from invctl.errors import SimulationFailed
 
-    s = setup_tracking(scene.SCENE, invert=False, plant_params={"m3": 3.0})
+    s = setup_tracking(scene.SCENE, GUESS, invert=False, plant_params={"m3": 3.0})
     with pytest.raises(SimulationFailed) as info:
         run_controller(s, "C2")
     exc = info.value

@@ -286,13 +286,13 @@ def test_integrator_options_are_checked(capsys):
 
 
 def test_fast_move_fails_with_the_cause_and_options_that_exist():
-    """The manipulator's transition in 0.5 s instead of 1 s: the verified inverse's feedforward with the paper's
+    """The manipulator ('guess' parameters, m3 = 0.5 kg) with its transition in 0.5 s instead of 1 s: the verified inverse's feedforward with the paper's
     C1 leaves the region where (A1) holds and the input grows without bound (no integrator setting helps: the
     message says so and still names the settings); C1-inv, whose reference is the inverse's own trajectory,
     stays inside the funnels."""
     import problems.manipulator as manip
 
-    s = setup_tracking(manip.SCENE, reference=lambda m: manip.reference(m, tf=0.5))
+    s = setup_tracking(manip.SCENE, manip.PRESETS["guess"], reference=lambda m: manip.reference(m, tf=0.5))
     with pytest.raises(SimulationFailed) as info:
         run_controller(s, "C1")
     msg = str(info.value)

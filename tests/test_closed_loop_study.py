@@ -28,7 +28,8 @@ def study(setup):
 
 @pytest.fixture(scope="module")
 def study_default():
-    return run_tracking_study(scene.SCENE, progress=False)
+    """The former default parameters (``--preset guess``: m3 = 0.5 kg, c = 5, D = 0.05)."""
+    return run_tracking_study(scene.SCENE, scene.PRESETS["guess"], progress=False)
 
 
 def test_feedforward_is_causal_and_matches_reference_model(setup):
@@ -190,6 +191,14 @@ def test_cli_pipeline(tmp_path, capsys):
     assert data["extension_reductions"]["output"] > data["reductions"]["output"]
     assert any("C1 reduces C2" in line and "paper: 40 %" in line for line in out)
     assert any("C1-inv (invctl's extension)" in line for line in out)
+    # what the feedforward buys: every measure per controller, and the headline line
+    assert "what the feedforward buys:" in out
+    meas = data["comparison"]["measures"]
+    for name in ("C1", "C2", "C1-inv"):
+        assert meas[name]["max_gain"] >= data["info"]["kappa_bar"][name] > 0 and meas[name]["inside"]
+        assert meas[name]["max_funnel_ratio"] == pytest.approx(data["runs"][name]["max_funnel_ratio"])
+    assert meas["C3"]["max_gain"] is None and meas["C3"]["final_output_error"] > meas["C1"]["final_output_error"]
+    assert any(line.startswith("C1 vs C2 (reduction") and "peak input" in line for line in out)
     for f in ("states", "path_end_effector", "errors", "inputs", "funnel"):
         assert (tmp_path / f"{f}.png").exists()
     assert set(plt.get_fignums()) == open_before  # written figures are closed
@@ -221,3 +230,25 @@ def test_controller_names_ignore_case_and_the_extension_inverts_on_demand():
     s = setup_tracking(scene.SCENE, PAPER, invert=False, t_end=0.2)
     r = run_controller(s, "C1-INV")
     assert s.inverse is not None and r.controller == "C1-inv" and r.status == "ok"
+
+
+def test_reproduction_map_at_the_design_is_the_study(setup, study):
+    """tools/reproduction_map.py at scale 1 (the automatic design) gives the pipeline's reductions exactly
+    (a second construction of the same controller from the design's options), and its figure is written."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "tools" / "reproduction_map.py"
+    spec = importlib.util.spec_from_file_location("reproduction_map", path)
+    rm = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rm)
+    r = rm.point(setup, 1.0, 1.0, 1.0)
+    assert r["output"] == pytest.approx(study.reductions["output"], rel=1e-9, abs=1e-12)
+    assert r["end effector"] == pytest.approx(study.reductions["end effector"], rel=1e-9, abs=1e-12)
+    assert r["c2_ratio"] == pytest.approx(study.runs["C2"].max_funnel_ratio, rel=1e-12)
+    assert rm.distance(r) == pytest.approx(100 * max(abs(r["output"] - 0.4), abs(r["end effector"] - 0.5)))
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        rm.plot([r], [1.0], [1.0], [1.0], Path(d) / "map.png")
+        assert (Path(d) / "map.png").stat().st_size > 0

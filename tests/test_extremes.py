@@ -229,9 +229,11 @@ def test_lambda_closed_form_equals_return_map(bf, ke, be):
 # ---------------------------------------------------- manipulator: Gamma edge
 @pytest.fixture(scope="module")
 def manipulator_model():
+    """The manipulator with the 'guess' parameters (m3 = 0.5 kg, c = 5, D = 0.05), on which these extremes
+    were measured."""
     import problems.manipulator as scene
 
-    return scene, scene.build()
+    return scene, scene.build(**scene.PRESETS["guess"])
 
 
 @pytest.mark.timeout(60)

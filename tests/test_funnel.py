@@ -117,7 +117,7 @@ def test_error_chain_matches_finite_differences_in_filter_mode(design):
 
     model, ref, lin = design
     ctrl = funnel_controller(model, ref, lin, eta2_source="filter", t_end=0.25)
-    loop = ClosedLoop(model, ref, controller=ctrl, t_end=0.25, dt=2.5e-4, rtol=1e-11, atol=1e-13)
+    loop = ClosedLoop(model, ref, controller=ctrl, t_end=0.25, dt=1.25e-4, rtol=1e-11, atol=1e-13)
     res = loop.run(scene.initial_configuration(model))
     N = res.t.size
     w = np.hstack([ctrl.eta2_ref(t)[:, None] for t in res.t])
@@ -133,8 +133,9 @@ def test_error_chain_matches_finite_differences_in_filter_mode(design):
             de = (e[2:] - e[:-2]) / (2 * h)
             lhs = de + k[1:-1] * e[1:-1]
             scale = np.abs(e_next).max() + 1e-12
-            # central differences: O(h^2 e''' / 6), below 1e-4 relative at h = 0.25 ms (the start transient of
-            # the level-1 error with the printed K_1 = -0.1 is fast)
+            # central differences: O(h^2 e''' / 6), below 2e-4 relative at h = 0.125 ms (the start transient of
+            # the level-1 error with the printed K_1 = -0.1 is fast; with the identified parameters h = 0.25 ms
+            # leaves 3.2e-4 relative at the first step, decaying along the run: truncation, not the rules)
             assert np.abs(lhs - e_next[1:-1]).max() < 2e-4 * scale + 1e-9, (i, j)
             idx += 1
         idx += 1

@@ -194,6 +194,39 @@ def test_manipulator_design_is_high_gain_with_positive_margins(manip, manip_desi
     assert "high-gain" in text and "kappa_bar" in text and "expected error" in text
 
 
+def test_shared_levels_follow_003_sect_6(manip):
+    """levels="shared" (003 Sect. 6: phi_i,j = phi_j, kappa_i,j = kappa_j, phi = phi_2): both outputs' level-0
+    funnels are one function, as wide as the wider of the per-output design's (final and initial widths),
+    level 1 is 2 kappa_0 times level 0 and phi_bar is phi_2 = 2 kappa_1 times level 1 in its final width;
+    the start stays inside; the per-output design gives the two level-0 errors different funnels.  The scene
+    declares the rule (Tracking.funnel_levels); an unknown rule is a ParameterError."""
+    model, ref, lin, q0 = manip
+    per = design_funnel_feedback(model, lin, ref, q0=q0, levels="per-output")
+    sh = design_funnel_feedback(model, lin, ref, q0=q0, levels="shared")
+    assert scene.SCENE.tracking.funnel_levels == "shared" and sh.levels == "shared" and per.levels == "per-output"
+    P = lambda f: (f.params["p"], f.params["q"], f.params["r"])  # noqa: E731
+    assert P(per.funnels[0][0]) != P(per.funnels[1][0])
+    assert P(sh.funnels[0][0]) == P(sh.funnels[1][0])
+    r0 = max(per.funnels[0][0].params["r"], per.funnels[1][0].params["r"])
+    w0 = max(sum(P(per.funnels[i][0])[::2]) for i in range(2))
+    k = sh.kappa[0][0]
+    assert sh.kappa == per.kappa and all(x == k for row in sh.kappa for x in row)
+    assert sh.funnels[0][0].params["r"] == pytest.approx(r0, rel=1e-12)
+    assert sum(P(sh.funnels[0][0])[::2]) >= w0 * (1 - 1e-12)
+    assert sh.funnels[0][1].params["r"] == pytest.approx(2 * k * r0, rel=1e-12)
+    assert sh.phi_bar.params["r"] == pytest.approx(2 * k * 2 * k * r0, rel=1e-12)
+    assert sh.initial_ratios.max() <= 0.5 + 1e-9
+    with pytest.raises(ParameterError, match="levels must be one of"):
+        design_funnel_feedback(model, lin, ref, q0=q0, levels="paper")
+    with pytest.raises(ParameterError, match="one gain per level"):
+        design_funnel_feedback(model, lin, ref, q0=q0, levels="shared", kappa=[[5.0, 5.0], [4.0]])
+    from invctl.errors import SceneError
+    from invctl.scenes import Tracking
+
+    with pytest.raises(SceneError, match="funnel_levels"):
+        Tracking(funnel_levels="paper")._check("s")
+
+
 def _run(plant, ref, ctrl, q0, t_end=2.0, u_ff=None, signals=None):
     return ClosedLoop(plant, ref, controller=ctrl, t_end=t_end, u_ff=u_ff, signals=signals).run(q0)
 

@@ -48,11 +48,11 @@ def test_manipulator_lagrangian_matches_printed_49(manipulator):
 def test_derived_parameters_follow_base(manipulator):
     m2 = manipulator.with_params(L3=0.6)
     assert m2.values["X3"] == pytest.approx(0.3)
-    assert m2.values["I3"] == pytest.approx(0.5 * 0.36 / 12)
+    assert m2.values["I3"] == pytest.approx(manipulator.values["m3"] * 0.36 / 12)     # I3 = m3 L3^2 / 12
     m3 = manipulator.with_params(L3=0.6, X3=0.2)
     assert m3.values["X3"] == 0.2
     assert manipulator.values["X3"] == 0.25  # original untouched
-    assert manipulator.scaled(m3=1.2).values["m3"] == pytest.approx(0.6)
+    assert manipulator.scaled(m3=1.2).values["m3"] == pytest.approx(1.2 * manipulator.values["m3"])
 
 
 def test_unknown_parameter_is_named(manipulator):

@@ -207,7 +207,7 @@ def test_two_link_arm_minimal_and_redundant_same_zeros(q1):
 
 
 def test_manipulator_zeros_at_start_and_end_equilibria():
-    model = manip.build()
+    model = manip.build(**manip.PRESETS["guess"])
     ref = manip.reference(model)
     ops = operating_points(model, ref, 2, guess_q=manip.initial_configuration(model))
     idyn = internal_dynamics(model, "sect3", manip.paper_internal_coordinates,
@@ -217,7 +217,7 @@ def test_manipulator_zeros_at_start_and_end_equilibria():
         lin = linearize_internal(model, idyn, [([ops.y[k], np.zeros(2)], eta)])
         rep = _check_scene(model, q, lin)
         assert rep.kinds == ("transmission", "transmission") and rep.unstable.size == 1
-    # 003 Sect. 6 (our parameters, docs/analysis.md): -19.64, 24.44
+    # 003 Sect. 6 ('guess' parameters, docs/analysis.md): -19.64, 24.44
     _same(rep.transmission, [-19.6399637, 24.4399637], rtol=1e-8)
 
 

@@ -20,6 +20,11 @@ the linearized internal dynamics (39) and the reference (constants: :class:`Desi
   evaluated with the controller's own error functions and iterated (the gains ``k_i,j`` depend on the
   funnels) until every ratio ``phi_i,j(0) |e_i,j(0)|`` is at most 1/2.  Every funnel is exponential,
   hence in every class ``Phi_k`` of (9).
+* **levels** ``"per-output"`` (invctl's extension, the default): each output gets its own funnels as above;
+  ``"shared"`` (the rule of 003 Sect. 6: ``phi_i,j = phi_j``, ``kappa_i,j = kappa_j``): one funnel and one gain
+  per level j for all outputs that have it, the widest of the per-output widths at level 0 (final and
+  initial), level ``j + 1`` ``level_factor kappa_j`` times level j, and ``phi = phi_(max r - 1)`` for ``e_bar``
+  (003: ``phi = phi_2``); the initial widths are the largest over the outputs.
 
 Any entry passed in ``overrides`` is used as is.
 """
@@ -37,10 +42,12 @@ from .funnel import Funnel
 from .funnel_nmp import NMPFunnelController, _nested, _number_leaf
 from .new_output import A1Margin, NewOutput, _S_batch, a1_margin_along, design_new_output
 
-__all__ = ["A1Margin", "DesignRules", "FunnelDesign", "NewOutput", "a1_margin_along", "design_funnel_feedback",
+__all__ = ["A1Margin", "DesignRules", "LEVEL_RULES", "FunnelDesign", "NewOutput", "a1_margin_along", "design_funnel_feedback",
            "reference_time_scale"]
 
 OVERRIDABLE = ("K", "k_i", "rho", "pairing", "funnels", "kappa", "kappa_bar", "phi_bar")
+#: how the funnels and gains of the levels are chosen: "per-output" (invctl's extension) or "shared" (003 Sect. 6)
+LEVEL_RULES = ("per-output", "shared")
 #: max of the derivative of the C^4 timing law of 003 Sect. 6 over [0, 1] (630/256)
 POLY9_PEAK_RATE = 630.0 / 256.0
 
@@ -205,6 +212,7 @@ class FunnelDesign:
     notes: tuple = ()
     warnings: tuple = ()
     given: dict = field(default_factory=dict, repr=False)
+    levels: str = "per-output"
 
     @property
     def construction(self) -> str:
@@ -254,13 +262,13 @@ class FunnelDesign:
                 "phi_bar": fun(self.phi_bar), "a1_design_point": self.a1_design_point,
                 "a1_min_points": float(self.a1_points.min()), "relative_margin": self.new_output.relative_margin,
                 "time_scale": self.time_scale, "expected_error": self.expected_error.tolist(),
-                "initial_ratios": self.initial_ratios.tolist(), "sources": dict(self.sources),
+                "initial_ratios": self.initial_ratios.tolist(), "sources": dict(self.sources), "levels": self.levels,
                 "notes": list(self.notes), "warnings": list(self.warnings)}
 
 
 def design_funnel_feedback(model, lin, reference, *, q0=None, v0=None, expected_error=None, design_points=None,
                            time_scale=None, rules: DesignRules | None = None, controller_options=None,
-                           **overrides) -> FunnelDesign:
+                           levels: str = "per-output", **overrides) -> FunnelDesign:
     """Choose ``K, k_i, rho, pairing, funnels, kappa, kappa_bar, phi_bar`` of (48) (rules: module docstring).
 
     Parameters
@@ -282,6 +290,9 @@ def design_funnel_feedback(model, lin, reference, *, q0=None, v0=None, expected_
     controller_options : dict, optional
         Further options of the controller used to evaluate the start errors (``eta2_source``,
         ``t_end``, ``eta2_ref_samples``, ...); pass the same to the controller you build.
+    levels : {"per-output", "shared"}
+        Funnels and gains per output (invctl's extension) or one per level shared by all outputs
+        (003 Sect. 6); see the module docstring.
     **overrides
         Entries of :data:`OVERRIDABLE`, used as is.
 
@@ -297,6 +308,8 @@ def design_funnel_feedback(model, lin, reference, *, q0=None, v0=None, expected_
     if bad:
         raise ParameterError(f"design_funnel_feedback: unknown or misplaced option(s) {bad}; overrides are "
                              f"{list(OVERRIDABLE)}, controller_options the other controller keywords")
+    if levels not in LEVEL_RULES:
+        raise ParameterError(f"design_funnel_feedback: levels must be one of {list(LEVEL_RULES)}, got {levels!r}")
     rules = rules or DesignRules()
     m, n = model.m, model.n
     k = lin.k if lin is not None else 0
@@ -340,6 +353,12 @@ def design_funnel_feedback(model, lin, reference, *, q0=None, v0=None, expected_
     sources = {name: ("override" if name in overrides else "designed") for name in OVERRIDABLE}
     kappa = overrides.get("kappa", [[rules.kappa_rate / T] * (ri - 1) for ri in r])
     kap = _nested(kappa, r, "kappa", lambda s, nm: float(s), _number_leaf)
+    shared = levels == "shared"
+    if shared:      # one gain per level: kappa_j of the first output that has level j
+        top = [next(i for i in range(m) if r[i] - 1 > j) for j in range(max(r) - 1)]
+        if any(kap[i][j] != kap[top[j]][j] for i in range(m) for j in range(r[i] - 1)):
+            raise ParameterError(f"levels='shared' needs one gain per level (003 Sect. 6: kappa_i,j = kappa_j), "
+                                 f"got kappa = {kappa!r}; give a list over the levels or levels='per-output'")
     lam0 = float(new.margins[0])
     Qinv = np.linalg.inv(Qt) if k and np.linalg.cond(Qt) < 1e8 else None
     G0 = [(-new.K[i] @ Qinv @ Pt if Qinv is not None else T * new.K[i] @ Pt) if i < q else new.K[i] for i in range(m)]
@@ -354,27 +373,46 @@ def design_funnel_feedback(model, lin, reference, *, q0=None, v0=None, expected_
             row.append(rules.level_factor * kap[i][j] * row[-1])
         fin.append(row)
     fin_bar = float(np.linalg.norm([row[-1] for row in fin]))
+    if shared:      # phi_i,j = phi_j: the widest level 0, then level_factor kappa_j per level; phi = phi_(max r - 1)
+        w = [max(fin[i][0] for i in range(m))]
+        for j in range(max(r) - 1):
+            w.append(rules.level_factor * kap[top[j]][j] * w[-1])
+        fin = [w[:r[i]] for i in range(m)]
+        fin_bar = w[-1]
     # -- initial widths from the start errors (the controller's own error functions)
     funnels, phi_bar, errs, ratios, names = _fit_start(
         lambda f, b, extra: NMPFunnelController(model, lin, reference, K=list(new.K), k_i=list(new.k_i), rho=new.rho,
                                                 pairing=new.pairing, funnels=f, kappa=kappa, kappa_bar=kappa_bar,
                                                 phi_bar=b, **copts, **extra),
-        overrides.get("funnels"), overrides.get("phi_bar"), fin, fin_bar, r, rules, T, q0, v0,
+        overrides.get("funnels"), overrides.get("phi_bar"), fin, fin_bar, r, rules, T, q0, v0, shared,
         reuse=bool(k) and copts.get("reference_mode", "backward") == "backward" and "eta2_ref_samples" not in copts)
     notes = _notes(new, lin, T, eps, expected_error, rules, kappa, kappa_bar, lam0, fin, fin_bar, sources, q0, v0, w0,
                    load, kappa_bar_load)
+    if shared:
+        notes.append("levels shared (003 Sect. 6): one funnel and one gain per level for all outputs, phi = phi_"
+                     f"{max(r) - 1} on e_bar")
     design = FunnelDesign(tuple(new.K), tuple(new.k_i), new.rho, tuple(new.pairing), funnels, kappa, kappa_bar,
                           phi_bar, tuple(r), new, sources, T, eps, tuple(tuple(float(x) for x in e) for e in errs),
-                          ratios, names, w0, (q0, v0), tuple(notes), tuple(warnings), dict(overrides))
+                          ratios, names, w0, (q0, v0), tuple(notes), tuple(warnings), dict(overrides), levels)
     if ratios.max() >= 1:
         raise FeedbackDesignError(f"the start state is outside a given funnel: {names[int(np.argmax(ratios))]} = "
                                   f"{ratios.max():.3g} >= 1 at t = 0; widen it (larger p)", partial=design)
     return design
 
 
-def _fit_start(build, given_f, given_b, fin, fin_bar, r, rules, T, q0, v0, reuse):
+def _fit_start(build, given_f, given_b, fin, fin_bar, r, rules, T, q0, v0, shared, reuse):
     """Initial widths ``max(transient_factor x final, |e(0)| / start_ratio)``, iterated with the controller's own
-    error functions (the gains ``k_i,j`` of the upper levels depend on the funnels of the lower ones)."""
+    error functions (the gains ``k_i,j`` of the upper levels depend on the funnels of the lower ones);
+    ``shared``: the largest over the outputs per level."""
+
+    def share(W):
+        if shared:
+            for j in range(max(r) - 1):
+                wj = max(W[i][j] for i in range(len(r)) if r[i] - 1 > j)
+                for i in range(len(r)):
+                    if r[i] - 1 > j:
+                        W[i][j] = wj
+        return W
 
     def start_values(ctrl):
         out = ctrl.core(0.0, q0, v0, ctrl.z0(q0, v0), ctrl.eta2_ref(0.0))
@@ -392,11 +430,13 @@ def _fit_start(build, given_f, given_b, fin, fin_bar, r, rules, T, q0, v0, reuse
     extra = {"eta2_ref_samples": ctrl.eta2_ref_grid} if reuse else {}     # the bounded solution of (42), once
     errs = start_values(ctrl)[0]
     m, beta = len(r), rules.start_ratio
-    W = [[max(abs(errs[i][j]) / beta, rules.transient_factor * fin[i][j]) for j in range(r[i] - 1)] for i in range(m)]
+    W = share([[max(abs(errs[i][j]) / beta, rules.transient_factor * fin[i][j]) for j in range(r[i] - 1)]
+               for i in range(m)])
     Wb = max(float(np.linalg.norm([e[-1] for e in errs])) / beta, rules.transient_factor * fin_bar)
     for _ in range(6):
         funnels = given_f if given_f is not None else [
-            [Funnel.exponential(W[i][j] - fin[i][j], rules.decay / T, fin[i][j], f"phi_{i + 1},{j}")
+            [Funnel.exponential(W[i][j] - fin[i][j], rules.decay / T, fin[i][j],
+                                f"phi_{j}" if shared else f"phi_{i + 1},{j}")
              for j in range(r[i] - 1)] for i in range(m)]
         phi_bar = given_b if given_b is not None else Funnel.exponential(Wb - fin_bar, rules.decay / T, fin_bar,
                                                                           "phi_bar")
@@ -406,6 +446,7 @@ def _fit_start(build, given_f, given_b, fin, fin_bar, r, rules, T, q0, v0, reuse
             for j in range(r[i] - 1):
                 if abs(errs[i][j]) > beta * (1 + 1e-9) * W[i][j]:
                     W[i][j], grow = abs(errs[i][j]) / beta, True
+        share(W)
         nb = float(np.linalg.norm([e[-1] for e in errs]))
         if given_b is None and nb > beta * (1 + 1e-9) * Wb:
             Wb, grow = nb / beta, True

@@ -1,6 +1,31 @@
 """Figures of contact simulations: phase portrait, gaps, impulses, energy and V."""
 from __future__ import annotations
 
+import numpy as np
+
+
+def active_window(tr, rel: float = 1e-2, pad: float = 0.1):
+    """``(t_start, t_stop)`` that holds everything that happens: the span where the velocities or the changes
+    of the impulses from step to step exceed ``rel`` times their largest value (a persistent contact with a
+    constant impulse is no event), padded by ``pad`` of its length; ``None`` if that is more than half of the
+    run (nothing to zoom)."""
+    t = np.asarray(tr.t, float)
+    if t.size < 3:
+        return None
+    v = np.max(np.abs(np.atleast_2d(tr.v)), axis=0) if np.size(tr.v) else np.zeros_like(t)
+    act = v > rel * max(float(v.max(initial=0.0)), 1e-300)
+    P = np.atleast_2d(tr.P) if np.size(tr.P) else np.zeros((0, 0))
+    if P.shape[-1] > 1:
+        p = np.max(np.abs(np.diff(P, axis=1)), axis=0)
+        act[1:p.size + 1] |= p > rel * max(float(p.max()), 1e-300)
+    idx = np.flatnonzero(act)
+    if idx.size == 0:
+        return None
+    a, b = float(t[idx[0]]), float(t[idx[-1]])
+    width = max(b - a, t[1] - t[0])
+    lo, hi = max(t[0], a - pad * width), min(t[-1], b + pad * width)
+    return (lo, hi) if hi - lo < 0.5 * (t[-1] - t[0]) else None
+
 
 
 def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = None):
@@ -25,11 +50,13 @@ def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = N
     ax[0, 1].axhline(0, color="k", lw=0.5)
     ax[0, 1].set_title(f"gaps (max violation {tr.max_gap_violation:.2e})")
     ax[0, 1].set_xlabel("t [s]")
+    ax[0, 1].set_ylabel("gap (units of the gap function)")
     ax[0, 1].legend(fontsize=8)
     for i in range(tr.P.shape[0]):
         ax[1, 0].plot(tr.t[:tr.P.shape[1]], tr.P[i], lw=0.8, label=f"P {gn[i]}")
     ax[1, 0].set_title("impulses per step")
     ax[1, 0].set_xlabel("t [s]")
+    ax[1, 0].set_ylabel("impulse per step")
     ax[1, 0].legend(fontsize=8)
     ax[1, 1].plot(tr.t, tr.energy, lw=0.8, label="energy")
     ax[1, 1].plot(tr.t, tr.V, lw=0.8, ls="--", label="V")
@@ -41,7 +68,14 @@ def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = N
         pass
     ax[1, 1].set_title(f"energy and V (max V increase {tr.max_V_increase:.2e})")
     ax[1, 1].set_xlabel("t [s]")
+    ax[1, 1].set_ylabel("energy, V [J]")
     ax[1, 1].legend(fontsize=8)
+    win = active_window(tr)
+    if win is not None:     # zoom the time axes to where things happen; say so
+        for a in (ax[0, 1], ax[1, 0], ax[1, 1]):
+            a.set_xlim(*win)
+            a.set_xlabel(f"t [s] (zoomed to [{win[0]:.3g}, {win[1]:.3g}] of [{tr.t[0]:.3g}, {tr.t[-1]:.3g}]; "
+                         "motion < 1 % of its peak outside)")
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -8,6 +8,8 @@ import numpy as np
 __all__ = ["plot_run", "plot_study", "plot_funnels"]
 
 _COLORS = {"C1": "tab:blue", "C2": "tab:orange", "C3": "tab:green", "C1-inv": "tab:purple"}
+#: a curve larger than this many times every other curve of its axis does not set the axis (drawn clipped, marked)
+OFF_SCALE = 10.0
 
 
 def _plt():
@@ -16,9 +18,11 @@ def _plt():
     return plt
 
 
-def plot_run(res, path=None):
-    """One run: outputs vs reference, errors, inputs, funnel ratios."""
+def plot_run(res, path=None, units=None):
+    """One run: outputs vs reference, errors, inputs, funnel ratios (``units``: name -> unit; default the
+    scene's, recorded in the run's ``meta``)."""
     plt = _plt()
+    units = dict(units or (res.meta or {}).get("units") or {})
     fig, ax = plt.subplots(2, 2, figsize=(10, 6.5), constrained_layout=True)
     t = res.t
     ynames = res.y_names or [f"y{i + 1}" for i in range(res.y.shape[0])]
@@ -28,7 +32,8 @@ def plot_run(res, path=None):
         ax[0, 0].plot(t, res.y_ref[i], "k--", lw=0.8)
         curves += [(res, t, res.y[i], line.get_color()), (None, t, res.y_ref[i], "k")]
     _clip_departed(ax[0, 0], curves)
-    ax[0, 0].set(title=f"{_label(res.controller, res)}: outputs (dashed: reference)", xlabel="t [s]")
+    ax[0, 0].set(title=f"{_label(res.controller, res)}: outputs (dashed: reference)", xlabel="t [s]",
+                 ylabel=_unit_label(ynames, units) if len(_by_unit(ynames, units)) == 1 else "outputs (mixed units)")
     ax[0, 0].legend()
     curves = []
     for name in ["output", *res.signals]:
@@ -36,18 +41,20 @@ def plot_run(res, path=None):
         line, = ax[0, 1].semilogy(t, err, label=f"{name} error")
         curves.append((res, t, err, line.get_color()))
     _clip_departed(ax[0, 1], curves, log=True)
-    ax[0, 1].set(title="tracking errors", xlabel="t [s]")
+    ax[0, 1].set(title="tracking errors", xlabel="t [s]", ylabel="error norm")
     ax[0, 1].legend()
     unames = res.u_names or [f"u{i + 1}" for i in range(res.u.shape[0])]
     for i in range(res.u.shape[0]):
         ax[1, 0].plot(t, res.u[i], label=unames[i])
-    ax[1, 0].set(title="inputs", xlabel="t [s]")
+    ax[1, 0].set(title="inputs", xlabel="t [s]", ylabel=_unit_label(unames, units)
+                 if len(_by_unit(unames, units)) == 1 else "inputs (mixed units)")
     ax[1, 0].legend()
     if res.ratios.size:
         for k in range(res.ratios.shape[0]):
             ax[1, 1].plot(t, res.ratios[k], label=res.ratio_names[k] if res.ratio_names else f"level {k}")
         ax[1, 1].axhline(1.0, color="k", lw=1)
-        ax[1, 1].set(title=f"funnel ratios (max {res.max_funnel_ratio:.3f})", xlabel="t [s]", ylim=(0, 1.05))
+        ax[1, 1].set(title=f"funnel ratios (max {res.max_funnel_ratio:.3f})", xlabel="t [s]", ylim=(0, 1.05),
+                     ylabel="phi|e| [-] (boundary 1)")
         ax[1, 1].legend(fontsize=7)
     else:
         ax[1, 1].axis("off")
@@ -64,13 +71,20 @@ def _label(name: str, r, extra: str = "") -> str:
 
 
 def _clip_departed(ax, curves, log=False, both=False):
-    """Keep the axis limits to the runs that stayed inside (and to the others up to their exit) and mark
-    every exit: ``curves`` are ``(run, x, y, color)`` over ``run.t`` (run ``None``: a curve that always
+    """Keep the axis limits to the runs that stayed inside (and to the others up to their exit; a curve larger
+    than ``OFF_SCALE`` times every other one up to where it passes them) and mark every exit with a cross: ``curves`` are ``(run, x, y, color)`` over ``run.t`` (run ``None``: a curve that always
     counts, e.g. the reference); ``both`` limits x as well as y."""
     keep, marks, beyond = [], [], False
-    for r, x, y, color in curves:
+    scale = [float(np.nanmax(np.abs(y))) if np.size(y) else 0.0 for _, _, y, _ in curves]
+    for c, (r, x, y, color) in enumerate(curves):
         dep = r.departure if r is not None else None
         k = len(x) if dep is None else int(np.searchsorted(r.t, dep[0], side="right"))
+        # a run far off the others' scale (diverging without leaving a funnel or region) counts up to where it
+        # passes the largest of the others
+        others = max((s for i, s in enumerate(scale) if i != c), default=0.0)
+        if r is not None and not both and others > 0 and scale[c] > OFF_SCALE * others:
+            k = min(k, int(np.argmax(np.abs(np.asarray(y)) > others)) or 1)
+            dep = dep or (float(x[k - 1]), "off scale")
         keep.append((np.asarray(x)[:k], np.asarray(y)[:k]))
         beyond |= k < len(x)
         if dep is not None and k:
@@ -99,24 +113,55 @@ def _title(captions: dict, key: str, text: str) -> str:
     return f"{captions[key]}: {text}" if key in captions else text
 
 
-def plot_study(study, out_dir=None, fmt="png", captions=None):
+def _with_unit(name: str, units: dict) -> str:
+    """``name [unit]`` when the scene declares the unit, else ``name``."""
+    unit = (units or {}).get(name)
+    return f"{name} [{unit}]" if unit else name
+
+
+def _by_unit(names, units: dict) -> list:
+    """Indices of ``names`` grouped by their unit (undeclared units: one group per name), in order."""
+    groups = {}
+    for i, n in enumerate(names):
+        unit = (units or {}).get(n)
+        groups.setdefault(unit if unit else f"\0{n}", []).append(i)
+    return list(groups.values())
+
+
+def _unit_label(names, units):
+    unit = (units or {}).get(names[0])
+    return (", ".join(names) + (f" [{unit}]" if unit else "")) if len(names) <= 3 else (
+        f"[{unit}]" if unit else ", ".join(names))
+
+
+def plot_study(study, out_dir=None, fmt="png", captions=None, units=None):
     """The comparison figures of a tracking study (the content of 003 Figs. 5-9 for any scene):
-    ``states`` (states of the first run), ``path_<signal>`` (planar signals such as an end effector),
-    ``errors`` (output and signal errors), ``inputs`` and ``funnel`` (error norm and funnel boundary).
-    ``captions`` maps these keys to a prefix (e.g. the paper's figure numbers)."""
+    ``states`` (states of the first run, one axis per unit), ``path_<signal>`` (planar signals such as an end
+    effector), ``errors`` (each output's error and each signal's error norm), ``inputs`` and ``funnel``
+    (every level's ratio ``phi |e|``, boundary at 1: the numbers of the table).  ``captions`` maps these keys
+    to a prefix (e.g. the paper's figure numbers); ``units`` maps quantity names to units (default: the
+    study's ``info["units"]``, declared by the scene).  A run that left its region or funnel is marked with
+    a cross and does not set the axes."""
     plt = _plt()
     captions = dict(captions or {})
+    units = dict(units if units is not None else (study.info.get("units") or {}))
     runs = study.runs
     figs = {}
     main = runs.get("C1") or next(iter(runs.values()))
-    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
-    curves = []
-    for i, name in enumerate(main.q_names or [f"q{i + 1}" for i in range(main.q.shape[0])]):
-        line, = ax.plot(main.t, main.q[i], label=name)
-        curves.append((main, main.t, main.q[i], line.get_color()))
-    _clip_departed(ax, curves)
-    ax.set(title=_title(captions, "states", f"states under {_label(main.controller, main)}"), xlabel="t [s]")
-    ax.legend(ncol=2, fontsize=8)
+    qn = main.q_names or [f"q{i + 1}" for i in range(main.q.shape[0])]
+    groups = _by_unit(qn, units)
+    fig, axs = plt.subplots(len(groups), 1, figsize=(7, 1.2 + 2.2 * len(groups)), sharex=True,
+                            constrained_layout=True, squeeze=False)
+    for ax, idx in zip(axs[:, 0], groups):
+        curves = []
+        for i in idx:
+            line, = ax.plot(main.t, main.q[i], label=qn[i])
+            curves.append((main, main.t, main.q[i], line.get_color()))
+        _clip_departed(ax, curves)
+        ax.set(ylabel=_unit_label([qn[i] for i in idx], units))
+        ax.legend(ncol=3, fontsize=8)
+    axs[0, 0].set(title=_title(captions, "states", f"states under {_label(main.controller, main)}"))
+    axs[-1, 0].set(xlabel="t [s]")
     figs["states"] = fig
 
     for sname, ref in main.signals_ref.items():
@@ -130,19 +175,31 @@ def plot_study(study, out_dir=None, fmt="png", captions=None):
             ax.plot(r.signals[sname][0], r.signals[sname][1], color=_COLORS.get(name), label=_label(name, r))
             curves.append((r, r.signals[sname][0], r.signals[sname][1], _COLORS.get(name)))
         _clip_departed(ax, curves, both=True)
-        ax.set(title=_title(captions, key, f"{sname}: path"), aspect="equal")
+        unit = f" [{units[sname]}]" if sname in units else ""
+        ax.set(title=_title(captions, key, f"{sname}: path"), aspect="equal", xlabel=f"{sname}, x{unit}",
+               ylabel=f"{sname}, y{unit}")
         ax.legend()
         figs[key] = fig
 
-    kinds = ["output", *main.signals]
-    fig, axs = plt.subplots(1, len(kinds), figsize=(5.5 * len(kinds), 4), constrained_layout=True, squeeze=False)
-    for ax, kind in zip(axs[0], kinds):
+    yn = main.y_names or [f"y{i + 1}" for i in range(main.y.shape[0])]
+    panels = [(f"output {n}: y - y_ref", (lambda r, i=i: r.y[i] - r.y_ref[i]), units.get(n)) for i, n in enumerate(yn)]
+    panels += [(f"{s}: ||error||", (lambda r, s=s: r.signal_error(s)), units.get(s)) for s in main.signals]
+    cols = min(len(panels), 3)
+    rows = -(-len(panels) // cols)
+    fig, axs = plt.subplots(rows, cols, figsize=(4.8 * cols, 3.4 * rows + 0.4), constrained_layout=True,
+                            squeeze=False)
+    for k, (label, err, unit) in enumerate(panels):
+        ax = axs[k // cols, k % cols]
         for name, r in runs.items():
-            ax.plot(r.t, r.signal_error(kind), color=_COLORS.get(name),
-                    label=_label(name, r, f" ({r.cumulative_errors[kind]:.3g})"))
-        _clip_departed(ax, [(r, r.t, r.signal_error(kind), _COLORS.get(name)) for name, r in runs.items()])
-        ax.set(title=_title(captions, "errors", f"{kind} error (cumulative in legend)"), xlabel="t [s]")
-        ax.legend()
+            extra = f" (cum. ||e_y|| {r.cumulative_errors['output']:.3g})" if k == 0 else ""
+            ax.plot(r.t, err(r), color=_COLORS.get(name), label=_label(name, r, extra))
+        ax.axhline(0.0, color="k", lw=0.5)
+        _clip_departed(ax, [(r, r.t, err(r), _COLORS.get(name)) for name, r in runs.items()])
+        ax.set(title=label, xlabel="t [s]", ylabel="error" + (f" [{unit}]" if unit else " (no unit declared)"))
+        ax.legend(fontsize=8)
+    for k in range(len(panels), rows * cols):
+        axs[k // cols, k % cols].axis("off")
+    fig.suptitle(_title(captions, "errors", "tracking errors"))
     figs["errors"] = fig
 
     m = main.u.shape[0]
@@ -153,27 +210,13 @@ def plot_study(study, out_dir=None, fmt="png", captions=None):
             axs[i, 0].plot(r.t, r.u[i], color=_COLORS.get(name), label=_label(name, r))
     for i in range(m):
         _clip_departed(axs[i, 0], [(r, r.t, r.u[i], _COLORS.get(name)) for name, r in runs.items()])
-        axs[i, 0].set(ylabel=unames[i])
+        axs[i, 0].set(ylabel=_with_unit(unames[i], units))
     axs[0, 0].set(title=_title(captions, "inputs", "inputs"))
     axs[-1, 0].set(xlabel="t [s]")
     axs[0, 0].legend()
     figs["inputs"] = fig
 
-    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
-    drawn, curves = False, []
-    for name, r in runs.items():
-        if r.ratios.size:
-            err = np.maximum(np.abs(r.e_bar), 1e-12)
-            ax.semilogy(r.t, err, color=_COLORS.get(name), label=_label(f"||e_bar|| {name}", r))
-            curves.append((r, r.t, err, _COLORS.get(name)))
-            if not drawn:
-                ax.semilogy(r.t, 1.0 / r.phi_bar, "k", lw=1.2, label="funnel boundary 1/phi")
-                curves.append((None, r.t, 1.0 / r.phi_bar, "k"))
-                drawn = True
-    _clip_departed(ax, curves, log=True)
-    ax.set(title=_title(captions, "funnel", "error norm and funnel boundary"), xlabel="t [s]")
-    ax.legend()
-    figs["funnel"] = fig
+    figs["funnel"] = _plot_ratios(plt, runs, _title(captions, "funnel", "funnel ratios phi|e| (boundary at 1)"))
 
     if out_dir is not None:
         d = Path(out_dir)
@@ -181,6 +224,39 @@ def plot_study(study, out_dir=None, fmt="png", captions=None):
         for key, f in figs.items():
             f.savefig(d / f"{key}.{fmt}", dpi=120)
     return figs
+
+
+def _plot_ratios(plt, runs, title):
+    """One axis per funnel level (the ratio names of the first feedback run): ``phi |e|`` of every run with
+    feedback, the boundary at 1; the legend gives each run's largest ratio over all levels (the table's
+    ``max phi|e|``)."""
+    fb = {n: r for n, r in runs.items() if r.ratios.size}
+    if not fb:
+        fig, ax = plt.subplots(figsize=(7, 2), constrained_layout=True)
+        ax.axis("off")
+        ax.text(0.05, 0.5, "no run with feedback: no funnel", transform=ax.transAxes)
+        return fig
+    first = next(iter(fb.values()))
+    names = first.ratio_names or [f"level {k}" for k in range(first.ratios.shape[0])]
+    fig, axs = plt.subplots(len(names), 1, figsize=(7, 1.0 + 1.6 * len(names)), sharex=True,
+                            constrained_layout=True, squeeze=False)
+    for k, (ax, level) in enumerate(zip(axs[:, 0], names)):
+        for name, r in fb.items():
+            if k < r.ratios.shape[0]:
+                extra = f" (max over levels {r.max_funnel_ratio:.3g})" if k == 0 else ""
+                ax.plot(r.t, r.ratios[k], color=_COLORS.get(name), label=_label(name, r, extra), gid=f"ratio:{name}:{k}")
+                dep = r.departure
+                if dep is not None:
+                    ax.plot([r.t[-1] if dep[1] == "left its funnel" else dep[0]],
+                            [min(float(np.interp(dep[0], r.t, r.ratios[k])), 1.05)],
+                            marker="X", ms=9, color=_COLORS.get(name), mec="k", ls="none", zorder=5)
+        ax.axhline(1.0, color="k", lw=1.2)
+        ax.axhline(0.9, color="0.5", lw=0.6, ls=":")
+        ax.set(ylim=(0, 1.08), ylabel=level + " [-]")
+    axs[0, 0].set(title=title)
+    axs[0, 0].legend(fontsize=7)
+    axs[-1, 0].set(xlabel="t [s]")
+    return fig
 
 
 def plot_funnels(controller, t_end: float, path=None):
@@ -192,7 +268,7 @@ def plot_funnels(controller, t_end: float, path=None):
         for j, f in enumerate(row):
             ax.semilogy(t, np.ravel(f.boundary(t)), label=f"level {i + 1},{j}")
     ax.semilogy(t, np.ravel(controller.phi_bar.boundary(t)), "k", lw=1.5, label="e_bar")
-    ax.set(title="funnel boundaries 1/phi(t)", xlabel="t [s]")
+    ax.set(title="funnel boundaries 1/phi(t)", xlabel="t [s]", ylabel="1/phi (units of the error level)")
     ax.legend(fontsize=8, ncol=2)
     if path:
         fig.savefig(path, dpi=120)

@@ -277,12 +277,14 @@ def _signals(scene, model) -> dict:
 def feedback_design(scene, model, lin, reference, *, q0=None, overrides=None, t_end=2.0):
     """The funnel controller's parameters: the automatic design of
     :func:`invctl.control.funnel_design.design_funnel_feedback` with the scene's declared feedback
-    (``Tracking.feedback``) and ``overrides`` used as given."""
+    (``Tracking.feedback``) and ``overrides`` used as given; ``"levels"`` in them replaces the scene's
+    ``Tracking.funnel_levels``."""
     from ..control.funnel_design import design_funnel_feedback
 
     cfg = {**scene.tracking.feedback, **dict(overrides or {})}
+    levels = cfg.pop("levels", scene.tracking.funnel_levels)
     return design_funnel_feedback(model, lin, reference, q0=q0, expected_error=scene.tracking.expected_error,
-                                  controller_options={"t_end": t_end}, **cfg)
+                                  controller_options={"t_end": t_end}, levels=levels, **cfg)
 
 
 @dataclass
@@ -381,7 +383,8 @@ class TrackingSetup:
         from ..scenes import scene_reference
 
         return {"scene": scene_reference(scene), "params": dict(self.params),
-                "plant": {k: v for k, v in self.plant.values.items() if v != self.model.values.get(k)}}
+                "plant": {k: v for k, v in self.plant.values.items() if v != self.model.values.get(k)},
+                "units": dict(scene.tracking.units)}
 
 
 def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, invert=True, t_end=None, dt=1e-3,
@@ -514,7 +517,17 @@ class TrackingStudy:
             lines.append("C1-inv (invctl's extension) reduces C2's cumulative error by "
                          + ", ".join(f"{100 * v:.1f} % ({k})" for k, v in ext.items())
                          + self._departed_note("C1-inv", "C2"))
+        if self.runs:
+            lines += ["", "what the feedforward buys:", self.comparison().table()]
         return "\n".join(lines)
+
+    def comparison(self):
+        """:class:`~invctl.studies.compare.Comparison` of the runs (C1 against C2)."""
+        from .compare import compare_runs
+
+        kb = self.info.get("kappa_bar") or {}
+        return compare_runs(self.runs, kappa_bar={k: v for k, v in kb.items() if v is not None},
+                            move_end=self.info.get("move_end"), units=self.info.get("units"))
 
     def _departed_note(self, *names) -> str:
         deps = [(n, self.runs[n].departure) for n in names]
@@ -523,7 +536,8 @@ class TrackingStudy:
 
     def to_dict(self) -> dict:
         return {"runs": {k: r.summary() for k, r in self.runs.items()}, "reductions": self.reductions,
-                "extension_reductions": self.extension_reductions, "info": self.info}
+                "extension_reductions": self.extension_reductions, "info": self.info,
+                "comparison": self.comparison().to_dict() if self.runs else {}}
 
     def save(self, directory, meta: dict | None = None) -> None:
         d = Path(directory)
@@ -586,5 +600,8 @@ def compare_runs(scene, params, setup: TrackingSetup, runs: dict) -> TrackingStu
             "plant": {k: v for k, v in setup.plant.values.items() if v != setup.model.values.get(k)},
             "timings": dict(setup.timings), "t_end": setup.t_end, "dt": setup.dt,
             "printed_reduction": dict(scene.tracking.printed.get("reduction", {})), "scene": scene.name,
-            "figure_captions": dict(scene.tracking.printed.get("figures", {}))}
+            "figure_captions": dict(scene.tracking.printed.get("figures", {})),
+            "kappa_bar": {n: getattr(setup.controller_for(n), "kappa_bar", None) for n in runs},
+            "move_end": float(setup.reference.tf) if np.isfinite(setup.reference.tf) else None,
+            "units": dict(scene.tracking.units), "funnel_levels": setup.design.levels}
     return TrackingStudy(runs, info, setup)
