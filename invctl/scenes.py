@@ -171,9 +171,9 @@ class Tracking:
         if self.funnel_levels not in ("per-output", "shared"):
             raise SceneError(f"scene {scene!r}: tracking.funnel_levels must be 'per-output' or 'shared', "
                              f"got {self.funnel_levels!r}")
-        for k, v in dict(self.units).items():
-            if not (isinstance(k, str) and isinstance(v, str)):
-                raise SceneError(f"scene {scene!r}: tracking.units maps names to unit strings, got {k!r}: {v!r}")
+        for k, unit in dict(self.units).items():
+            if not (isinstance(k, str) and isinstance(unit, str)):
+                raise SceneError(f"scene {scene!r}: tracking.units maps names to unit strings, got {k!r}: {unit!r}")
         for name in ("plant", "inversion", "feedback", "signals", "a1", "printed", "units"):
             object.__setattr__(self, name, _frozen(getattr(self, name), f"tracking.{name}", scene))
         for k, v in self.signals.items():

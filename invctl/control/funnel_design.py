@@ -31,6 +31,7 @@ Any entry passed in ``overrides`` is used as is.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -195,10 +196,10 @@ class FunnelDesign:
     k_i: tuple
     rho: int
     pairing: tuple
-    funnels: object
-    kappa: object
+    funnels: Any
+    kappa: Any
     kappa_bar: float
-    phi_bar: object
+    phi_bar: Any
     relative_degrees: tuple
     new_output: NewOutput
     sources: dict

@@ -121,7 +121,7 @@ def _with_unit(name: str, units: dict) -> str:
 
 def _by_unit(names, units: dict) -> list:
     """Indices of ``names`` grouped by their unit (undeclared units: one group per name), in order."""
-    groups = {}
+    groups: dict = {}
     for i, n in enumerate(names):
         unit = (units or {}).get(n)
         groups.setdefault(unit if unit else f"\0{n}", []).append(i)

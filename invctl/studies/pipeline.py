@@ -59,8 +59,8 @@ class Session(Protocol):
         """The comparison of the runs: report lines, data, figures in ``out``."""
         ...
 
-    def interrupted(self, runs: dict[str, Trajectory], out: Path, note: str) -> None:
-        """After a Ctrl-C: write what makes the complete ``runs`` loadable as a whole (or nothing)."""
+    def interrupted(self, runs: dict[str, Trajectory], out: Path, note: str) -> list[str]:
+        """After a Ctrl-C: write what makes the complete ``runs`` loadable as a whole; returns the files written."""
         ...
 
 
