@@ -37,11 +37,10 @@ between the mesh points; otherwise :class:`~invctl.errors.InversionFailed` with 
 """
 from __future__ import annotations
 
-from typing import Any
-
 import hashlib
 import math
 import time
+from typing import Any
 
 import casadi as ca
 import numpy as np

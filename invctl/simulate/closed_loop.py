@@ -14,11 +14,10 @@ the funnel stops it with :class:`~invctl.errors.FunnelViolation` carrying the tr
 """
 from __future__ import annotations
 
-from typing import Any
-
 import re
 import time
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 import casadi as ca
 import numpy as np
