@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.analysis import internal_dynamics, linearize_internal, relative_degree
 
 SMOKE = bool({"--smoke", "--quick"} & set(sys.argv[1:]))

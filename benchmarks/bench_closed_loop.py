@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-import problems.manipulator as scene  # noqa: E402
+import invctl_scenes.manipulator as scene  # noqa: E402
 from invctl.simulate.closed_loop import scipy_reference_run  # noqa: E402
 from invctl.studies.tracking import setup_tracking  # noqa: E402
 

@@ -155,7 +155,7 @@ def bodies_rows(ns, contacts, steps, ref_steps, h=1e-3):
 _CHILD = r"""
 import json, resource, sys, time
 sys.path.insert(0, {root!r})
-import problems.bouncing_ball as bb
+import invctl_scenes.bouncing_ball as bb
 from invctl.simulate.timestepping import MoreauJean
 from invctl.errors import ResourceLimitError
 steps, h, kw = {steps}, {h}, {kw}

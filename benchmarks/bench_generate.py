@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.inversion import forward_check, invert
 from invctl.studies.library import generate
 

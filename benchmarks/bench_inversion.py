@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_bvp, solve_ivp
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.inversion import InversionSolver, forward_check, quasi_static_guess, resolve_selection, servo_model
 from invctl.studies.tracking import invert_tracking
 from invctl.inversion import compiled as _compiled_mod
@@ -138,7 +138,7 @@ def single_shooting(model, ref, inv):
 #: compiled in the background when missing; ``vm`` = CasADi's virtual machine only
 CHILD = r"""
 import sys, time
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.inversion import invert
 model = scene.build(); ref = scene.reference(model)
 t = time.perf_counter()

@@ -30,8 +30,8 @@ import time
 import casadi as ca
 import numpy as np
 
-import problems.cartpole as cp
-import problems.manipulator as mn
+import invctl_scenes.cartpole as cp
+import invctl_scenes.manipulator as mn
 from invctl.inversion import Bounds, invert, servo_model
 from invctl.inversion import cache as _cache
 from invctl.inversion.backends import IPOPT_DEFAULTS

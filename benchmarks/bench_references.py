@@ -75,7 +75,7 @@ def main():
         print(f"from_samples N={N:5d}: {1e3 * s:7.1f} ms  ({r.diagnostics['pieces']} pieces, "
               f"edf {r.diagnostics['outputs'][0]['edf']:.1f})")
 
-    import problems.cartpole as scene
+    import invctl_scenes.cartpole as scene
     from invctl.plot.animate import Drawing, animate
 
     model = scene.build()

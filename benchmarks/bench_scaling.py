@@ -1,6 +1,6 @@
 """Scaling of analysis, inversion and closed loop with the size of the model (issue 11, "Performance").
 
-The n-link flexible arm (problems/flexible_arm.py) for n = 2, 4, 8, 16, 32, each n in a fresh
+The n-link flexible arm (invctl_scenes/flexible_arm.py) for n = 2, 4, 8, 16, 32, each n in a fresh
 process (cold caches, its own peak memory), at fixed accuracy: the automatic inversion setup (plan
 tails 1e-8, Hermite-Simpson, N = 200 on the graded mesh) and a 2 s closed loop (C1: feedforward +
 funnel on the plant with 20 % heavier links).  Per n it prints the wall time of
@@ -212,7 +212,7 @@ def main() -> None:
     forms = ("angles", "cartesian") if args.coordinates == "both" else (args.coordinates,)
     rows = {c: [] for c in forms}
     order = "project default (AMD)" if args.pivot_order is None else f"mumps_pivot_order = {args.pivot_order}"
-    print("n-link flexible arm (problems/flexible_arm.py): analysis, inversion, 2 s closed loop (C1); "
+    print("n-link flexible arm (invctl_scenes/flexible_arm.py): analysis, inversion, 2 s closed loop (C1); "
           f"one fresh process per run, fastest of {args.repeat} per n; formulations: {', '.join(forms)}; "
           f"IPOPT/MUMPS ordering: {order}")
     head = (f"{'coordinates':>11s} {'n':>3s} {'analysis':>9s} {'inversion':>10s} {'closed loop':>12s} {'total':>8s} "

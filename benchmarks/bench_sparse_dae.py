@@ -39,7 +39,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-import problems.flexible_arm as fa  # noqa: E402
+import invctl_scenes.flexible_arm as fa  # noqa: E402
 from invctl.inversion import EquilibriumSolver, invert  # noqa: E402
 from invctl.inversion.backends import IPOPT_DEFAULTS, IPOPT_SQUARE_DEFAULTS  # noqa: E402
 

@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from test_switched_sim import ivp_reference  # noqa: E402  (the independent integration of the tests)
 
-import problems.stiff_wall as wall  # noqa: E402
+import invctl_scenes.stiff_wall as wall  # noqa: E402
 from invctl.studies.switched import build_loop, simulate_scenario  # noqa: E402
 
 SMOKE = bool({"--smoke", "--quick"} & set(sys.argv[1:]))

@@ -17,7 +17,7 @@ import argparse
 import time
 import numpy as np
 
-import problems.prismatic_clearance as scene
+import invctl_scenes.prismatic_clearance as scene
 from invctl.control.pdplus import pd_gravity
 from invctl.simulate.timestepping import MoreauJean, c_compiler
 

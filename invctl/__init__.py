@@ -2,7 +2,7 @@
 
 Data flow: ``invctl.model`` -> ``invctl.analysis`` -> ``invctl.inversion`` ->
 ``invctl.control`` -> ``invctl.simulate`` -> ``invctl.studies``; scenes live in
-``problems/`` and are loaded with :func:`invctl.load_scene`.
+``invctl_scenes/`` and are loaded with :func:`invctl.load_scene`.
 """
 from .errors import *  # noqa: F401,F403
 from .errors import __all__ as _errors_all

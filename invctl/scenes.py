@@ -15,7 +15,7 @@ declared                               commands
 =====================================  =============================================================
 
 A scene given by path (``invctl analyze ./my_scene.py``) works exactly like a shipped one
-(``problems/<name>.py``).
+(``invctl_scenes/<name>.py``).
 """
 from __future__ import annotations
 
@@ -787,29 +787,29 @@ def jsonable(obj):
 
 
 # ---------------------------------------------------------------- loading
-def _problems() -> ModuleType:
-    """The shipped ``problems`` package (installed next to ``invctl``), never a folder of that name that
+def _shipped() -> ModuleType:
+    """The shipped ``invctl_scenes`` package (installed next to ``invctl``), never a folder of that name that
     comes first on ``sys.path`` (``python -m invctl.cli`` puts the working directory there)."""
-    here = Path(__file__).resolve().parents[1] / "problems"
-    mod = sys.modules.get("problems")
+    here = Path(__file__).resolve().parents[1] / "invctl_scenes"
+    mod = sys.modules.get("invctl_scenes")
     if mod is None and (here / "__init__.py").is_file():
-        spec = importlib.util.spec_from_file_location("problems", here / "__init__.py",
+        spec = importlib.util.spec_from_file_location("invctl_scenes", here / "__init__.py",
                                                       submodule_search_locations=[str(here)])
         mod = importlib.util.module_from_spec(spec)
-        sys.modules["problems"] = mod
+        sys.modules["invctl_scenes"] = mod
         spec.loader.exec_module(mod)
     elif mod is None:
-        import problems as mod
+        import invctl_scenes as mod
     paths = [Path(p).resolve() for p in getattr(mod, "__path__", [])]
     if here.is_dir() and here not in paths:
-        raise SceneError(f"a package 'problems' in {', '.join(map(str, paths))} hides the shipped scenes in {here}; "
+        raise SceneError(f"a package 'invctl_scenes' in {', '.join(map(str, paths))} hides the shipped scenes in {here}; "
                          "rename that folder or run invctl from another one")
     return mod
 
 
 def available_scenes() -> list[str]:
-    """Names of the scenes shipped in ``problems/``."""
-    return sorted(m.name for m in pkgutil.iter_modules(_problems().__path__) if not m.name.startswith("_"))
+    """Names of the scenes shipped in ``invctl_scenes/``."""
+    return sorted(m.name for m in pkgutil.iter_modules(_shipped().__path__) if not m.name.startswith("_"))
 
 
 def _where(exc: BaseException, source: str) -> str:
@@ -860,11 +860,11 @@ def load_scene(name_or_path, preset: str | None = None, **values) -> Scene:
     else:
         if not text.isidentifier():
             raise SceneError(f"{text!r} is neither a scene name nor a path to a .py file")
-        _problems()
+        _shipped()
         try:
-            module = importlib.import_module(f"problems.{text}")
+            module = importlib.import_module(f"invctl_scenes.{text}")
         except ModuleNotFoundError as exc:
-            if exc.name not in (f"problems.{text}", "problems"):
+            if exc.name not in (f"invctl_scenes.{text}", "invctl_scenes"):
                 raise SceneError(f"scene {text!r} imports a missing module {exc.name!r}") from None
             raise SceneError(f"no scene named {text!r}; shipped scenes: {', '.join(available_scenes())} "
                              "(or give a path to a scene file)") from None
@@ -878,9 +878,9 @@ def load_scene(name_or_path, preset: str | None = None, **values) -> Scene:
 
 
 def scene_reference(scene: Scene) -> str:
-    """How to load ``scene`` again: its name when it is shipped in ``problems/``, else its file path."""
+    """How to load ``scene`` again: its name when it is shipped in ``invctl_scenes/``, else its file path."""
     src = Path(scene.source) if scene.source else None
-    if src is None or src.resolve().parent == Path(_problems().__file__).resolve().parent:
+    if src is None or src.resolve().parent == Path(_shipped().__file__).resolve().parent:
         return scene.name
     return str(src.resolve())
 

@@ -33,6 +33,6 @@ def pytest_collection_modifyitems(config, items):
 
 @pytest.fixture(scope="session")
 def manipulator():
-    import problems.manipulator as scene
+    import invctl_scenes.manipulator as scene
 
     return scene.build()

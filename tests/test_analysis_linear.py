@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-import problems.cartpole as cartpole
-import problems.manipulator as scene
+import invctl_scenes.cartpole as cartpole
+import invctl_scenes.manipulator as scene
 from invctl.studies.tracking import tracking_linearization
-import problems.two_link_arm as arm
+import invctl_scenes.two_link_arm as arm
 from invctl.analysis import from_matrices, internal_dynamics
 from invctl.reference import Reference
 

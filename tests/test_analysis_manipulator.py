@@ -13,7 +13,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.analysis import (
     consistent_state, internal_dynamics, linearize_internal, position_output_gamma,
     relative_degree,

@@ -9,9 +9,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.cartpole as cartpole
-import problems.knife_edge as knife
-import problems.two_link_arm as arm
+import invctl_scenes.cartpole as cartpole
+import invctl_scenes.knife_edge as knife
+import invctl_scenes.two_link_arm as arm
 from invctl.analysis import (
     auxiliary_system, colocated_check, consistent_state, internal_dynamics, linearize_internal, relative_degree,
     schur_complement,
@@ -233,7 +233,7 @@ def test_analyze_command_on_a_scene_file(tmp_path, capsys):
 
     path = tmp_path / "pendulum_cart.py"
     path.write_text(
-        "from invctl.scenes import Scene, Tracking\nfrom problems.cartpole import build, PARAMS\n"
+        "from invctl.scenes import Scene, Tracking\nfrom invctl_scenes.cartpole import build, PARAMS\n"
         "SCENE = Scene('pendulum_cart', build, params=PARAMS, tracking=Tracking(point=[0.0, 0.0]))\n"
     )
     assert main(["analyze", str(path), "--json", "--samples", "20", "--set", "l=0.8"]) == 0
@@ -241,7 +241,7 @@ def test_analyze_command_on_a_scene_file(tmp_path, capsys):
     model = cartpole.build(l=0.8)
     np.testing.assert_allclose(sorted(data["internal_eigs"]), cartpole.zero_dynamics_eigenvalues(model), rtol=1e-10)
     bad = tmp_path / "not_a_model.py"
-    bad.write_text(path.read_text().replace("from problems.cartpole import build, PARAMS",
+    bad.write_text(path.read_text().replace("from invctl_scenes.cartpole import build, PARAMS",
                                             "PARAMS = {}\ndef build(**p):\n    return {}"))
     assert main(["analyze", str(bad)]) == 2
     assert "must return an invctl.model.Model" in capsys.readouterr().err

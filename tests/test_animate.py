@@ -19,7 +19,7 @@ from invctl.plot.animate import Drawing, _sample, animate, positions, snapshot
 
 @pytest.fixture(scope="module")
 def cartpole():
-    import problems.cartpole as scene
+    import invctl_scenes.cartpole as scene
 
     return scene.build()
 
@@ -71,7 +71,7 @@ def test_cartpole_points_closed_form(cartpole):
 
 
 def test_manipulator_drawing_closes_the_loop(manipulator):
-    import problems.manipulator as scene
+    import invctl_scenes.manipulator as scene
 
     dr = manipulator_drawing(manipulator)
     q0 = scene.initial_configuration(manipulator)
@@ -174,7 +174,7 @@ def test_bad_drawings(cartpole):
     with pytest.raises(DrawingError, match=r"\['a'\] depend on symbols \['u'\]"):
         positions(cartpole, bad, np.zeros((2, 3)))
     # a drawing made for another instance of the same scene: same names, other symbols
-    import problems.cartpole as scene
+    import invctl_scenes.cartpole as scene
 
     other = scene.build()
     with pytest.raises(DrawingError, match="another Model instance"):

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-import problems.cartpole as cp
+import invctl_scenes.cartpole as cp
 from invctl.cli import main
 from invctl.errors import InversionFailed
 from invctl.inversion import Bounds, invert
@@ -166,7 +166,7 @@ def test_interior_rows_have_exact_derivatives(scheme, free_time, interior):
     # bound rows against CasADi's AD of the plain graph, at a random point and random positions
     import casadi as ca
 
-    import problems.manipulator as mn
+    import invctl_scenes.manipulator as mn
     from invctl.inversion.boundary import resolve_selection
     from invctl.inversion.cache import ocp_transcription
     from invctl.inversion.collocation import get_scheme

@@ -5,7 +5,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.chain14 as ch
+import invctl_scenes.chain14 as ch
 from invctl.contact.lcp import lcp_residual, lcp_sx, solve_lcp
 from invctl.contact.mechanics import ContactSystem
 from invctl.contact.reduction import ClearanceFree

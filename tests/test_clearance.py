@@ -6,9 +6,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.bouncing_ball as bb
-import problems.prismatic_clearance as prism
-import problems.slider_crank_clearance as sc
+import invctl_scenes.bouncing_ball as bb
+import invctl_scenes.prismatic_clearance as prism
+import invctl_scenes.slider_crank_clearance as sc
 from invctl.contact.mechanics import ContactSystem
 from invctl.control.pdplus import christoffel_C, pd_gravity, pd_plus_tracking
 from invctl.simulate.timestepping import MoreauJean

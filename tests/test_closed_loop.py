@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.errors import FeedbackDesignError, FunnelViolation, ParameterError, SceneError, SimulationFailed
 from invctl.simulate.closed_loop import BOUNDARY_RATIO, ClosedLoopResult, scipy_reference_run
 from invctl.studies.tracking import run_controller, setup_tracking

@@ -290,7 +290,7 @@ def test_fast_move_fails_with_the_cause_and_options_that_exist():
     C1 leaves the region where (A1) holds and the input grows without bound (no integrator setting helps: the
     message says so and still names the settings); C1-inv, whose reference is the inverse's own trajectory,
     stays inside the funnels."""
-    import problems.manipulator as manip
+    import invctl_scenes.manipulator as manip
 
     s = setup_tracking(manip.SCENE, manip.PRESETS["guess"], reference=lambda m: manip.reference(m, tf=0.5))
     with pytest.raises(SimulationFailed) as info:
@@ -308,7 +308,7 @@ _STEPWISE = textwrap.dedent("""
     from invctl.simulate import closed_loop
     from invctl.scenes import load_scene
     from invctl.studies.tracking import setup_tracking, run_controller
-    import problems.cartpole as cartpole
+    import invctl_scenes.cartpole as cartpole
     init = closed_loop.ClosedLoop.__init__
     def stepwise(self, *a, **k):  # every chunk fails at once: the run continues output step by output step
         init(self, *a, **k)

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.cli import main as cli_main
 from invctl.studies.tracking import TrackingStudy, run_tracking_study, setup_tracking
 

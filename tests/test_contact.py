@@ -164,7 +164,7 @@ def test_contact_lcp_resting_rod_forces():
 # ------------------------------------------------------------- pre-loading
 def test_example3_closed_forms():
     """000 Example 3: D, E_hat, E_hat^+ and the tau giving lam = beta, in closed form."""
-    import problems.prismatic_clearance as scene
+    import invctl_scenes.prismatic_clearance as scene
     from invctl.control.preload import preload_check, preload_law
 
     m1, m2, l = 1.3, 0.7, 0.05
@@ -189,7 +189,7 @@ def test_example3_closed_forms():
 
 def test_preload_infeasible_cases():
     """Corollary 1 (p < m_u') and the rank condition of Lemma 1."""
-    import problems.prismatic_clearance as scene
+    import invctl_scenes.prismatic_clearance as scene
     from invctl.control.preload import preload_check, preload_law
 
     one = scene.build(actuators=1)
@@ -211,7 +211,7 @@ def test_gear_example4_ehat():
     """000 Example 4: D matches the printed matrix for both f4 variants; the printed
     E_hat is reproduced with f4 = theta3 - theta2 + alpha4 (mesh-consistent) and
     NOT with f4 as printed (-theta3 - theta2 + alpha4), whose E_hat is derived by hand."""
-    import problems.gear_backlash as scene
+    import invctl_scenes.gear_backlash as scene
     from invctl.control.preload import preload_check
 
     def gear_ehat(c4, J):
@@ -233,7 +233,7 @@ def test_gear_example4_ehat():
 def test_io_linearization_gives_ydd_equal_taubar_plus_delassus_lambda():
     """(24)-(25): with tau = Dcal^+ (tau_bar + Fcal), y'' = tau_bar + Mcal lam for any lam
     (checked with the model's own accelerations at random states)."""
-    import problems.prismatic_clearance as scene
+    import invctl_scenes.prismatic_clearance as scene
     from invctl.control.juggling import io_decoupling_check, io_terms
 
     model = scene.build(actuators=2)

@@ -33,7 +33,7 @@ def run_cli(capsys, *argv):
 
 def _wrong_reference_scene(tmp: Path) -> str:
     """The cart-pole with a reference of two components for its one output."""
-    text = (ROOT / "problems" / "cartpole.py").read_text()
+    text = (ROOT / "invctl_scenes" / "cartpole.py").read_text()
     old = "return Reference(t, x0 + (xf - x0) * poly9_timing_law(t, t0, tf), t0, tf"
     assert old in text
     path = tmp / "two_components.py"
@@ -134,7 +134,7 @@ def _evil_scene(tmp: Path) -> tuple[Path, Path]:
     """A copy of the two-link arm that writes a marker file when it is loaded."""
     marker = tmp / "MARKER"
     path = tmp / "evil_scene.py"
-    path.write_text((ROOT / "problems" / "two_link_arm.py").read_text()
+    path.write_text((ROOT / "invctl_scenes" / "two_link_arm.py").read_text()
                     + f"\nfrom pathlib import Path\nPath({str(marker)!r}).write_text('ran')\n")
     return path, marker
 
@@ -186,7 +186,7 @@ def test_invert_dt_is_checked_again_over_the_solved_horizon(tmp_path, monkeypatc
 
 
 def test_a_scene_may_declare_ranges():
-    import problems.cartpole as cp
+    import invctl_scenes.cartpole as cp
 
     from invctl.errors import ParameterError, SceneError
     from invctl.scenes import Scene

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-import problems.fourbar_clearance as fc
-import problems.slider_crank_prismatic_play as sp
+import invctl_scenes.fourbar_clearance as fc
+import invctl_scenes.slider_crank_prismatic_play as sp
 from invctl.contact.structure import open_structure
 from invctl.control.preload import preload_check, preload_terms
 from invctl.errors import PreloadInfeasible

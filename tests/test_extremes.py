@@ -30,7 +30,7 @@ def _finite(*arrays):
 def ball():
     from invctl.simulate.timestepping import MoreauJean
 
-    import problems.bouncing_ball as scene
+    import invctl_scenes.bouncing_ball as scene
 
     model = scene.build()
     return scene, model, MoreauJean(model, potential=scene.potential(model))
@@ -94,7 +94,7 @@ def test_impact_law_loses_energy_as_39(m1, m2, e, v1, v2):
     (never positive), and the relative normal velocity is reversed times e (Newton)."""
     from invctl.contact.mechanics import ContactSystem
 
-    import problems.prismatic_clearance as scene
+    import invctl_scenes.prismatic_clearance as scene
 
     model = scene.build(actuators=1, m1=m1, m2=m2, e=e)
     cs = ContactSystem(model)
@@ -128,7 +128,7 @@ def test_tiny_clearance_with_projection_keeps_gaps():
     from invctl.control.pdplus import pd_gravity
     from invctl.simulate.timestepping import MoreauJean
 
-    import problems.prismatic_clearance as scene
+    import invctl_scenes.prismatic_clearance as scene
 
     l = scene.PARAMS["l"]
     model = scene.build(actuators=1, L=2 * l + 1e-9)
@@ -145,7 +145,7 @@ def test_extreme_mass_ratio(m2):
     from invctl.control.pdplus import pd_gravity
     from invctl.simulate.timestepping import MoreauJean
 
-    import problems.prismatic_clearance as scene
+    import invctl_scenes.prismatic_clearance as scene
 
     model = scene.build(actuators=1, m2=m2)
     law = pd_gravity(model, Kp=100.0, Kv=20.0, q_d=0.2, idx=[0])
@@ -231,7 +231,7 @@ def test_lambda_closed_form_equals_return_map(bf, ke, be):
 def manipulator_model():
     """The manipulator with the 'guess' parameters (m3 = 0.5 kg, c = 5, D = 0.05), on which these extremes
     were measured."""
-    import problems.manipulator as scene
+    import invctl_scenes.manipulator as scene
 
     return scene, scene.build(**scene.PRESETS["guess"])
 
@@ -298,7 +298,7 @@ def c2_setup():
 @pytest.mark.timeout(60)
 @pytest.mark.parametrize("r", [0.05, 0.005, 0.0005])
 def test_tight_funnel(c2_setup, r):
-    import problems.manipulator as scene
+    import invctl_scenes.manipulator as scene
     from invctl.control.funnel_nmp import NMPFunnelController
     from invctl.simulate.closed_loop import ClosedLoop
 

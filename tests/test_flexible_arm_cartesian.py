@@ -1,6 +1,6 @@
 """The flexible arm in Cartesian coordinates (``coordinates="cartesian"``: (x_i, y_i, theta_i) per link,
 constant diagonal M, 2n pin constraints) against the closed-form model in absolute angles: the same
-physics by two constructions (problems/flexible_arm.py).  Compared through what the library computes
+physics by two constructions (invctl_scenes/flexible_arm.py).  Compared through what the library computes
 from each (internal dynamics, stable inverse) and by a forward simulation with scipy, so a wrong
 constraint, spring sign, damping or input column of either model shows up."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-import problems.flexible_arm as fa
+import invctl_scenes.flexible_arm as fa
 from invctl.cli import main
 from invctl.errors import ParameterError, SceneError
 from invctl.inversion import forward_check, invert

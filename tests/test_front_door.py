@@ -168,7 +168,7 @@ SCENE = Scene("ball", build, params={"m": 1.0, "g": 9.81, "e": 0.5}, settings={"
               contact=Contact(initial_state=lambda model, settings, controller: ([0.5], [0.0])))
 ''',
     "switched": '''
-from problems.stiff_wall import PARAMS, build, check
+from invctl_scenes.stiff_wall import PARAMS, build, check
 from invctl.scenes import Scene, Switched
 
 SCENE = Scene("my_wall", build, params={**PARAMS, "t_end": 0.35}, validate=check, switched=Switched())
@@ -231,7 +231,7 @@ def test_a_ctrl_c_swallowed_inside_a_python_call_is_honoured(monkeypatch):
 def test_a_switched_scene_declares_its_plant(declared, source, match, tmp_path):
     """The plant is the scene's declaration, checked against its parameters (not guessed from them)."""
     path = tmp_path / "wall.py"
-    path.write_text(f"from problems.{source} import PARAMS, build\n"
+    path.write_text(f"from invctl_scenes.{source} import PARAMS, build\n"
                     "from invctl.scenes import Scene, Switched\n"
                     f"SCENE = Scene('wall', build, params=PARAMS, switched=Switched(plant={declared!r}))\n")
     with pytest.raises(invctl.SceneError, match=match):

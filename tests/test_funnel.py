@@ -3,7 +3,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.control.funnel import Funnel, as_funnel
 from invctl.control.funnel_nmp import NMPFunnelController
 from invctl.errors import ParameterError

@@ -13,10 +13,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.cartpole as cartpole
-import problems.manipulator as scene
+import invctl_scenes.cartpole as cartpole
+import invctl_scenes.manipulator as scene
 from invctl.studies.tracking import tracking_linearization
-import problems.two_link_arm as arm
+import invctl_scenes.two_link_arm as arm
 from invctl.analysis import internal_dynamics, linearize_internal, schur_complement
 from invctl.control.funnel_design import DesignRules, design_funnel_feedback, reference_time_scale
 from invctl.control.funnel_nmp import NMPFunnelController

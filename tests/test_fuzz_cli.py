@@ -281,7 +281,7 @@ BASES = ["knife_edge", "bouncing_ball", "gear_backlash"]
 @st.composite
 def corrupted_scene(draw, tmp: Path, case: int) -> tuple[str, str]:
     base = draw(st.sampled_from(BASES))
-    text = (Path(__file__).resolve().parents[1] / "problems" / f"{base}.py").read_text()
+    text = (Path(__file__).resolve().parents[1] / "invctl_scenes" / f"{base}.py").read_text()
     lines = text.splitlines(keepends=True)
     how = draw(st.sampled_from(["truncate", "delete_line", "insert_garbage", "replace", "bytes", "empty"]))
     if how == "truncate":
@@ -709,7 +709,7 @@ def test_fuzz_sigint_in_every_simulator_keeps_a_loadable_prefix(kind, data, tmp_
         timers = _interrupt_once_stepping(mp, delay)
         try:
             if argv is None:
-                import problems.bouncing_ball as bb
+                import invctl_scenes.bouncing_ball as bb
                 from invctl.simulate.event_driven import simulate_event_driven
 
                 model = bb.build(e=data.draw(st.sampled_from([0.8, 1.0]), label="e"))

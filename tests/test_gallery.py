@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-import problems.cartpole as cartpole
-import problems.flexible_arm as flexible_arm
-import problems.mass_chain as mass_chain
-import problems.passive_arm as passive_arm
-import problems.two_link_arm as two_link_arm
+import invctl_scenes.cartpole as cartpole
+import invctl_scenes.flexible_arm as flexible_arm
+import invctl_scenes.mass_chain as mass_chain
+import invctl_scenes.passive_arm as passive_arm
+import invctl_scenes.two_link_arm as two_link_arm
 from invctl.analysis import internal_dynamics, linearize_internal, plant_statespace
 from invctl.inversion import EquilibriumSolver, forward_check, invert
 from invctl.model import Model
@@ -157,7 +157,7 @@ def test_mass_chain_zeros_closed_form_and_nonminimum_phase():
 @pytest.mark.parametrize("w, y", [(None, 0.0), (None, 0.3), (0.8, 0.2), (1.0, -0.2)])
 def test_passive_arm_zeros_closed_form(w, y):
     """Internal-dynamics eigenvalues at the rest state with output y equal the roots of the closed-form
-    zero polynomial alpha s^2 + D2 s + kappa (module doc of problems/passive_arm.py): 1e-9 relative
+    zero polynomial alpha s^2 + D2 s + kappa (module doc of invctl_scenes/passive_arm.py): 1e-9 relative
     (AD-exact Jacobians, equilibria to 1e-12)."""
     model = passive_arm.build(**({} if w is None else {"w": w}))
     q1, q2 = passive_arm.equilibrium(model, y)

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.analysis.identify import (Target, eigen_split, identify, linearization_evaluator,
                                       linearization_features, printed)
 from invctl.analysis.linearize import eigenvector_columns

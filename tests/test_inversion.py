@@ -3,8 +3,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.manipulator as scene
-import problems.two_link_arm as arm
+import invctl_scenes.manipulator as scene
+import invctl_scenes.two_link_arm as arm
 from invctl.errors import BoundaryConditionError, InversionFailed, ReferenceSignalError
 from invctl.inversion import Inverse, invert, resolve_selection, servo_model
 from invctl.studies.tracking import invert_tracking

@@ -6,9 +6,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.cartpole as cp
-import problems.manipulator as scene
-import problems.two_link_arm as arm
+import invctl_scenes.cartpole as cp
+import invctl_scenes.manipulator as scene
+import invctl_scenes.two_link_arm as arm
 from invctl.errors import (BoundaryConditionError, HorizonTooLongError, ModelError, NoDichotomyError,
                            PositionOutputError, ReferenceSignalError, ReferenceSmoothnessError, RelativeDegreeError,
                            SingularDecouplingError)
@@ -23,7 +23,7 @@ TOL = 1e-8  # the plan's default truncation tolerance (relative tails)
 
 
 def cartpole_variant(output="sin", c=1.0, **overrides):
-    """The cart-pole of problems/cartpole.py with another output: ``x + c l sin(theta)``,
+    """The cart-pole of invctl_scenes/cartpole.py with another output: ``x + c l sin(theta)``,
     a constant, or the cart velocity."""
     P = ParamSet(list(cp.PARAMS))
     mc, mp, l, I, g, D = (P[k] for k in cp.PARAMS)

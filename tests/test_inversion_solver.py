@@ -9,7 +9,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.errors import ParameterError
 from invctl.inversion import InversionSolver, invert
 from invctl.inversion import collocation as coll

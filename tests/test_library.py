@@ -6,7 +6,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.cli import main
 from invctl.errors import LibraryError, OutputPathError, ParameterError
 from invctl.inversion import Inverse, invert

@@ -8,10 +8,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.cartpole as cartpole
-import problems.flexible_arm as flexible_arm
-import problems.manipulator as manipulator
-import problems.two_link_arm as two_link_arm
+import invctl_scenes.cartpole as cartpole
+import invctl_scenes.flexible_arm as flexible_arm
+import invctl_scenes.manipulator as manipulator
+import invctl_scenes.two_link_arm as two_link_arm
 from invctl.analysis import internal_dynamics, linearize_internal
 from invctl.analysis.internal import coordinate_form
 from invctl.inversion.servo import ServoModel

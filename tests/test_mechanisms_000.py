@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-import problems.backlash_pivot as bp
-import problems.fourbar_backlash as fb
-import problems.prismatic_clearance as pc
+import invctl_scenes.backlash_pivot as bp
+import invctl_scenes.fourbar_backlash as fb
+import invctl_scenes.prismatic_clearance as pc
 from invctl.contact.equilibria import static_equilibrium
 from invctl.contact.linkage import GROUND, Joint, Linkage, bar
 from invctl.contact.structure import open_structure
-from problems._juggling_design import (Juggler, JugglerState, design, design_cycle, juggling_plan_law,
+from invctl_scenes._juggling_design import (Juggler, JugglerState, design, design_cycle, juggling_plan_law,
                                             plan_vs_run)
 from invctl.errors import JugglingInfeasible, ModelError, ParameterError
 from invctl.model import ParamSet
@@ -164,7 +164,7 @@ def test_fourbar_rests_on_a_flank_with_the_gravity_torque():
     run = _run("fourbar_backlash", {})
     tr, s = run.trajectory, run.settings
     assert tr.max_V_increase <= 1e-12 * abs(tr.V[0])
-    from problems.fourbar_backlash import rest_report
+    from invctl_scenes.fourbar_backlash import rest_report
 
     class Ctx:
         result, model, settings = tr, run.model, s
@@ -269,7 +269,7 @@ def test_linkage_coordinates_round_trip():
     """Poses -> open coordinates -> poses (prismatic joint, floating body, relative angles)."""
     import casadi as ca
 
-    import problems.chain14 as ch
+    import invctl_scenes.chain14 as ch
 
     m = ch.build()
     link = m.linkage
@@ -284,7 +284,7 @@ def test_structure_of_existing_scenes():
     crank and rod (000 Fig. 4(a); not Example 5, whose slider-crank has play in the prismatic joint J4:
     ``slider_crank_prismatic_play``) has the crank and the rod-slider as subsystems, the prismatic joint
     two bodies."""
-    import problems.slider_crank_clearance as sc
+    import invctl_scenes.slider_crank_clearance as sc
 
     st = open_structure(sc.build())
     assert st.n_ind == 2 and [s.q_names for s in st.subsystems] == [("theta",), ("s", "phi")]
@@ -362,7 +362,7 @@ def test_plan_vs_run_reports_absolute_differences():
     differences are |0.9 - 1| = 0.1 in time (the early one), |1.025 - 0.7| in q2 and 0.05 in q2'."""
     from types import SimpleNamespace
 
-    from problems._juggling_design import plan_vs_run
+    from invctl_scenes._juggling_design import plan_vs_run
 
     plan = SimpleNamespace(impact_table=lambda: [(1.0, 1, 0.5, -0.2), (2.0, 2, 0.7, 0.3)])
     t = np.linspace(0.0, 3.0, 301)

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-import problems.cartpole as cartpole
-import problems.crane as crane
-import problems.manipulator as manipulator
-import problems.two_link_arm as arm
+import invctl_scenes.cartpole as cartpole
+import invctl_scenes.crane as crane
+import invctl_scenes.manipulator as manipulator
+import invctl_scenes.two_link_arm as arm
 from invctl.errors import (HorizonTooLongError, NoDichotomyError, ReferenceSmoothnessError, RelativeDegreeError,
                            SingularDecouplingError)
 from invctl.inversion import Inverse, invert, invert_normal_form

@@ -16,8 +16,8 @@ import pytest
 import scipy.sparse as sp
 from scipy.integrate import solve_ivp
 
-import problems.manipulator as manip
-import problems.two_link_arm as arm
+import invctl_scenes.manipulator as manip
+import invctl_scenes.two_link_arm as arm
 from invctl.analysis import relative_degree
 from invctl.analysis.relative_degree import lie_chain
 from invctl.contact.lcp import lcp_residual, lcp_sx, solve_lcp
@@ -73,7 +73,7 @@ def test_documented_samples_default_is_the_number_analyze_uses(manipulator_model
 @pytest.mark.parametrize("name", ["manipulator", "crane"])
 def test_worst_condition_of_gamma_is_the_largest_over_the_samples(name, tmp_path):
     """Worst cond(Gamma) and its (q, v), also in the .npz, equal a brute-force scan of the same samples."""
-    model = importlib.import_module(f"problems.{name}").build()
+    model = importlib.import_module(f"invctl_scenes.{name}").build()
     rd = relative_degree(model, samples=200)
     qs, vs = rd.diagnostics["q"], rd.diagnostics["v"]
     assert qs.shape[0] == 200

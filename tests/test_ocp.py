@@ -6,8 +6,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.cartpole as cp
-import problems.manipulator as mn
+import invctl_scenes.cartpole as cp
+import invctl_scenes.manipulator as mn
 from invctl.errors import BoundsError, InfeasibleBoundsError, InversionFailed, OptionError
 from invctl.inversion import (Bounds, Discretization, Horizon, Objective, SolverOptions, forward_check, invert,
                               resolve_selection, servo_model)

@@ -89,7 +89,7 @@ def test_a_contact_requirement_is_checked_by_the_library(tmp_path):
     from invctl.errors import SceneError
     from invctl.scenes import Contact, Scene
     from invctl.studies import commands
-    from problems import prismatic_clearance as pc
+    from invctl_scenes import prismatic_clearance as pc
 
     c = pc.SCENE.contact
     with pytest.raises(SceneError, match="not one of its controllers"):
@@ -106,7 +106,7 @@ def test_a_contact_requirement_is_checked_by_the_library(tmp_path):
 
 
 def test_a_scene_file_given_by_path_works_like_the_shipped_one(tmp_path, capsys):
-    import problems
+    import invctl_scenes as problems
 
     copy = tmp_path / "my_cartpole.py"
     shutil.copy(Path(problems.__file__).parent / "cartpole.py", copy)
@@ -122,7 +122,7 @@ def test_a_scene_file_given_by_path_works_like_the_shipped_one(tmp_path, capsys)
 def test_two_scene_files_with_the_same_name_are_different_scenes(tmp_path):
     from invctl.scenes import load_scene
 
-    text = ("from invctl.scenes import Scene, Tracking\nfrom problems.cartpole import build, PARAMS\n"
+    text = ("from invctl.scenes import Scene, Tracking\nfrom invctl_scenes.cartpole import build, PARAMS\n"
             "SCENE = Scene('{name}', build, params={{**PARAMS, 'l': {l}}}, tracking=Tracking(point=[0.0, 0.0]))\n")
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()

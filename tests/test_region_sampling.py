@@ -3,9 +3,9 @@ points a point-by-point rejection with OperatingRegion.contains draws from the s
 import numpy as np
 import pytest
 
-import problems.cartpole as cartpole
-import problems.manipulator as manipulator
-import problems.two_link_arm as two_link_arm
+import invctl_scenes.cartpole as cartpole
+import invctl_scenes.manipulator as manipulator
+import invctl_scenes.two_link_arm as two_link_arm
 
 
 def _rejection(region, count, seed):

@@ -11,8 +11,8 @@ import json
 import numpy as np
 import pytest
 
-import problems.bouncing_ball as bb
-import problems.prismatic_clearance as prism
+import invctl_scenes.bouncing_ball as bb
+import invctl_scenes.prismatic_clearance as prism
 from invctl.control.pdplus import pd_gravity
 from invctl.errors import ResultFileError
 from invctl.simulate.contact_record import CONTACT_FORMAT_VERSION, ContactTrajectory
@@ -180,7 +180,7 @@ def test_closed_loop_result_is_time_last(tracking):
 
 
 def test_switched_simulation_signals_share_the_time_axis():
-    import problems.stiff_wall as wall_scene
+    import invctl_scenes.stiff_wall as wall_scene
     from invctl.studies.switched import simulate_scenario
 
     sim = simulate_scenario(wall_scene.build().params, t_end=0.1, label="shape")

@@ -74,7 +74,7 @@ def test_same_file_name_in_two_folders_are_two_scenes(tmp_path):
         (tmp_path / folder).mkdir()
         (tmp_path / folder / "scene.py").write_text(textwrap.dedent(f"""
             import dataclasses
-            from problems.cartpole import SCENE as S
+            from invctl_scenes.cartpole import SCENE as S
             SCENE = dataclasses.replace(S, name="s{folder}", params={{**S.params, "mc": {mc}}})
             """))
     a, b = load_scene(tmp_path / "a" / "scene.py"), load_scene(tmp_path / "b" / "scene.py")
@@ -86,9 +86,9 @@ def test_local_folder_named_like_a_shipped_scene_does_not_shadow_it(tmp_path):
     (tmp_path / "manipulator").mkdir()
     (tmp_path / "manipulator" / "__init__.py").write_text("raise RuntimeError('the local folder was imported')\n")
     (tmp_path / "manipulator.py").write_text("raise RuntimeError('the local file was imported')\n")
-    (tmp_path / "problems").mkdir()  # `python -m invctl.cli` puts the working directory first on sys.path
-    (tmp_path / "problems" / "__init__.py").write_text("")
-    (tmp_path / "problems" / "manipulator.py").write_text("raise RuntimeError('the local package was imported')\n")
+    (tmp_path / "invctl_scenes").mkdir()  # `python -m invctl.cli` puts the working directory first on sys.path
+    (tmp_path / "invctl_scenes" / "__init__.py").write_text("")
+    (tmp_path / "invctl_scenes" / "manipulator.py").write_text("raise RuntimeError('the local package was imported')\n")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     p = subprocess.run([sys.executable, "-m", "invctl.cli", "analyze", "manipulator", "--samples", "4", "--json"],
                        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
@@ -515,7 +515,7 @@ def test_sigint_during_an_event_driven_run_keeps_the_simulated_prefix():
     """A real SIGINT to this process during the event-driven reference (a Python loop around DOP853)."""
     import threading
 
-    import problems.bouncing_ball as bb
+    import invctl_scenes.bouncing_ball as bb
     from invctl.simulate.contact_record import ContactTrajectory
     from invctl.simulate.event_driven import simulate_event_driven
 

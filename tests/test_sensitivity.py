@@ -5,7 +5,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.manipulator as scene
+import invctl_scenes.manipulator as scene
 from invctl.errors import InversionFailed, ParameterError
 from invctl.inversion import invert
 from invctl.inversion.sensitivity import ParametricInverse, parameter_chain

@@ -6,7 +6,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems._sixbar as sb
+import invctl_scenes._sixbar as sb
 from invctl.contact.equilibria import static_equilibrium
 from invctl.contact.mechanics import ContactSystem
 from invctl.contact.structure import open_structure
@@ -84,7 +84,7 @@ def test_prop2_V_never_increases_and_run_ends_in_E(pd_scene, values):
     assert tr.stats["n_impacts"] >= 1
     assert tr.max_V_increase <= 1e-12 * tr.V[0]
     assert tr.stats["dV_max_impact"] <= 0.0
-    from problems.sixbar_pd import _targets, closed_loop_force
+    from invctl_scenes.sixbar_pd import _targets, closed_loop_force
 
     F = closed_loop_force(model, run.settings)
     e = static_equilibrium(model, F, tr.q[:, -1])
@@ -105,7 +105,7 @@ def test_prop2_horizontal_plane_equilibria_form_a_continuum(pd_scene):
     q_1 = q_1d exactly up to the remaining motion, and E has positive local dimension there."""
     run = _run(pd_scene, {"t_end": 3.0, "h": 2e-5, "g": 0.0})
     tr = run.trajectory
-    from problems.sixbar_pd import closed_loop_force, _targets
+    from invctl_scenes.sixbar_pd import closed_loop_force, _targets
 
     e = static_equilibrium(run.model, closed_loop_force(run.model, run.settings), tr.q[:, -1])
     assert e.dimension > 0 and np.all(e.lam <= 1e-9)

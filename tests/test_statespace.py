@@ -13,10 +13,10 @@ import pytest
 import scipy.linalg as sla
 from scipy.integrate import solve_ivp
 
-import problems.cartpole as cartpole
-import problems.knife_edge as knife
-import problems.manipulator as manip
-import problems.two_link_arm as arm
+import invctl_scenes.cartpole as cartpole
+import invctl_scenes.knife_edge as knife
+import invctl_scenes.manipulator as manip
+import invctl_scenes.two_link_arm as arm
 from invctl.analysis import consistent_state, internal_dynamics, linearize_internal, plant_linearization, \
     plant_statespace
 from invctl.errors import DimensionError, LinearizationError, ModelError

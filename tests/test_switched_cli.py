@@ -12,8 +12,8 @@ from invctl.stability.conewise import lambda_numerical
 from invctl.studies.switched import (design_bt_min, design_kt_max, effective_wall, error_system, lambda_map,
                                      lambda_point, lambda_sweep, reduction_check, visible_region)
 
-import problems.compliant_wrist as wrist
-import problems.stiff_wall as wall
+import invctl_scenes.compliant_wrist as wrist
+import invctl_scenes.stiff_wall as wall
 
 
 def _run(capsys, *argv):

@@ -20,8 +20,8 @@ from invctl.reference.gluing import (GluedReference, approach_retract, force_bum
 from invctl.simulate.switched import EV_UNSLIDE, SwitchedSimulation, simulate_switched
 from invctl.studies.switched import build_loop, simulate_scenario
 
-import problems.compliant_wrist as wrist_scene
-import problems.stiff_wall as wall_scene
+import invctl_scenes.compliant_wrist as wrist_scene
+import invctl_scenes.stiff_wall as wall_scene
 
 
 def _params(**kw):

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-import problems.bouncing_ball as bb
-import problems.prismatic_clearance as prism
+import invctl_scenes.bouncing_ball as bb
+import invctl_scenes.prismatic_clearance as prism
 from invctl.control.pdplus import pd_gravity
 from invctl.model import Gap, Model, ParamSet
 from invctl.simulate.event_driven import simulate_event_driven

@@ -6,8 +6,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-import problems.bouncing_ball as bb
-import problems.prismatic_clearance as prism
+import invctl_scenes.bouncing_ball as bb
+import invctl_scenes.prismatic_clearance as prism
 from invctl.control.pdplus import pd_gravity
 from invctl.errors import ParameterError, RecordingError, ResourceLimitError, SimulationFailed
 from invctl.model import Gap, Model, ParamSet

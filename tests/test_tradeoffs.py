@@ -127,7 +127,7 @@ def test_clearance_fine_step_tradeoff(scene, order, tmp_path, capsys, monkeypatc
 def test_every_shipped_scene_has_a_study():
     import pkgutil
 
-    import problems
+    import invctl_scenes as problems
 
     names = sorted(m.name for m in pkgutil.iter_modules(problems.__path__) if not m.name.startswith("_"))
     missing = [n for n in names if not jobs_of(load_scene(n))]
@@ -136,7 +136,7 @@ def test_every_shipped_scene_has_a_study():
 
 def test_scene_without_spec_is_explained(tmp_path):
     path = tmp_path / "plain.py"
-    path.write_text("from invctl.scenes import Scene\nfrom problems.cartpole import build, PARAMS\n"
+    path.write_text("from invctl.scenes import Scene\nfrom invctl_scenes.cartpole import build, PARAMS\n"
                     "SCENE = Scene('plain', build, params=PARAMS)\n")
     with pytest.raises(SceneError, match="offers no speed-versus-accuracy study"):
         spec_for(load_scene(str(path)), {}, {}, smoke=True)

@@ -22,7 +22,7 @@ from invctl.errors import URDFError, UnsupportedURDFError
 from invctl.model import Model
 from invctl.model.urdf import read_urdf, robot_from_urdf
 
-ROBOTS = Path(__file__).resolve().parents[1] / "problems" / "robots"
+ROBOTS = Path(__file__).resolve().parents[1] / "invctl_scenes" / "robots"
 
 
 def _panda_without_mimic(tmp_path) -> Path:
@@ -245,7 +245,7 @@ def test_cli_reports_a_missing_urdf_as_json_error(tmp_path, capsys):
     """A scene whose URDF is missing: exit code 2 and the JSON error names URDFError (no traceback)."""
     from invctl.cli import main
 
-    text = (Path(__file__).resolve().parents[1] / "problems" / "acrobot.py").read_text()
+    text = (Path(__file__).resolve().parents[1] / "invctl_scenes" / "acrobot.py").read_text()
     old = 'URDF = Path(__file__).with_name("robots") / "double_pendulum.urdf"'
     assert old in text
     scene = tmp_path / "my_robot.py"

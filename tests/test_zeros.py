@@ -19,10 +19,10 @@ import pytest
 import scipy.linalg as sla
 from scipy.optimize import linear_sum_assignment
 
-import problems.cartpole as cartpole
-import problems.knife_edge as knife
-import problems.manipulator as manip
-import problems.two_link_arm as arm
+import invctl_scenes.cartpole as cartpole
+import invctl_scenes.knife_edge as knife
+import invctl_scenes.manipulator as manip
+import invctl_scenes.two_link_arm as arm
 from invctl.analysis import (
     classify_statespace, classify_zeros, internal_dynamics, invariant_zeros, linearize_internal,
     neighbourhood_samples, operating_points, plant_linearization, relative_degree, transmission_zeros,

@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import problems.manipulator as scene  # noqa: E402
+import invctl_scenes.manipulator as scene  # noqa: E402
 from invctl.control.funnel import Funnel  # noqa: E402
 from invctl.control.funnel_nmp import NMPFunnelController  # noqa: E402
 from invctl.errors import FunnelViolation, SimulationFailed  # noqa: E402

@@ -49,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=_HELP[name], description=_HELP[name])
         if name == "study":
             p.add_argument("kind", help="which study: tradeoff")
-        p.add_argument("scene", help="scene name in problems/ (e.g. manipulator) or path to a scene file")
+        p.add_argument("scene", help="scene name in invctl_scenes/ (e.g. manipulator) or path to a scene file")
         p.add_argument("--set", dest="set", action="append", default=[], metavar="NAME=VALUE",
                        help="override a scene parameter or setting (repeatable)")
         p.add_argument("--json", action="store_true", help="print one JSON object as the last line")

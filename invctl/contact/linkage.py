@@ -19,7 +19,7 @@ pattern of 000 (3).  Closing the clearances gives the *closure* constraints (two
 joint) of the clearance-free system (000 (6)), see :mod:`invctl.contact.reduction`.
 
 Loops of ideal joints inside a subsystem are not supported (write the loop closure in closed form,
-as ``problems/fourbar_backlash.py`` does); actuators act on tree coordinates (positive: increases
+as ``invctl_scenes/fourbar_backlash.py`` does); actuators act on tree coordinates (positive: increases
 the coordinate) or, at a joint with clearance, on the relative angle (slide) of its two bodies.
 """
 from __future__ import annotations

@@ -29,7 +29,7 @@ every n and is non-minimum phase with one real unstable zero (+27.6/s for n = 2,
 n = 3, +6.6/s for n = 32 at the hanging arm, default parameters); the other 2n - 3 zeros
 lie left of ``-alpha / 2``.
 
-For n = 2 this is ``problems/passive_arm.py`` in absolute coordinates (same physics,
+For n = 2 this is ``invctl_scenes/passive_arm.py`` in absolute coordinates (same physics,
 independent construction: checked in ``tests/test_gallery.py``).
 
 Cartesian (natural) coordinates, ``--set coordinates=cartesian``.  The same arm with the

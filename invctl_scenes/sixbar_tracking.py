@@ -1,6 +1,6 @@
 """Six-bar with a clearance at J3 under PD+ tracking (000 Fig. 5(a), Sect. 6, (47)-(56), Prop. 3).
 
-Geometry in ``problems/_sixbar.py``.  Open system (47): ``S1 = (B1, B2)``, ``q_1 = (theta_B1,
+Geometry in ``invctl_scenes/_sixbar.py``.  Open system (47): ``S1 = (B1, B2)``, ``q_1 = (theta_B1,
 theta_J2)``; ``S2 = (B3, B4, B5)`` pinned to the ground at J6, ``q_2 = (theta_B5, theta_J5,
 theta_J4)``; every joint but J3 is actuated (J1, J2, J4, J5, J6), so the open system is fully
 actuated and PD+ (48) applies with ``V`` of (50).  One gap ``f_12`` (J3: bearing at the end of B2,
@@ -33,7 +33,7 @@ import numpy as np
 
 from invctl.contact.structure import subsystem_report
 from invctl.scenes import Contact, Report, Scene
-from problems import _sixbar as sb
+from invctl_scenes import _sixbar as sb
 
 CONFIG = 1
 SETTINGS = {"Kp": 20.0, "Kv": 2.0, "tau_d": 0.2, "A_violating": 3.0, "w0": 0.05,

@@ -11,7 +11,7 @@ Controllers (``--controller``): ``pd`` (default with one actuator),
 ``preload`` (default with two), ``switching`` (one actuator), ``juggling``
 (two actuators: I/O linearization (25) of ``y = f1``, gap driven to a
 quarter of the clearance), ``juggling_design`` (one actuator: the recursive
-impact design (29)-(33), :mod:`problems/_juggling_design.py` (next to its scene): body 2 leaves
+impact design (29)-(33), :mod:`invctl_scenes/_juggling_design.py` (next to its scene): body 2 leaves
 wall f1 at ``v20`` and is brought in ``jcycles`` cycles
 Sigma_1 -> Sigma_2 -> Sigma_1 to the post-impact state ``(jq2, jv2)`` at its
 last impact on f1, through targets spaced evenly between; a target that step 2
@@ -133,7 +133,7 @@ def _juggling(model, s):
 
 def juggling_plan(model, s):
     """The plan of the ``juggling_design`` controller (000 (29)-(33)) for the settings ``s``."""
-    from problems._juggling_design import Juggler, JugglerState, design
+    from invctl_scenes._juggling_design import Juggler, JugglerState, design
 
     p = model.values
     j = Juggler(p["m1"], p["m2"], p["l"], p["L"], p["e"])
@@ -144,7 +144,7 @@ def juggling_plan(model, s):
 
 
 def _juggling_design(model, s):
-    from problems._juggling_design import juggling_plan_law
+    from invctl_scenes._juggling_design import juggling_plan_law
 
     _need(model, 1, "juggling_design", "the juggler drives body 1 only")
     return juggling_plan_law(model, juggling_plan(model, s), Kp=s["Kp"], Kv=s["Kv"])
@@ -152,7 +152,7 @@ def _juggling_design(model, s):
 
 def juggling_report(ctx) -> dict:
     """Planned impacts (000 (29)-(33)) against the simulated ones."""
-    from problems._juggling_design import plan_vs_run
+    from invctl_scenes._juggling_design import plan_vs_run
 
     plan = juggling_plan(ctx.model, ctx.settings)
     out = {f"cycle {k + 1}: D0, D1, A = y2'(t1-), B = y1'(t2-)": [c.D0, c.D1, c.A, c.B]
@@ -165,7 +165,7 @@ def juggling_report(ctx) -> dict:
 def juggling_design_analysis(ctx) -> dict:
     """000 (29)-(33) without a run: the default plan, and step 2 failing where it must (body 2 leaving
     wall f1 backwards, target ahead)."""
-    from problems._juggling_design import Juggler, JugglerState, design_cycle
+    from invctl_scenes._juggling_design import Juggler, JugglerState, design_cycle
     from invctl.errors import JugglingInfeasible
 
     s = {**PARAMS, **ctx.settings}

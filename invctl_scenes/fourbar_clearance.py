@@ -2,7 +2,7 @@
 
 Crank-rocker in the horizontal plane (``--set g=9.81``: vertical, gravity along ``-y``): ground pivots
 ``A = (0, 0)`` (J1) and ``D = (a, 0)`` (J4), crank ``AB`` (``b``), coupler ``BC`` (``c``), rocker ``DC``
-(``d``); ``a, b, c, d = 0.3, 0.1, 0.3, 0.2`` m as in ``problems/fourbar_backlash.py``, uniform bars of
+(``d``); ``a, b, c, d = 0.3, 0.1, 0.3, 0.2`` m as in ``invctl_scenes/fourbar_backlash.py``, uniform bars of
 ``rho`` kg/m.  J1, J2 (crank-coupler) and J3 (coupler-rocker) are ideal; J4 has radial clearance ``cl``:
 the bearing is the ground at ``D``, the journal the rocker's end.  Opened at J4 the four-bar is one
 chain grounded at J1 (000 Sect. 2):

@@ -1,6 +1,6 @@
 """Six-bar with clearances at J4, J5, J6 under PD + gravity compensation (000 Fig. 7(a), Sect. 5, Prop. 2).
 
-The geometry is in ``problems/_sixbar.py`` (stated there: bars of 0.3/0.3/0.25/0.25/0.25 m,
+The geometry is in ``invctl_scenes/_sixbar.py`` (stated there: bars of 0.3/0.3/0.25/0.25/0.25 m,
 1.5 kg/m, 1 mm clearances, vertical plane).  Open system (34): ``S1 = (B1, B2, B3)`` with
 ``q_1 = (theta_B1, theta_J2, theta_J3)`` (the angle of B1 and the relative angles at J2, J3),
 fully actuated at J1, J2, J3; ``S2 = B4`` and ``S3 = B5`` floating, ``q_i = (x, y, phi)`` of their
@@ -28,7 +28,7 @@ import numpy as np
 
 from invctl.contact.structure import subsystem_report
 from invctl.scenes import Contact, Report, Scene
-from problems import _sixbar as sb
+from invctl_scenes import _sixbar as sb
 
 CONFIG = 7
 SETTINGS = {"Kp": 40.0, "Kv": 2.0, "dq1": 0.15, "dq2": -0.1, "dq3": 0.1, "w4": 2.0, "w5": -2.0,

@@ -1,6 +1,6 @@
 """The six-bar's clearance configurations of 000 Sect. 2 (Example 2) and Sect. 4 as one scene.
 
-Geometry in ``problems/_sixbar.py``; this scene defaults to the horizontal plane (``g = 0``), where
+Geometry in ``invctl_scenes/_sixbar.py``; this scene defaults to the horizontal plane (``g = 0``), where
 PD (36) on the actuated joints has the Lyapunov function (37) in every configuration.  Parameter
 ``structure`` (``--set structure=...``) selects the clearances and actuators:
 
@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from invctl.scenes import Contact, Report, Scene
-from problems import _sixbar as sb
+from invctl_scenes import _sixbar as sb
 
 PARAMS = {**sb.PARAMS, "g": 0.0, "structure": 2.0}
 SETTINGS = {"Kp": 10.0, "Kv": 1.0, "offset": 0.1, "kick": 3.0,

@@ -5,7 +5,7 @@ F_t = kt (x - x_t) + bt (x' - x_t'); the Kelvin-Voigt wall (2) acts on the tip
 at x_t = 0; the switched controller (3) acts on the arm and switches at x = 0
 as printed in (3) (switch_on_tip = 1 switches it at the contact x_t = 0
 instead).  Wrist of Sect. 5.4: Mt = 0.05 kg, kt = 5e4 N/m, bt = 171 Ns/m;
-plant, wall and controller as in problems/stiff_wall.py.
+plant, wall and controller as in invctl_scenes/stiff_wall.py.
 
 The stability analysis uses the reduced model (27)-(28) with the effective
 wall ke_bar = kt ke/(kt + ke), be_bar = bt ke/(kt + ke) and K2, B2 of (30); the
@@ -17,8 +17,8 @@ from __future__ import annotations
 from invctl.model.params import resolve_params
 from invctl.scenes import Scene, Switched
 
-from problems.stiff_wall import PARAMS as _WALL
-from problems.stiff_wall import check as _check_wall
+from invctl_scenes.stiff_wall import PARAMS as _WALL
+from invctl_scenes.stiff_wall import check as _check_wall
 
 PARAMS = {**_WALL, "Mt": 0.05, "kt": 5.0e4, "bt": 171.0, "switch_on_tip": 0.0,
           "ke_hat": 5.0e4 * 1e6 / (5.0e4 + 1e6), "be_hat": 171.0 * 1e6 / (5.0e4 + 1e6)}
