@@ -142,7 +142,7 @@ HEAVY_MODULES = ("scipy", "scipy.interpolate", "scipy.linalg", "scipy.optimize",
 def test_importing_invctl_and_the_scenes_imports_no_heavy_module():
     code = textwrap.dedent("""
         import json, sys
-        import invctl, invctl.reference, problems.manipulator
+        import invctl, invctl.reference, invctl_scenes.manipulator
         first = [m for m in HEAVY if m in sys.modules]
         from invctl.scenes import available_scenes, load_scene
         for name in available_scenes():
