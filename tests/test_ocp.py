@@ -36,7 +36,8 @@ def dint():
 
 @pytest.fixture(scope="module")
 def manip():
-    md = mn.build()
+    """The manipulator on the parameter set these bounds were chosen for (``--preset guess``)."""
+    md = mn.build(**mn.PRESETS["guess"])
     return md, mn.reference(md), mn.initial_configuration(md)
 
 
@@ -318,7 +319,7 @@ def test_minimum_time_manipulator_reports_the_active_constraint(manip):
 def test_assembled_derivatives_match_automatic_differentiation(scheme, relaxed, free_time, elastic):
     # the custom Jacobian and the structured exact Hessian against CasADi's AD of the plain graph,
     # at a random point (relative 1e-12: rounding of ~1e10-sized entries)
-    md = mn.build()
+    md = mn.build(**mn.PRESETS["guess"])
     sv = servo_model(md)
     sel = resolve_selection(sv, mn.BOUNDARY["start"], mn.BOUNDARY["end"])
     ub = sv.layout.blocks["u"]
@@ -405,7 +406,7 @@ def _cli(capsys, *argv):
 
 def test_cli_bounds_give_least_squares_tracking_that_a_forward_simulation_confirms(capsys, tmp_path):
     out = tmp_path / "inv.npz"
-    rc, d, text = _cli(capsys, "invert", "manipulator", "--bound", "u.u2=-8:8", "--out", str(out))
+    rc, d, text = _cli(capsys, "invert", "manipulator", "--preset", "guess", "--bound", "u.u2=-8:8", "--out", str(out))
     assert rc == 0 and d["tracking"]["exact"] is False
     assert {a["bound"] for a in d["bounds"]["active"]} == {"u[u2]"}
     assert "exact tracking is not possible" in text
@@ -417,7 +418,7 @@ def test_cli_bounds_give_least_squares_tracking_that_a_forward_simulation_confir
     from invctl.studies.tracking import tracking_model
 
     inv = Inverse.load(out)
-    model, ref = tracking_model(load_scene("manipulator"))
+    model, ref = tracking_model(load_scene("manipulator"), dict(mn.PRESETS["guess"]))
     assert abs(forward_check(model, inv, ref)["error"] - d["tracking"]["max_output_error"]) <= 1e-4 * d[
         "tracking"]["max_output_error"]
     assert np.max(np.abs(inv.u(inv.t_mesh)[1])) <= 8 + 1e-7

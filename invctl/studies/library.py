@@ -41,7 +41,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import INTERRUPT_LIKE, InvctlError, ParameterError, RunInterrupted, is_interrupt
+from ..errors import INTERRUPT_LIKE, InvctlError, ParameterError, RunInterrupted, check_interrupt, is_interrupt
 from .library_data import Axis, Library, LibraryStore, grid_counts, parse_grid, reference_arguments, resolve_axes
 
 __all__ = ["Axis", "Library", "generate", "parse_grid", "reference_arguments", "resolve_axes"]
@@ -485,6 +485,7 @@ def _generate(scene, params, axes, shape, points, ref_kwargs, key, store, done, 
         bar.update(resumed + len(records), n_failed, resumed)
         if callback is not None:
             callback(rec)
+        check_interrupt()  # a Ctrl-C a compiled solve swallowed stops here, with this point saved
 
     bar.update(resumed, 0, resumed)
     t_solve = time.perf_counter()
