@@ -754,7 +754,7 @@ def test_plant_overrides_are_checked_before_any_work(capsys, monkeypatch):
     def fail(*a, **k):
         raise AssertionError("the pipeline ran although --plant-set cannot apply")
 
-    monkeypatch.setattr(switched_report, "session", fail)
+    monkeypatch.setattr(switched_report, "Session", fail)
     rc, d, _ = run_cli(capsys, "pipeline", "compliant_wrist", "--plant-set", "kt=2")
     assert rc == 2 and d["error"] == "OptionError" and "not applicable" in d["message"]
     rc, d, _ = run_cli(capsys, "simulate", "cartpole", "--plant-set", "nope=2")

@@ -716,7 +716,7 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     rec = {**_recording(scene, o), **_integration(scene, o)}
 
     def run():
-        session = _kind(scene).session(scene, params, settings, t_end=o["t_end"], plant_params=plant, quiet=o["quiet"],
+        session = _kind(scene).Session(scene, params, settings, t_end=o["t_end"], plant_params=plant, quiet=o["quiet"],
                                        **rec)
         return run_pipeline(scene, session, params, out_dir=out_dir, animate=not o["no_animation"])
 

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import DimensionError, ParameterError, RunInterrupted, SceneError
 from ..scenes import CommandResult
+from . import pipeline
 from .pipeline import Step
 from .reports import run_reports
 
@@ -40,7 +41,7 @@ if TYPE_CHECKING:
     from ..scenes import Scene
     from ..simulate.contact_record import ContactTrajectory
 
-__all__ = ["ContactRun", "contact_setup", "run_contact", "simulate", "session", "analyze", "law_report",
+__all__ = ["ContactRun", "contact_setup", "run_contact", "simulate", "Session", "analyze", "law_report",
            "DEFAULT_SETTINGS", "DEFAULT_SAMPLES"]
 
 #: settings of the time-stepping scheme a scene may leave out
@@ -353,7 +354,7 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
     return CommandResult("\n".join(lines), data, run.trajectory)
 
 
-class Session:
+class Session(pipeline.Session):
     """The contact pipeline's session (:mod:`.pipeline`): every declared controller that fits the given values
     (``Contact.requires``; the others are listed as skipped, with the reason), each with its own setup and
     report, figure and animation."""
@@ -404,15 +405,6 @@ class Session:
     def animation(self, name):
         return {"fps": 20, "title": f"{self.scene.name} ({name})"}
 
-    def finish(self, runs, out):
-        return [], {}
-
-    def interrupted(self, runs, out, note):
-        return []
-
-
-def session(scene, params: dict, settings: dict, **options) -> Session:
-    return Session(scene, params, settings, **options)
 
 
 def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 from ..errors import RunInterrupted, check_interrupt
 from ..scenes import CommandResult
@@ -29,39 +29,39 @@ class Step:
     data: dict = field(default_factory=dict)
 
 
-class Session(Protocol):
-    """What a workflow prepares for a pipeline (:func:`run_pipeline` drives it)."""
+class Session:
+    """What a workflow prepares for a pipeline (:func:`run_pipeline` drives it). A kind's session sets
+    ``controllers`` and implements :meth:`run`; the other steps do nothing unless it overrides them."""
 
     #: the controllers to run, in order
-    controllers: Sequence[str]
+    controllers: Sequence[str] = ()
 
     def head(self, out: Path) -> tuple[list[str], dict]:
         """Report lines and data before the runs (skipped controllers, analysis, design figures)."""
-        ...
+        return [], {}
 
     def run(self, name: str) -> Step:
         """One controller's run (raises :class:`~invctl.errors.RunInterrupted` with the prefix on Ctrl-C)."""
-        ...
+        raise NotImplementedError
 
     def meta(self, name: str) -> dict:
         """What a saved run records about where it came from (scene, parameters, controller)."""
-        ...
+        return {}
 
     def figure(self, name: str, step: Step, out: Path) -> None:
         """The run's own figure in ``out`` (or nothing)."""
-        ...
 
     def animation(self, name: str) -> dict:
         """Options of the run's animation (``fps``, ``title``)."""
-        ...
+        return {}
 
     def finish(self, runs: dict[str, Trajectory], out: Path) -> tuple[list[str], dict]:
         """The comparison of the runs: report lines, data, figures in ``out``."""
-        ...
+        return [], {}
 
     def interrupted(self, runs: dict[str, Trajectory], out: Path, note: str) -> list[str]:
         """After a Ctrl-C: write what makes the complete ``runs`` loadable as a whole; returns the files written."""
-        ...
+        return []
 
 
 def run_pipeline(scene: Scene, session: Session, params: dict, *, out_dir, animate: bool = True) -> CommandResult:

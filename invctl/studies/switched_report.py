@@ -11,11 +11,12 @@ import numpy as np
 
 from ..errors import OptionError, RunInterrupted, SceneError, StabilityError
 from ..scenes import CommandResult
+from . import pipeline
 from .pipeline import Step
 from .switched import (design_bf_min, design_bt_min, design_bt_visible, design_kt_max, effective_wall, error_system,
                        lambda_map, lambda_point, lambda_sweep, reduction_check, simulate_scenario)
 
-__all__ = ["analyze", "simulate", "design", "session"]
+__all__ = ["analyze", "simulate", "design", "Session"]
 
 
 def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:
@@ -178,7 +179,7 @@ def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
     return CommandResult("\n".join(lines), data)
 
 
-class Session:
+class Session(pipeline.Session):
     """The switched pipeline's session (:mod:`.pipeline`): the analysis and the design (``design.png``) first,
     then the one controller, the switched law 002 (3) (``run_switched.npz``, ``run_switched.png``)."""
 
@@ -198,21 +199,5 @@ class Session:
         sim, self._reduced, text, data = _run(self.scene, self.params, self.t_end)
         return Step(sim, [text], data)
 
-    def meta(self, name):
-        return {}
-
     def figure(self, name, step, out):
         _figure(step.trajectory, self._reduced, out / f"run_{name}.png")
-
-    def animation(self, name):
-        return {}
-
-    def finish(self, runs, out):
-        return [], {}
-
-    def interrupted(self, runs, out, note):
-        return []
-
-
-def session(scene, params: dict, settings: dict, **options) -> Session:
-    return Session(scene, params, settings, **options)

@@ -16,11 +16,12 @@ import numpy as np
 
 from ..errors import FunnelViolation
 from ..scenes import CommandResult
+from . import pipeline
 from .pipeline import Step
 from .tracking import (CONTROLLERS, NEEDS_INVERSE, check_controller, compare_runs, design_configuration,
                        invert_tracking, run_controller, setup_tracking, tracking_linearization, tracking_model)
 
-__all__ = ["analyze", "invert", "design", "simulate", "session"]
+__all__ = ["analyze", "invert", "design", "simulate", "Session"]
 
 #: frames per second of the animations the pipeline writes (GIF delays are whole 1/100 s: 10, 20, 25, 50 are exact)
 ANIMATION_FPS = 20
@@ -365,19 +366,16 @@ def simulate(scene, params: dict, settings: dict, *, controller=None, plant_para
 
 
 # ----------------------------------------------------------------- pipeline
-class Session:
+class Session(pipeline.Session):
     """The tracking pipeline's session (:mod:`.pipeline`): one setup (inverse, design) for C1, C2, C3 (and the
     scene's other controllers) on the mismatched plant; the comparison of 003 Sect. 6 and its figures."""
 
-    def __init__(self, scene, params, *, t_end=None, plant_params=None, quiet=False, dt=None, integrator=None):
+    def __init__(self, scene, params, settings=None, *, t_end=None, plant_params=None, quiet=False, dt=None, integrator=None):
         self.scene, self.params, self.quiet = scene, params, quiet
         self.controllers = tuple(check_controller(c) for c in scene.tracking.controllers)
         self.setup = setup_tracking(scene, params, plant_params, t_end=t_end, progress=not quiet,
                                     invert=bool(set(NEEDS_INVERSE) & set(self.controllers)), integrator=integrator,
                                     **_step(dt))
-
-    def head(self, out):
-        return [], {}
 
     def run(self, name):
         if not self.quiet:
@@ -390,9 +388,6 @@ class Session:
 
     def meta(self, name):
         return self.setup.meta()
-
-    def figure(self, name, step, out):
-        return None
 
     def animation(self, name):
         return {"fps": ANIMATION_FPS}
@@ -414,7 +409,3 @@ class Session:
         study = TrackingStudy(runs, {"scene": self.scene.name, "partial": note}, self.setup)
         (Path(out) / "study.json").write_text(json.dumps(jsonable(study.to_dict()), indent=1))
         return [str(Path(out) / "study.json")]
-
-
-def session(scene, params: dict, settings: dict, **options) -> Session:
-    return Session(scene, params, **options)

@@ -1,7 +1,7 @@
 """The workflow of each scene kind, behind one protocol, and the registry that picks it.
 
 A scene's kind (``scene.kind``: what it declares) selects a :class:`Workflow`: the module whose verbs
-(:class:`Verbs`: ``analyze``, ``design``, ``invert``, ``simulate``, and the pipeline's ``session``) run the kind's
+(:class:`Verbs`: ``analyze``, ``design``, ``invert``, ``simulate``, and the pipeline's ``Session``) run the kind's
 computations, and what the commands must know about the kind (which options apply to it, what a
 recorded sample costs, what to check after a run).  The commands (:mod:`.commands`) ask the workflow;
 nothing else compares ``scene.kind`` with a kind's name.  A new scene kind is one :class:`Workflow` entry
@@ -28,10 +28,10 @@ class Verbs(Protocol):
 
     def simulate(self, scene: Scene, params: dict, settings: dict, **options: Any) -> CommandResult: ...
 
-    def session(self, scene: Scene, params: dict, settings: dict, **options: Any) -> Session:
-        """What the pipeline's runs share (:class:`~invctl.studies.pipeline.Session`); the pipeline itself is
-        :func:`~invctl.studies.pipeline.run_pipeline`, the same for every kind."""
-        ...
+    #: the kind's pipeline session (:class:`~invctl.studies.pipeline.Session`), made with
+    #: ``Session(scene, params, settings, **options)``; the pipeline itself is
+    #: :func:`~invctl.studies.pipeline.run_pipeline`, the same for every kind
+    Session: type[Session]
 
 
 #: options that apply to one kind only (the others reject them, naming the kind they apply to)
