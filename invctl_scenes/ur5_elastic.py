@@ -33,10 +33,8 @@ Q_NOMINAL = (0.0, -math.pi / 4, math.pi / 2, 0.0, 0.0, 0.0)
 SPRING, DAMPER = 200.0, 2.0
 SPAN = 0.6  # rad around the nominal pose: the operating region
 MOVE = (0.02, 0.0, 0.0, 0.0, 0.0)
-#: the runs of ``invctl pipeline``: the feedforward alone.  The automatic funnel design (C1, C2) does not yet
-#: work on this arm (measured: its loops leave the region or their funnels with inputs of 1e4-1e5 N m, or run
-#: for more than 10 min; docs/robots.md, "Open problems"); ``--controller C1`` still runs it.
-CONTROLLERS = ("C3",)
+#: the runs of ``invctl pipeline``
+CONTROLLERS = ("C1", "C2", "C3", "C1-inv")
 
 
 @functools.lru_cache(maxsize=1)

@@ -49,6 +49,10 @@ class LinearizedInternal:
         ``T = [mu2/c mu1/c; 1 1]`` of 003 Sect. 6) or ``"eig-unit"`` (eigenvectors of unit length
         with negative last entry: the normalization of the printed ``T^-1 P`` of 003 Sect. 6, see
         :func:`eigenvector_columns`); with either ``"eig"`` form ``T Q T^-1`` is diagonal.
+    eta2_offset : ndarray
+        Constant added to ``Psi`` (k,) so that its value at the linearization points' equilibria is the
+        equilibrium ``-Q~^-1 P~ y`` of (40) (mean over the points): the constant term of the linearization,
+        e.g. gravity on an internal coordinate that is not zero at rest (:func:`linearize_internal`).
     """
 
     model: Any
@@ -69,6 +73,7 @@ class LinearizedInternal:
     points: list
     split: str = "schur"
     diagnostics: dict = field(default_factory=dict)
+    eta2_offset: np.ndarray | None = None
 
     @property
     def r_hat(self) -> int:
@@ -81,7 +86,8 @@ class LinearizedInternal:
 
     # -------------------------------------------------------------- Psi (58)
     def psi_function(self) -> ca.Function:
-        """``Psi: (q, v, theta) -> eta2 = [0, I_k] T [0, F_1, ..., F_r, F_0] Phi(q, v)`` (Sect. 5, (58)); built once."""
+        """``Psi: (q, v, theta) -> eta2 = [0, I_k] T [0, F_1, ..., F_r, F_0] Phi(q, v) + eta2_offset`` (Sect. 5, (58));
+        built once."""
         cached = self.__dict__.get("_psi")
         if cached is not None:
             return cached
@@ -94,7 +100,8 @@ class LinearizedInternal:
             eta38 = eta38 + ca.mtimes(ca.DM(Fi), yk)
         d = self.Q.shape[0]
         sel = ca.DM(self.T[d - self.k:, :])
-        fn = ca.Function("Psi", [model.q, model.v, model.theta], [ca.mtimes(sel, eta38)],
+        off = ca.DM(np.zeros(self.k) if self.eta2_offset is None else self.eta2_offset)
+        fn = ca.Function("Psi", [model.q, model.v, model.theta], [ca.mtimes(sel, eta38) + off],
                          ["q", "v", "theta"], ["eta2"])
         self.__dict__["_psi"] = fn
         return fn
@@ -435,11 +442,28 @@ def linearize_internal(model, internal, points, combine: str = "mean", *, split:
         st = internal.state(**args, theta=th)
         states.append(np.array(st["q"]).ravel())
     lin.diagnostics["point_configurations"] = states
+    lin.eta2_offset = _eta2_offset(lin, internal, points, th)
     if model.region is not None:
         lin.diagnostics["points_in_region"] = [bool(model.region.contains(q)) for q in states]
     if len(Qs) > 1:
         lin.diagnostics["jacobian_spread"] = float(max(np.max(np.abs(Qk - Q)) for Qk in Qs))
     return lin
+
+
+def _eta2_offset(lin, internal, points, th):
+    """``Q~^-1 c~`` with ``c~ = [0, I_k] T c`` and ``c`` the constant term of the linearization (37),
+    ``eta' = Q eta + sum_i P_i y^(i-1) + c``, averaged over the points.  (40) drops ``c``; it is not zero where an
+    internal coordinate is loaded at rest (gravity on an elastic joint), and without it ``K_i (eta2 - eta2_ref)``
+    would not vanish at the reference's equilibria.  Zero when ``Q~`` is singular (an eigenvalue at 0)."""
+    k, d = lin.k, lin.Q.shape[0]
+    if k == 0 or np.linalg.cond(lin.Q_tilde) > 1e8:
+        return np.zeros(k)
+    cs = []
+    for pt in points:
+        args = point_args(internal, pt)
+        rhs = np.array(internal.rhs(**args, theta=th)[internal.rhs.name_out(0)]).ravel()
+        cs.append(rhs - lin.Q @ args["eta"] - sum(P @ args[f"y_{i}"] for i, P in enumerate(lin.P_list)))
+    return np.linalg.solve(lin.Q_tilde, lin.T[d - k:] @ np.mean(cs, axis=0))
 
 
 def from_matrices(model, internal, Q, P_list, *, split="schur", points=None) -> LinearizedInternal:
