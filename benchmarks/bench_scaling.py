@@ -27,14 +27,17 @@ and 3 SCOTCH when MUMPS was built with them; 6 QAMD; 7 automatic).
 
     python benchmarks/bench_scaling.py [--n 2 4 8] [--repeat 2] [--timeout 600]
                                        [--coordinates angles|cartesian|both] [--pivot-order K]
-                                       [--max-memory-gb 8] [--smoke]
+                                       [--max-memory-gb 8] [--smoke] [--robots NAME ...]
+                                       [--robot-dynamics newton-euler|lagrangian|both]
 
 ``--smoke`` (alias ``--quick``): n = 2, both formulations, one run each (checks that the benchmark runs;
 its numbers are not the benchmark's).
 
 Robots from URDF (``--robots``, default ``ur5_elastic``; ``acrobot`` with ``--smoke``): the inversion time of
 the scene built from a robot description (docs/robots.md) beside the hand-written flexible arm with as many
-coordinates (angles, same run; the arm has one input, the UR5 five), fastest of ``--repeat`` runs each.
+coordinates (angles, same run; the arm has one input, the UR5 five), fastest of ``--repeat`` runs each, with
+the SX sizes of M, f and the servo ODE's Jacobian.  ``--robot-dynamics newton-euler|lagrangian|both`` chooses
+how the URDF model forms M and f (default newton-euler, what the scenes use; both: one line each).
 """
 from __future__ import annotations
 
@@ -92,16 +95,22 @@ def worker(n: int, coordinates: str = "angles", pivot_order: int | None = None) 
     return out
 
 
-def robot_worker(name: str) -> dict:
-    """Inversion of a scene built from a URDF (the automatic setup, like the arm's)."""
+def robot_worker(name: str, dynamics: str = "newton-euler") -> dict:
+    """Inversion of a scene built from a URDF (the automatic setup, like the arm's), its model formed by
+    ``dynamics`` (Robot.model's default for this process), with the sizes of M, f and the servo Jacobian."""
     from invctl.inversion import forward_check
+    from invctl.inversion.solve import servo_model
+    from invctl.model.urdf import Robot
     from invctl.scenes import load_scene
     from invctl.studies.tracking import invert_tracking, tracking_model
 
+    Robot.model.__kwdefaults__["dynamics"] = dynamics
     scene = load_scene(name)
     t = time.perf_counter()
     model, ref = tracking_model(scene, {})
-    out = {"scene": name, "n": model.n, "m": model.m, "model_s": time.perf_counter() - t}
+    out = {"scene": name, "dynamics": dynamics, "n": model.n, "m": model.m, "model_s": time.perf_counter() - t}
+    out.update({f"{k}_instructions": model.function(k).n_instructions() for k in ("M", "f")})
+    out["rhs_jac_instructions"] = servo_model(model, "baumgarte", 10.0).rhs_jac.n_instructions()
     t = time.perf_counter()
     inv = invert_tracking(scene, model, ref)
     out["inversion_s"] = time.perf_counter() - t
@@ -120,12 +129,12 @@ def _limit_memory(gb: float):
 
 
 def run_worker(n: int, timeout: float, coordinates: str = "angles", pivot_order: int | None = None,
-               max_memory_gb: float = 8.0) -> dict:
+               max_memory_gb: float = 8.0, robot_dynamics: str = "newton-euler") -> dict:
     """One fresh process for ``n``; its result dict, or ``{"n", "error"}``."""
     t = time.perf_counter()
     cmd = [sys.executable, __file__, "--worker", str(n), "--coordinates", coordinates]
     if isinstance(n, str):
-        cmd = [sys.executable, __file__, "--robot-worker", n]
+        cmd = [sys.executable, __file__, "--robot-worker", n, "--robot-dynamics", robot_dynamics]
     if pivot_order is not None:
         cmd += ["--pivot-order", str(pivot_order)]
     try:
@@ -196,6 +205,8 @@ def main() -> None:
                     help="scenes from URDF whose inversion time is compared (default ur5_elastic; acrobot with --smoke)")
     ap.add_argument("--worker", type=int, default=None)
     ap.add_argument("--robot-worker", default=None)
+    ap.add_argument("--robot-dynamics", choices=("newton-euler", "lagrangian", "both"), default="newton-euler",
+                    help="how the URDF scenes' M and f are formed (both: one line each)")
     ap.add_argument("--smoke", "--quick", action="store_true", help="n = 2, one run: checks that the benchmark runs")
     args = ap.parse_args()
     if args.smoke:
@@ -203,7 +214,7 @@ def main() -> None:
     if args.robots is None:
         args.robots = ["acrobot"] if args.smoke else ["ur5_elastic"]
     if args.robot_worker is not None:
-        print("RESULT " + json.dumps(robot_worker(args.robot_worker)))
+        print("RESULT " + json.dumps(robot_worker(args.robot_worker, args.robot_dynamics)))
         return
     if args.worker is not None:
         coords = "angles" if args.coordinates == "both" else args.coordinates
@@ -261,23 +272,28 @@ def robots(args, arm_rows: list[dict]) -> None:
     if not args.robots:
         return
     print("\nrobots from URDF: inversion time beside the hand-written flexible arm (angles) with as many coordinates")
-    for name in args.robots:
-        runs = [run_worker(name, args.timeout, max_memory_gb=args.max_memory_gb) for _ in range(max(1, args.repeat))]
+    kinds = ("lagrangian", "newton-euler") if args.robot_dynamics == "both" else (args.robot_dynamics,)
+    for name, dynamics in ((name, k) for name in args.robots for k in kinds):
+        runs = [run_worker(name, args.timeout, max_memory_gb=args.max_memory_gb, robot_dynamics=dynamics)
+                for _ in range(max(1, args.repeat))]
         good = [r for r in runs if "error" not in r]
         if not good:
-            print(f"  {name}: {runs[0]['error']}")
+            print(f"  {name} ({dynamics}): {runs[0]['error']}")
             continue
         r = min(good, key=lambda x: x["inversion_s"])
         arm = [a for a in arm_rows if a.get("n") == r["n"] and "error" not in a]
         if not arm:
             arm = [a for a in (run_worker(r["n"], args.timeout, "angles", args.pivot_order, args.max_memory_gb)
                                for _ in range(max(1, args.repeat))) if "error" not in a]
+            arm_rows.extend(arm)
         a = min(arm, key=lambda x: x["inversion_s"]) if arm else None
-        line = (f"  {name} (URDF, n = {r['n']}, m = {r['m']}): inversion {r['inversion_s']:.2f} s, {r['iterations']} it, "
-                f"fwd err {r['forward_error']:.1e}")
+        line = (f"  {name} (URDF, {dynamics}, n = {r['n']}, m = {r['m']}): inversion {r['inversion_s']:.2f} s, "
+                f"{r['iterations']} it, fwd err {r['forward_error']:.1e}; SX instructions M {r['M_instructions']}, "
+                f"f {r['f_instructions']}, servo Jacobian {r['rhs_jac_instructions']}")
         if a is not None:
             line += (f"  |  flexible_arm n = {a['n']} (hand-written, m = 1): {a['inversion_s']:.2f} s, "
-                     f"{a['inversion_parts']['iterations']} it  |  ratio {r['inversion_s'] / a['inversion_s']:.2f}")
+                     f"{a['inversion_parts']['iterations']} it, servo Jacobian {a['rhs_jac_instructions']}  |  "
+                     f"ratio {r['inversion_s'] / a['inversion_s']:.2f}")
         print(line, flush=True)
 
 

@@ -5,8 +5,8 @@ fixed joints, as symbolic CasADi expressions.
 expansion); :class:`Robot` builds the frames (rotation and position of every link in the world as
 SX in ``q``) and the kinetic and potential energy; :meth:`Robot.model` turns them, with the joints
 the user declares actuated and the springs and dampers of elastic joints, into an ordinary
-:class:`~invctl.model.Model` (``M`` and ``f`` from the Lagrangian).  :meth:`Robot.rigid_body_terms`
-gives ``M(q)``, the bias forces ``C(q, v) v + g(q)`` and the gravity ``g(q)`` alone, the quantities
+:class:`~invctl.model.Model` (``M`` and ``f`` by recursive Newton-Euler, or from the Lagrangian).
+:meth:`Robot.rigid_body_terms` gives ``M(q)``, the bias forces ``C(q, v) v + g(q)`` and the gravity ``g(q)`` alone, the quantities
 an independent dynamics engine computes (``tests/test_urdf.py`` checks them against Pinocchio).
 
 Conventions (the URDF specification's): a joint's frame is its child link's frame, placed by
@@ -29,9 +29,11 @@ from typing import Callable, Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from ..errors import URDFError, UnsupportedURDFError
+from ..errors import OptionError, URDFError, UnsupportedURDFError
 
 SUPPORTED_JOINTS = ("revolute", "continuous", "prismatic", "fixed")
+#: how :meth:`Robot.model` forms M and f: recursive Newton-Euler (default) or the Lagrangian differentiated by AD
+DYNAMICS_METHODS = ("newton-euler", "lagrangian")
 GRAVITY = 9.81
 
 
@@ -331,16 +333,83 @@ class Robot:
             V = V + m * P["g"] * pc[2]
         return T, V
 
-    def rigid_body_terms(self) -> ca.Function:
+    def newton_euler(self, P, a=None, *, velocity: bool = True, gravity: bool = True) -> ca.SX:
+        """Joint forces ``tau = M(q) a + C(q, v) v + gravity(q)`` by the recursive Newton-Euler algorithm in the link
+        frames (``a = None``: zero; ``velocity``/``gravity`` False drop those terms), with the masses and ``g`` of
+        ``P``.  Expressions a few times smaller than the Lagrangian's, whose energy AD differentiates twice."""
+        d = self.description
+        index = {j.name: i for i, j in enumerate(self.joints)}
+        a = ca.SX.zeros(self.n) if a is None else a
+        v = self.v if velocity else ca.SX.zeros(self.n)
+        zero = ca.SX.zeros(3)
+        w, dw = {d.root: zero}, {d.root: zero}
+        acc = {d.root: ca.vertcat(0, 0, P["g"]) if gravity else zero}    # the base accelerates up: gravity
+        place = {}
+        for j in d.joints:  # parents first: angular velocity, its rate, origin acceleration (link frames)
+            R, off, s = _rpy(j.rpy), ca.SX(ca.DM(j.xyz)), ca.DM(j.axis)
+            if j.type == "prismatic":
+                off = off + ca.mtimes(R, s) * self.q[index[j.name]]
+            wp, dwp = w[j.parent], dw[j.parent]
+            ao = acc[j.parent] + ca.cross(dwp, off) + ca.cross(wp, ca.cross(wp, off))
+            if j.type in ("revolute", "continuous"):
+                i = index[j.name]
+                R = ca.mtimes(R, _axis_rotation(j.axis, self.q[i]))
+                w0 = ca.mtimes(R.T, wp)
+                w[j.child] = w0 + s * v[i]
+                dw[j.child] = ca.mtimes(R.T, dwp) + s * a[i] + ca.cross(w0, s * v[i])
+                acc[j.child] = ca.mtimes(R.T, ao)
+            else:
+                w[j.child], dw[j.child] = ca.mtimes(R.T, wp), ca.mtimes(R.T, dwp)
+                acc[j.child] = ca.mtimes(R.T, ao)
+                if j.type == "prismatic":
+                    i = index[j.name]
+                    acc[j.child] = acc[j.child] + 2 * ca.cross(w[j.child], s * v[i]) + s * a[i]
+            place[j.child] = (R, off)
+        force = {name: zero for name in self._R}
+        moment = {name: zero for name in self._R}
+        for name in self.mass_links:  # each link's own inertial force and moment about its origin
+            link = d.links[name]
+            m = P[_param_name("m_", name)]
+            Rc, c = _rpy(link.com_rpy), ca.DM(link.com)
+            I = ca.mtimes([Rc, ca.DM(link.inertia), Rc.T]) * (m / link.mass)
+            wi, dwi = w[name], dw[name]
+            F = m * (acc[name] + ca.cross(dwi, c) + ca.cross(wi, ca.cross(wi, c)))
+            force[name] = F
+            moment[name] = ca.mtimes(I, dwi) + ca.cross(wi, ca.mtimes(I, wi)) + ca.cross(c, F)
+        tau = [ca.SX(0)] * self.n
+        for j in reversed(d.joints):  # children first: accumulate into the parent
+            f, n = force[j.child], moment[j.child]
+            if j.name in index:
+                s = ca.DM(j.axis)
+                tau[index[j.name]] = ca.dot(s, f if j.type == "prismatic" else n)
+            R, off = place[j.child]
+            Rf = ca.mtimes(R, f)
+            force[j.parent] = force[j.parent] + Rf
+            moment[j.parent] = moment[j.parent] + ca.mtimes(R, n) + ca.cross(off, Rf)
+        return ca.vertcat(*tau)
+
+    def dynamics(self, P, method: str = "newton-euler") -> tuple[ca.SX, ca.SX]:
+        """``(M(q), bias(q, v))`` with ``M v' + bias = tau``, ``bias = C(q, v) v + gravity(q)``: by Newton-Euler
+        (``M`` column by column from the acceleration, which it is linear in) or from the Lagrangian."""
+        if method == "newton-euler":
+            a = ca.SX.sym("a", self.n)
+            M = ca.jacobian(self.newton_euler(P, a, velocity=False, gravity=False), a)
+            return M, self.newton_euler(P)
+        if method == "lagrangian":
+            T, V = self.energies(P)
+            M, dTdv = ca.hessian(T, self.v)
+            return M, ca.mtimes(ca.jacobian(dTdv, self.q), self.v) - ca.gradient(T, self.q) + ca.gradient(V, self.q)
+        raise OptionError(f"dynamics={method!r}: use one of {list(DYNAMICS_METHODS)}")
+
+    def rigid_body_terms(self, method: str = "newton-euler") -> ca.Function:
         """``(q, v) -> (M, bias, gravity)`` of the file's values, in the convention of rigid-body libraries:
         ``M(q) v' + bias(q, v) = tau``, ``bias = C(q, v) v + gravity(q)``."""
         from .params import ParamSet
 
         P = ParamSet(list(self.values))
-        T, V = self.energies(P)
-        M, dTdv = ca.hessian(T, self.v)
-        bias = ca.mtimes(ca.jacobian(dTdv, self.q), self.v) - ca.gradient(T, self.q) + ca.gradient(V, self.q)
-        grav = ca.gradient(V, self.q)
+        M, bias = self.dynamics(P, method)
+        grav = self.newton_euler(P, velocity=False) if method == "newton-euler" else ca.gradient(self.energies(P)[1],
+                                                                                                 self.q)
         th = ca.DM([self.values[k] for k in P.names])
         out = [ca.substitute(e, P.sym, th) for e in (M, bias, grav)]
         return ca.Function("rigid_body", [self.q, self.v], out, ["q", "v"], ["M", "bias", "gravity"])
@@ -380,8 +449,9 @@ class Robot:
 
     def model(self, name: str, *, actuated: Sequence[str], output: Callable[["Robot"], ca.SX] | None = None,
               springs: Mapping[str, float] | None = None, dampers: Mapping[str, float] | None = None,
-              limits: Mapping[str, tuple] | None = None, y_names: Sequence[str] | None = None, overrides: Mapping[str, float] | None = None, **kwargs):
-        """An ordinary :class:`~invctl.model.Model`: ``M`` and ``f`` from the Lagrangian of the tree.
+              limits: Mapping[str, tuple] | None = None, y_names: Sequence[str] | None = None,
+              overrides: Mapping[str, float] | None = None, dynamics: str = "newton-euler", **kwargs):
+        """An ordinary :class:`~invctl.model.Model`: ``M`` and ``f = -bias - d v - k (q - r)`` of the tree.
 
         Parameters
         ----------
@@ -399,10 +469,15 @@ class Robot:
             The operating region's range of these joints, replacing the URDF's limits (:meth:`region`).
         overrides
             Parameter values (``m_<link>``, ``d_<joint>``, ``k_<joint>``, ``g``).
+        dynamics : {"newton-euler", "lagrangian"}
+            How ``M`` and the bias forces are formed (:meth:`dynamics`; the same terms, smaller expressions
+            by Newton-Euler).
         """
         from .multibody import Model
         from .params import ParamSet
 
+        if dynamics not in DYNAMICS_METHODS:
+            raise OptionError(f"{name}: dynamics={dynamics!r}: use one of {list(DYNAMICS_METHODS)}")
         if self.n == 0:
             raise URDFError(f"{self.description.path}: every joint is fixed; a model needs a moving joint")
         springs, dampers = dict(springs or {}), dict(dampers or {})
@@ -412,19 +487,19 @@ class Robot:
         values = self.parameters(springs, dampers)
         rest = {j: _param_name("r_", j) for j in springs if _param_name("r_", j) in values}
         P = ParamSet(list(values))
-        T, V = self.energies(P)
+        M, bias = self.dynamics(P, dynamics)
+        f = -bias
         for j in springs:
-            stretch = self.q[self.joint_index(j)] - (P[rest[j]] if j in rest else 0)
-            V = V + 0.5 * P[_param_name("k_", j)] * stretch ** 2
-        Q = ca.vertcat(*[-P[_param_name("d_", j.name)] * self.v[i] for i, j in enumerate(self.joints)])
+            i = self.joint_index(j)
+            f[i] = f[i] - P[_param_name("k_", j)] * (self.q[i] - (P[rest[j]] if j in rest else 0))
+        f = f - ca.vertcat(*[P[_param_name("d_", j.name)] * self.v[i] for i, j in enumerate(self.joints)])
         B = ca.DM.zeros(self.n, len(acts))
         for c, i in enumerate(acts):
             B[i, c] = 1
         h = output(self) if output is not None else None
         kwargs.setdefault("region", self.region(limits))
-        return Model.from_lagrangian(name, self.q, self.v, P, values, T=T, V=V, Q=Q, B=B, h=h, overrides=overrides,
-                                     q_names=self.q_names, u_names=[f"u_{j}" for j in actuated], y_names=y_names,
-                                     **kwargs)
+        return Model(name, self.q, self.v, P, values, M=M, f=f, B=B, h=h, overrides=overrides, q_names=self.q_names,
+                     u_names=[f"u_{j}" for j in actuated], y_names=y_names, **kwargs)
 
     def drawing(self, model, view: str | Sequence = "xz", frames: Sequence[str] | None = None,
                 tips: Mapping[str, tuple] | None = None):
