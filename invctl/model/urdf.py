@@ -346,7 +346,7 @@ class Robot:
         acc = {d.root: ca.vertcat(0, 0, P["g"]) if gravity else zero}    # the base accelerates up: gravity
         place = {}
         for j in d.joints:  # parents first: angular velocity, its rate, origin acceleration (link frames)
-            R, off, s = _rpy(j.rpy), ca.SX(ca.DM(j.xyz)), ca.DM(j.axis)
+            R, off, s = ca.SX(_rpy(j.rpy)), ca.SX(ca.DM(j.xyz)), ca.DM(j.axis)
             if j.type == "prismatic":
                 off = off + ca.mtimes(R, s) * self.q[index[j.name]]
             wp, dwp = w[j.parent], dw[j.parent]
