@@ -287,7 +287,7 @@ def robots(args, arm_rows: list[dict]) -> None:
                                for _ in range(max(1, args.repeat))) if "error" not in a]
             arm_rows.extend(arm)
         a = min(arm, key=lambda x: x["inversion_s"]) if arm else None
-        line = (f"  {name} (URDF, {dynamics}, n = {r['n']}, m = {r['m']}): inversion {r['inversion_s']:.2f} s, "
+        line = (f"  {name} (URDF, n = {r['n']}, m = {r['m']}): inversion {r['inversion_s']:.2f} s ({dynamics}), "
                 f"{r['iterations']} it, fwd err {r['forward_error']:.1e}; SX instructions M {r['M_instructions']}, "
                 f"f {r['f_instructions']}, servo Jacobian {r['rhs_jac_instructions']}")
         if a is not None:
