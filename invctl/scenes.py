@@ -31,7 +31,7 @@ from pathlib import Path
 from types import MappingProxyType, ModuleType
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
 
-from .errors import DimensionError, ModelError, ParameterError, SceneError, URDFError
+from .errors import DimensionError, InvctlError, ModelError, ParameterError, SceneError, URDFError
 
 if TYPE_CHECKING:
     import casadi as ca
@@ -616,32 +616,34 @@ class Scene:
             if k in self.choices:
                 values[k] = self.check_choice(k, values[k])
         try:
-            obj = self.build(**values)
-        except (ParameterError, SceneError):
-            raise
+            obj = self._build(values)
         except ModelError as exc:
             if values and not isinstance(exc, DimensionError):
                 self._blame(values, exc)
             raise
-        except Exception as exc:
-            from .errors import InvctlError
-
-            if isinstance(exc, InvctlError):
-                raise
-            raise SceneError(f"scene {self.name!r}: build({', '.join(f'{k}={v!r}' for k, v in values.items())}) "
-                             f"failed: {type(exc).__name__}: {exc}{_where(exc, self.source)}") from exc
         self._check_model(obj)
         return obj
+
+    def _build(self, values: dict):
+        """``build(**values)``: the scene's own code, so anything it raises outside invctl's errors becomes a
+        :class:`SceneError` naming the call and the line (the one boundary between invctl and ``build``)."""
+        try:
+            return self.build(**values)
+        except InvctlError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the boundary to the scene's code (see the docstring)
+            raise SceneError(f"scene {self.name!r}: build({', '.join(f'{k}={v!r}' for k, v in values.items())}) "
+                             f"failed: {type(exc).__name__}: {exc}{_where(exc, self.source)}") from exc
 
     def _blame(self, params: dict, exc: ModelError) -> None:
         """Raise a :class:`ParameterError` naming the overrides without which ``build`` gives a valid
         model (``exc``: what the model check found); nothing when the defaults fail as well."""
         def fails(**values) -> bool:
             try:
-                self.build(**values)
+                self._build(values)
             except ModelError:
                 return True
-            except Exception:  # noqa: BLE001 - another failure is not this check's
+            except InvctlError:  # another failure (the scene's code wrapped by _build) is not this check's
                 return False
             return False
 
@@ -737,8 +739,6 @@ class Scene:
         return self._typed("pipeline", throw, {**options, "out_dir": str(out_dir)})
 
     def _typed(self, command: str, throw: bool, options: dict):
-        from .errors import InvctlError
-
         try:
             return self.run(command, **options).result
         except InvctlError as exc:
@@ -870,7 +870,7 @@ def load_scene(name_or_path, preset: str | None = None, **values) -> Scene:
                              "(or give a path to a scene file)") from None
         except (SceneError, URDFError):  # a robot description's own error names the file and the element
             raise
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - the boundary to the scene file's code: anything it raises
             raise SceneError(f"shipped scene {text!r} failed to import: {type(exc).__name__}: {exc}") from None
         source = getattr(module, "__file__", "") or ""
     scene = scene_of(module, source)
@@ -926,7 +926,7 @@ def _import_file(path: Path) -> ModuleType:
     except URDFError:  # the robot description the scene reads: its own error names the file and the element
         sys.modules.pop(modname, None)
         raise
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - the boundary to the scene file's code: anything it raises
         sys.modules.pop(modname, None)
         raise SceneError(f"scene file {str(path)!r} failed to import: {type(exc).__name__}: {exc}"
                          f"{_where(exc, str(resolved))}") from None

@@ -536,13 +536,14 @@ def _save_partial(exc: RunInterrupted, *, out=None, out_dir=None, meta=None, dt=
             else:
                 return
             exc.saved.append(str(path))
-    except Exception as err:  # noqa: BLE001 - the interruption is what must reach the user
+    except (OSError, ValueError, TypeError, InvctlError) as err:  # the interruption is what must reach the user
         exc.args = (f"{note}; writing the partial result failed ({type(err).__name__}: {err})",)
 
 
 def _interruptible(run, **where):
     """``run()``, saving what is complete on Ctrl-C (see :func:`_save_partial`). A failure after a
-    SIGINT is the interruption (compiled solvers turn Ctrl-C into their own errors)."""
+    SIGINT is the interruption (compiled solvers turn Ctrl-C into their own errors: a solver's failure, CasADi's
+    ``RuntimeError``, numbers of a cut-short solve, or what :data:`~invctl.errors.INTERRUPT_LIKE` lists)."""
     with watch_sigint() as sigint:
         try:
             return run()
@@ -551,7 +552,7 @@ def _interruptible(run, **where):
             raise
         except KeyboardInterrupt as exc:
             ri = RunInterrupted(str(exc) or "interrupted")
-        except Exception as exc:
+        except (InvctlError, RuntimeError, ValueError, ArithmeticError, SystemError, NotImplementedError) as exc:
             if not sigint.seen:
                 raise
             ri = RunInterrupted(f"interrupted (the solver stopped with {type(exc).__name__}: {str(exc)[:200]})",
