@@ -864,3 +864,20 @@ def test_a_swallowed_ctrl_c_is_raised_at_the_next_checkpoint():
     except SystemError as se:
         assert is_interrupt(se)
     assert sig.getsignal(sig.SIGINT) is sig.default_int_handler
+
+
+def test_after_a_ctrl_c_a_solver_failure_is_the_interruption_and_a_bug_stays_a_bug():
+    """A compiled solver turns Ctrl-C into its own error (CasADi: RuntimeError): that is the interruption; an
+    error no solver raises for a Ctrl-C (a KeyError: a bug) is not hidden behind it."""
+    import signal as sig
+
+    def run(error):
+        try:
+            sig.raise_signal(sig.SIGINT)
+        except KeyboardInterrupt:
+            raise error from None
+
+    with pytest.raises(RunInterrupted, match="the solver stopped with RuntimeError"):
+        commands._interruptible(lambda: run(RuntimeError("Error in Function::call")))
+    with pytest.raises(KeyError, match="bug"):
+        commands._interruptible(lambda: run(KeyError("bug")))
