@@ -27,6 +27,7 @@ import pkgutil
 import sys
 import traceback
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType, ModuleType
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
@@ -43,8 +44,8 @@ if TYPE_CHECKING:
     from .reference import Reference
     from .studies.switched import SwitchedProblem
 
-__all__ = ["Scene", "Tracking", "Contact", "Switched", "Report", "ReportContext", "CommandResult", "jsonable",
-           "available_scenes", "load_scene", "scene_reference", "SCENE_COMMANDS"]
+__all__ = ["Scene", "BoundScene", "bind_scene", "Tracking", "Contact", "Switched", "Report", "ReportContext",
+           "CommandResult", "jsonable", "available_scenes", "load_scene", "scene_reference", "SCENE_COMMANDS"]
 
 # ---------------------------------------------------------------- the hooks a scene declares
 #: ``build(**overrides) -> Model`` (a switched scene: ``-> SwitchedProblem``)
@@ -875,6 +876,36 @@ def load_scene(name_or_path, preset: str | None = None, **values) -> Scene:
         source = getattr(module, "__file__", "") or ""
     scene = scene_of(module, source)
     return scene.bind(preset, **values) if values or preset is not None else scene
+
+
+@dataclass(frozen=True, eq=False)
+class BoundScene:
+    """A scene with one command's values checked (:func:`bind_scene`): the parameter overrides, the full
+    settings, how to load the scene again (``reference``, recorded in saved results) and its model and
+    drawing, each built once, on first use, and kept."""
+
+    scene: Scene
+    params: dict
+    settings: dict
+    reference: str
+
+    @cached_property
+    def model(self):
+        return self.scene.model(self.params)
+
+    @cached_property
+    def drawing(self) -> "Drawing | None":
+        """The scene's drawing of :attr:`model` (None: the scene declares none)."""
+        return None if self.scene.drawing is None else self.scene.drawing(self.model)
+
+
+def bind_scene(scene, command: str, values: Mapping | None = None, *, preset: str | None = None) -> BoundScene:
+    """``scene`` (a :class:`Scene`, a name or a path) bound for ``command``: the scene offers it
+    (:meth:`Scene.require`) and ``values`` (after the ``preset``) are checked (:meth:`Scene.split`)."""
+    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    scene.require(command)
+    params, settings = scene.split(values, preset=preset)
+    return BoundScene(scene, params, settings, scene_reference(scene))
 
 
 def scene_reference(scene: Scene) -> str:

@@ -26,7 +26,7 @@ from invctl.cli import main
 from invctl.errors import (InversionFailed, ParameterError, ResultFileError,
                            RunInterrupted, WallTimeLimitError)
 from invctl.scenes import available_scenes, load_scene
-from invctl.studies import commands
+from invctl.studies import commands, contact, workflow
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -689,7 +689,7 @@ def test_memory_estimate_of_inversions_against_a_measurement(tmp_path, capsys, m
     large = _peak_rss_of(["invert", "cartpole", "--N", "6000", "--quiet"], tmp_path)
     model = load_scene("cartpole").model({})
     nx = 2 * model.n + model.ell + model.p + model.m
-    a, b = commands._INVERSION_BYTES
+    a, b = workflow._INVERSION_BYTES
     estimate = 5800 * a * (2 * nx) ** b
     assert large - small <= estimate <= 6 * (large - small), (large - small, estimate)
     monkeypatch.setenv("INVCTL_MAX_MEMORY", str(estimate / 2))
@@ -740,7 +740,7 @@ def test_penetration_of_a_fraction_of_the_clearance_warns_with_the_numbers(capsy
     rc, d, _ = run_cli(capsys, "simulate", "slider_crank_clearance", "--controller", "pdplus")
     assert rc == 0 and len(d["warnings"]) == 1
     ratio = d["max_gap_violation"] / d["clearance_scale"]
-    assert commands.GAP_WARN < ratio <= 1 and f"{ratio:.3g} times" in d["warnings"][0]
+    assert contact.GAP_WARN < ratio <= 1 and f"{ratio:.3g} times" in d["warnings"][0]
     assert abs(d["clearance_scale"] - 1e-3) <= 1e-12  # the declared clearance, default c = 1e-3
     rc, d, _ = run_cli(capsys, "simulate", "slider_crank_clearance", "--controller", "pdplus",
                        "--set", "projection=1")
