@@ -27,11 +27,12 @@ import pkgutil
 import sys
 import traceback
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType, ModuleType
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
 
-from .errors import DimensionError, ModelError, ParameterError, SceneError, URDFError
+from .errors import DimensionError, InvctlError, ModelError, ParameterError, SceneError, URDFError
 
 if TYPE_CHECKING:
     import casadi as ca
@@ -43,8 +44,8 @@ if TYPE_CHECKING:
     from .reference import Reference
     from .studies.switched import SwitchedProblem
 
-__all__ = ["Scene", "Tracking", "Contact", "Switched", "Report", "ReportContext", "CommandResult", "jsonable",
-           "available_scenes", "load_scene", "scene_reference", "SCENE_COMMANDS"]
+__all__ = ["Scene", "BoundScene", "bind_scene", "Tracking", "Contact", "Switched", "Report", "ReportContext",
+           "CommandResult", "jsonable", "available_scenes", "load_scene", "scene_reference", "SCENE_COMMANDS"]
 
 # ---------------------------------------------------------------- the hooks a scene declares
 #: ``build(**overrides) -> Model`` (a switched scene: ``-> SwitchedProblem``)
@@ -616,32 +617,34 @@ class Scene:
             if k in self.choices:
                 values[k] = self.check_choice(k, values[k])
         try:
-            obj = self.build(**values)
-        except (ParameterError, SceneError):
-            raise
+            obj = self._build(values)
         except ModelError as exc:
             if values and not isinstance(exc, DimensionError):
                 self._blame(values, exc)
             raise
-        except Exception as exc:
-            from .errors import InvctlError
-
-            if isinstance(exc, InvctlError):
-                raise
-            raise SceneError(f"scene {self.name!r}: build({', '.join(f'{k}={v!r}' for k, v in values.items())}) "
-                             f"failed: {type(exc).__name__}: {exc}{_where(exc, self.source)}") from exc
         self._check_model(obj)
         return obj
+
+    def _build(self, values: dict):
+        """``build(**values)``: the scene's own code, so anything it raises outside invctl's errors becomes a
+        :class:`SceneError` naming the call and the line (the one boundary between invctl and ``build``)."""
+        try:
+            return self.build(**values)
+        except InvctlError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the boundary to the scene's code (see the docstring)
+            raise SceneError(f"scene {self.name!r}: build({', '.join(f'{k}={v!r}' for k, v in values.items())}) "
+                             f"failed: {type(exc).__name__}: {exc}{_where(exc, self.source)}") from exc
 
     def _blame(self, params: dict, exc: ModelError) -> None:
         """Raise a :class:`ParameterError` naming the overrides without which ``build`` gives a valid
         model (``exc``: what the model check found); nothing when the defaults fail as well."""
         def fails(**values) -> bool:
             try:
-                self.build(**values)
+                self._build(values)
             except ModelError:
                 return True
-            except Exception:  # noqa: BLE001 - another failure is not this check's
+            except InvctlError:  # another failure (the scene's code wrapped by _build) is not this check's
                 return False
             return False
 
@@ -737,8 +740,6 @@ class Scene:
         return self._typed("pipeline", throw, {**options, "out_dir": str(out_dir)})
 
     def _typed(self, command: str, throw: bool, options: dict):
-        from .errors import InvctlError
-
         try:
             return self.run(command, **options).result
         except InvctlError as exc:
@@ -870,11 +871,41 @@ def load_scene(name_or_path, preset: str | None = None, **values) -> Scene:
                              "(or give a path to a scene file)") from None
         except (SceneError, URDFError):  # a robot description's own error names the file and the element
             raise
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - the boundary to the scene file's code: anything it raises
             raise SceneError(f"shipped scene {text!r} failed to import: {type(exc).__name__}: {exc}") from None
         source = getattr(module, "__file__", "") or ""
     scene = scene_of(module, source)
     return scene.bind(preset, **values) if values or preset is not None else scene
+
+
+@dataclass(frozen=True, eq=False)
+class BoundScene:
+    """A scene with one command's values checked (:func:`bind_scene`): the parameter overrides, the full
+    settings, how to load the scene again (``reference``, recorded in saved results) and its model and
+    drawing, each built once, on first use, and kept."""
+
+    scene: Scene
+    params: dict
+    settings: dict
+    reference: str
+
+    @cached_property
+    def model(self):
+        return self.scene.model(self.params)
+
+    @cached_property
+    def drawing(self) -> "Drawing | None":
+        """The scene's drawing of :attr:`model` (None: the scene declares none)."""
+        return None if self.scene.drawing is None else self.scene.drawing(self.model)
+
+
+def bind_scene(scene, command: str, values: Mapping | None = None, *, preset: str | None = None) -> BoundScene:
+    """``scene`` (a :class:`Scene`, a name or a path) bound for ``command``: the scene offers it
+    (:meth:`Scene.require`) and ``values`` (after the ``preset``) are checked (:meth:`Scene.split`)."""
+    scene = scene if isinstance(scene, Scene) else load_scene(scene)
+    scene.require(command)
+    params, settings = scene.split(values, preset=preset)
+    return BoundScene(scene, params, settings, scene_reference(scene))
 
 
 def scene_reference(scene: Scene) -> str:
@@ -926,7 +957,7 @@ def _import_file(path: Path) -> ModuleType:
     except URDFError:  # the robot description the scene reads: its own error names the file and the element
         sys.modules.pop(modname, None)
         raise
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - the boundary to the scene file's code: anything it raises
         sys.modules.pop(modname, None)
         raise SceneError(f"scene file {str(path)!r} failed to import: {type(exc).__name__}: {exc}"
                          f"{_where(exc, str(resolved))}") from None

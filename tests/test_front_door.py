@@ -237,3 +237,24 @@ def test_a_switched_scene_declares_its_plant(declared, source, match, tmp_path):
     with pytest.raises(invctl.SceneError, match=match):
         invctl.load_scene(str(path)).model()
     assert invctl.load_scene("compliant_wrist").switched.wrist and not invctl.load_scene("stiff_wall").switched.wrist
+
+
+def test_a_pipeline_builds_the_model_once_and_animates_every_run_with_it(tmp_path):
+    """One ``pipeline`` binds the scene once: the options, the runs of every controller and their animations use
+    one model (before, each run and each animation built it again: four builds for two controllers)."""
+    path = tmp_path / "counted.py"
+    path.write_text(_USER_SCENES["contact"].replace("def build(**overrides):", "BUILDS = []\n\n\ndef build(**overrides):\n"
+                                                     "    BUILDS.append(dict(overrides))") + '''
+from invctl.control.pdplus import zero_input
+from invctl.plot.animate import Drawing
+
+SCENE = Scene("ball", build, params={"m": 1.0, "g": 9.81, "e": 0.5}, settings={"h": 1e-3, "t_end": 0.3},
+              contact=Contact(initial_state=lambda model, settings, controller: ([0.2], [0.0]),
+                              controllers={"off": lambda m, s: zero_input(), "also_off": lambda m, s: zero_input()}),
+              drawing=lambda model: Drawing({"ball": ca.vertcat(0.0, model.q[0])}))
+''')
+    scene = invctl.load_scene(str(path))
+    builds = scene.build.__globals__["BUILDS"]
+    runs = scene.pipeline(tmp_path / "out", quiet=True, t_end=0.3)
+    assert sorted(runs) == ["also_off", "off"] and builds == [{}]
+    assert all((tmp_path / "out" / f"anim_{k}.gif").stat().st_size > 0 for k in runs)

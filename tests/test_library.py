@@ -324,12 +324,13 @@ def test_sizes_are_refused_before_any_work(capsys, monkeypatch):
 
 
 def test_ordinary_sizes_pass_the_checks(monkeypatch):
-    from invctl.scenes import load_scene
+    from invctl.scenes import bind_scene, load_scene
     from invctl.studies import commands
     from invctl.studies.library import check_library_size
+    from invctl.studies.workflow import workflow
 
     sc = load_scene("cartpole")
-    commands._check_samples(sc, {}, 100000)  # ~6 s
+    workflow(sc)._check_samples(bind_scene(sc, "analyze"), 100000)  # ~6 s
     commands._check_inversion(sc, {}, {"N": 20000})  # measured 12 s
     check_library_size(sc, {}, [100, 100], 200, None, 1)  # 10^4 points: 100 s, 350 MB at the least
 

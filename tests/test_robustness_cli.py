@@ -26,7 +26,7 @@ from invctl.cli import main
 from invctl.errors import (InversionFailed, ParameterError, ResultFileError,
                            RunInterrupted, WallTimeLimitError)
 from invctl.scenes import available_scenes, load_scene
-from invctl.studies import commands
+from invctl.studies import commands, contact, workflow
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -689,7 +689,7 @@ def test_memory_estimate_of_inversions_against_a_measurement(tmp_path, capsys, m
     large = _peak_rss_of(["invert", "cartpole", "--N", "6000", "--quiet"], tmp_path)
     model = load_scene("cartpole").model({})
     nx = 2 * model.n + model.ell + model.p + model.m
-    a, b = commands._INVERSION_BYTES
+    a, b = workflow._INVERSION_BYTES
     estimate = 5800 * a * (2 * nx) ** b
     assert large - small <= estimate <= 6 * (large - small), (large - small, estimate)
     monkeypatch.setenv("INVCTL_MAX_MEMORY", str(estimate / 2))
@@ -740,7 +740,7 @@ def test_penetration_of_a_fraction_of_the_clearance_warns_with_the_numbers(capsy
     rc, d, _ = run_cli(capsys, "simulate", "slider_crank_clearance", "--controller", "pdplus")
     assert rc == 0 and len(d["warnings"]) == 1
     ratio = d["max_gap_violation"] / d["clearance_scale"]
-    assert commands.GAP_WARN < ratio <= 1 and f"{ratio:.3g} times" in d["warnings"][0]
+    assert contact.GAP_WARN < ratio <= 1 and f"{ratio:.3g} times" in d["warnings"][0]
     assert abs(d["clearance_scale"] - 1e-3) <= 1e-12  # the declared clearance, default c = 1e-3
     rc, d, _ = run_cli(capsys, "simulate", "slider_crank_clearance", "--controller", "pdplus",
                        "--set", "projection=1")
@@ -864,3 +864,20 @@ def test_a_swallowed_ctrl_c_is_raised_at_the_next_checkpoint():
     except SystemError as se:
         assert is_interrupt(se)
     assert sig.getsignal(sig.SIGINT) is sig.default_int_handler
+
+
+def test_after_a_ctrl_c_a_solver_failure_is_the_interruption_and_a_bug_stays_a_bug():
+    """A compiled solver turns Ctrl-C into its own error (CasADi: RuntimeError): that is the interruption; an
+    error no solver raises for a Ctrl-C (a KeyError: a bug) is not hidden behind it."""
+    import signal as sig
+
+    def run(error):
+        try:
+            sig.raise_signal(sig.SIGINT)
+        except KeyboardInterrupt:
+            raise error from None
+
+    with pytest.raises(RunInterrupted, match="the solver stopped with RuntimeError"):
+        commands._interruptible(lambda: run(RuntimeError("Error in Function::call")))
+    with pytest.raises(KeyError, match="bug"):
+        commands._interruptible(lambda: run(KeyError("bug")))

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import AnimationError, DimensionError, DrawingError, ParameterError
 
-__all__ = ["Drawing", "animate", "animate_result", "positions", "snapshot"]
+__all__ = ["Drawing", "animate", "animate_result", "frames", "positions", "snapshot"]
 
 LINK_STYLE = {"color": "tab:blue", "lw": 3.0, "solid_capstyle": "round"}
 POINT_STYLE = {"marker": "o", "ms": 5.0, "color": "k", "ls": "none"}
@@ -506,15 +506,19 @@ def animate_result(result, path, *, scene=None, params=None, fps: float = 25, sp
     if scene.drawing is None:
         raise AnimationError(f"scene {scene.name!r} declares no drawing(model) (points and links to draw)")
     model = scene.model(meta.get("params", {}) if params is None else params)
-    if hasattr(result, "X_mesh"):  # an inverse: its state trajectory over the horizon
-        t = np.linspace(result.T0, result.Tf, 600)
-        q = result.q(t)
-    else:  # every result type stores q with time along the last axis: (n, len(t))
-        t, q = np.asarray(result.t, float), np.asarray(result.q, float)
-        if q.shape != (model.n, t.size):
-            raise DimensionError(f"{type(result).__name__}.q has shape {q.shape}; for model {model.name!r} "
-                                 f"(n = {model.n}) and {t.size} times it must be ({model.n}, {t.size}) "
-                                 "(time along the last axis)")
     label = getattr(result, "controller", "") or meta.get("controller", "")
-    return animate(model, scene.drawing(model), t, q, path, fps=fps, speed=speed,
+    return animate(model, scene.drawing(model), *frames(result, model), path, fps=fps, speed=speed,
                    title=title or (scene.name + (f" ({label})" if label else "")), **options)
+
+
+def frames(result, model) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, q)`` to draw of a run (an inverse: its state trajectory over the horizon)."""
+    if hasattr(result, "X_mesh"):
+        t = np.linspace(result.T0, result.Tf, 600)
+        return t, result.q(t)
+    t, q = np.asarray(result.t, float), np.asarray(result.q, float)  # time along the last axis: (n, len(t))
+    if q.shape != (model.n, t.size):
+        raise DimensionError(f"{type(result).__name__}.q has shape {q.shape}; for model {model.name!r} "
+                             f"(n = {model.n}) and {t.size} times it must be ({model.n}, {t.size}) "
+                             "(time along the last axis)")
+    return t, q

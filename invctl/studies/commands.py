@@ -1,17 +1,19 @@
 """The ``invctl`` commands, written once against :class:`invctl.scenes.Scene`.
 
 Every command takes a scene (object, name or path), the ``--set`` values and its options, checks
-the options once (:data:`OPTIONS`), checks output paths before any computation, and dispatches to
-the module of the scene's kind (:mod:`.tracking_report`, :mod:`.contact`, :mod:`.switched_report`).
+the options once (:data:`OPTIONS`), binds the scene with its values once (:func:`invctl.scenes.bind_scene`:
+the values checked, the model built once and kept), checks output paths before any computation, lets the
+scene's workflow check what depends on the scene (:meth:`.workflow.Workflow.prepare`: options of other kinds,
+``--plant-set``, the time and memory of the run, :class:`~invctl.errors.ResourceLimitError` naming the option
+that fits) and dispatches to the module of the scene's kind (:mod:`.tracking_report`, :mod:`.contact`,
+:mod:`.switched_report`).
 The same calls serve the command line and, through the scene's methods, notebooks and scripts::
 
     scene = invctl.load_scene("cartpole", mp=0.3)
     res = scene.run("invert", N=300)          # this module's invert(): res.text, res.data, res.result
     inv = scene.invert(N=300)                 # the typed result alone
 
-Around every run: the memory a long run records is estimated before it starts
-(:class:`~invctl.errors.ResourceLimitError` naming the option that fits); a contact run whose
-penetration is large against the clearance warns or fails with the numbers; Ctrl-C
+Around every run: a contact run whose penetration is large against the clearance warns or fails with the numbers; Ctrl-C
 (:class:`~invctl.errors.RunInterrupted`) saves what is complete next to the requested output
 (``x.partial.npz``, ``tradeoff_<scene>.partial.csv``, the runs of a pipeline with a note) and
 re-raises with ``exc.saved`` naming the files.
@@ -21,19 +23,17 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any, Callable
 
-from pathlib import Path
-
-from ..errors import (InvctlError, NumericalError, OptionError, ParameterError, ResourceLimitError, RunInterrupted,
-                      SceneError, SimulationFailed, watch_sigint)
+from ..errors import InvctlError, NumericalError, OptionError, OutputPathError, RunInterrupted, SceneError, watch_sigint
 from ..io import check_output_dir, check_output_path
-from ..scenes import SCENE_COMMANDS, CommandResult, Scene, load_scene
+from ..scenes import SCENE_COMMANDS, BoundScene, CommandResult, Scene, bind_scene
 from .pipeline import run_pipeline
-from .workflow import workflow
+from .workflow import check_budget, check_inversion, workflow
 
-__all__ = ["OPTIONS", "Option", "run_command", "analyze", "invert", "design", "simulate", "pipeline", "study"]
-
+__all__ = ["OPTIONS", "Option", "run_command", "analyze", "invert", "design", "simulate", "pipeline", "study",
+           "check_budget"]
 
 
 @dataclass(frozen=True)
@@ -184,296 +184,16 @@ def check_options(command: str, options: dict) -> dict:
     return out
 
 
-def _scene(scene) -> Scene:
-    return scene if isinstance(scene, Scene) else load_scene(scene)
-
-
-def _kind(scene: Scene):
-    return workflow(scene).verbs
-
-
-def _plant_params(items, scene: Scene | None = None) -> dict:
-    """``--plant-set`` values, checked against the scene before any work (names, applicability)."""
-    from ..model.params import parse_assignments
-
-    plant = dict(items) if isinstance(items, dict) else parse_assignments(items, option="--plant-set")
-    if plant and scene is not None:
-        if not workflow(scene).plant_mismatch:
-            raise OptionError(f"scene {scene.name!r}: the controller (3) uses no plant model, so plant and model "
-                              "parameters coincide; --plant-set is not applicable (use --set)")
-        unknown = sorted(set(plant) - set(scene.params))
-        if unknown:
-            raise ParameterError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(scene.params)}")
-    return plant
+def _check_inversion(scene: Scene, params, o, command: str = "invert") -> None:
+    """:func:`.workflow.check_inversion` of ``scene`` with the parameter overrides ``params`` (``generate``)."""
+    check_inversion(BoundScene(scene, dict(params), {}, scene.name), o, command)
 
 
 def _figure_path(path, force):
-    from ..errors import OutputPathError
-
     p = check_output_path(path, force=force, option="--plot")
     if p.suffix.lower() not in _FIGURE_SUFFIXES:
         raise OutputPathError(f"--plot {path}: use one of {', '.join(_FIGURE_SUFFIXES)}")
     return p
-
-
-# ---------------------------------------------------------------- resources
-#: below this many samples a run is never large (no model is built to estimate it)
-_SMALL = 2e5
-#: share of the available memory a run may plan to use
-_MEMORY_SHARE = 0.75
-
-
-def usable_memory() -> float:
-    """Bytes a run may plan to use: 75 % of the available memory (``MemAvailable``), or
-    ``INVCTL_MAX_MEMORY`` (bytes, e.g. ``4e9``) when that is smaller."""
-    avail = math.inf
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    avail = float(line.split()[1]) * 1024
-                    break
-    except OSError:
-        try:
-            avail = float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-        except (ValueError, OSError, AttributeError):
-            pass
-    limit = _MEMORY_SHARE * avail
-    env = os.environ.get("INVCTL_MAX_MEMORY")
-    if env:
-        try:
-            limit = min(limit, float(env))
-        except ValueError:
-            raise ParameterError(f"INVCTL_MAX_MEMORY={env!r}: expected a number of bytes (e.g. 4e9)") from None
-    return limit
-
-
-def _gib(b: float) -> str:
-    return f"{b / 2**30:.3g} GiB"
-
-
-#: seconds a run may plan to take unless ``INVCTL_MAX_TIME`` says otherwise
-MAX_TIME_S = 1800.0
-
-
-def usable_time() -> float:
-    """Seconds a run may plan to take: ``INVCTL_MAX_TIME`` (seconds), default :data:`MAX_TIME_S`."""
-    env = os.environ.get("INVCTL_MAX_TIME")
-    if not env:
-        return MAX_TIME_S
-    try:
-        t = float(env)
-    except ValueError:
-        t = math.nan
-    if not (math.isfinite(t) and t > 0):
-        raise ParameterError(f"INVCTL_MAX_TIME={env!r}: expected a positive number of seconds (e.g. 7200)")
-    return t
-
-
-def _duration(s: float) -> str:
-    return f"{s:.3g} s" if s < 120 else f"{s / 60:.3g} min" if s < 7200 else f"{s / 3600:.3g} h"
-
-
-def check_budget(what: str, count: int, seconds_each: float, bytes_each: float, fits: str, *,
-                 diagnostics: dict | None = None) -> None:
-    """Refuse ``count`` units of work before it starts when ``count * seconds_each`` exceeds
-    :func:`usable_time` or ``count * bytes_each`` exceeds :func:`usable_memory`.
-
-    ``what`` names the command and the option as typed; ``fits`` is the advice with ``{fit}``, the
-    largest count within both budgets.
-
-    Raises
-    ------
-    ResourceLimitError
-    """
-    limit_t, limit_m = usable_time(), usable_memory()
-    secs, need = count * seconds_each, count * bytes_each
-    if secs <= limit_t and need <= limit_m:
-        return
-    fit = int(min(limit_t / seconds_each if seconds_each > 0 else math.inf,
-                  limit_m / bytes_each if bytes_each > 0 else math.inf))
-    over = " and ".join(x for x, bad in ((f"{_duration(secs)} (budget {_duration(limit_t)}: INVCTL_MAX_TIME "
-                                          "seconds)", secs > limit_t),
-                                         (f"{_gib(need)} of memory (usable {_gib(limit_m)}: "
-                                          f"{int(100 * _MEMORY_SHARE)} % of the available memory or "
-                                          "INVCTL_MAX_MEMORY)", need > limit_m)) if bad)
-    raise ResourceLimitError(f"{what} would take about {over}; {fits.format(fit=fit)}",
-                             diagnostics={**(diagnostics or {}), "count": count, "seconds_estimated": secs,
-                                          "seconds_budget": limit_t, "bytes_needed": need,
-                                          "bytes_usable": limit_m, "count_that_fits": fit})
-
-
-
-
-def _check_samples(scene: Scene, params, samples: int) -> None:
-    """``analyze --samples``: time and memory of the sampled checks (switched scenes use at most 720)."""
-    cost = workflow(scene).sample_cost
-    if cost is None or samples <= 1000:
-        return
-    model = scene.model(params)
-    per_s, per_s_constrained, per_b = cost
-    if model.region is not None and model.region.constraints:
-        per_s = per_s_constrained
-    check_budget(f"{scene.name}: analyze --samples {samples}", samples, per_s, per_b * model.n * model.n,
-                 "use --samples {fit} or less (the default, 200, samples the region well)")
-
-
-def check_resources(command: str, scene: Scene, params, settings, o) -> None:
-    """Estimate the memory a command's run records (before it starts).
-
-    Raises
-    ------
-    ResourceLimitError
-        The estimate exceeds :func:`usable_memory`; the message names the horizon (and step) that fit.
-    """
-    if command == "invert":
-        return _check_inversion(scene, params, o)
-    sizer = workflow(scene).run_size
-    size = sizer(command, scene, params, o) if sizer else None
-    if size is None:
-        return
-    samples, runs, step, t_end, t_opt, h_opt = size
-    if not samples * runs > _SMALL:
-        return
-    n = gaps = m = ny = 0
-    wf = workflow(scene)
-    if wf.builds_model:
-        model = scene.model(params)
-        n, gaps, m, ny = model.n, len(model.gaps), model.m, model.ny
-    per = 8.0 * wf.doubles(n, gaps, m, ny)
-    need = samples * runs * per
-    limit = usable_memory()
-    if need <= limit:
-        return
-    fit_t = limit / (runs * per) * step
-    fits = f"use {t_opt}{fit_t:.3g} or less"
-    if h_opt:
-        fits += f", or {h_opt}{step * need / limit:.3g} or more"
-    raise ResourceLimitError(
-        f"{scene.name}: {command} would record {samples:.3g} samples (t_end = {t_end:g} s at a step of {step:g} s"
-        + (f", {runs} runs" if runs > 1 else "") + f"): about {_gib(need)} of memory, but {_gib(limit)} is usable "
-        f"({int(100 * _MEMORY_SHARE)} % of the available memory or INVCTL_MAX_MEMORY); {fits}",
-        diagnostics={"samples": samples, "runs": runs, "bytes_needed": need, "bytes_usable": limit,
-                     "t_end_that_fits": fit_t})
-
-
-#: bytes per collocation interval of an inversion (transcription, IPOPT and MUMPS together):
-#: ``600 (s nx)^1.7`` with ``s`` = 2 (Hermite-Simpson) or d + 1 (d-stage Legendre/Radau); measured peak RSS
-#: growth per interval: manipulator (nx = 14) 108 KB (HS) and 490 KB (radau3), cartpole (nx = 5) 19 KB
-#: (HS); the formula gives 172, 561 and 30 KB
-_INVERSION_BYTES = (600.0, 1.7)
-#: seconds per byte of that estimate: cartpole HS from N = 4000 to 20000 took 0.45 ms more per interval
-#: (estimate 30 KB per interval)
-_INVERSION_SECONDS_PER_BYTE = 1.5e-8
-
-
-def _check_inversion(scene: Scene, params, o, command: str = "invert") -> None:
-    """``--N`` of an inversion (``invert``, the base solve of ``generate``): time and memory of the
-    transcription and its solver (:data:`_INVERSION_BYTES`) within the budgets (:func:`check_budget`)."""
-    N = o.get("N")
-    if N is None or N <= 2000:
-        return
-    from ..inversion.collocation import get_scheme
-
-    sch = get_scheme(o.get("scheme") or "hermite-simpson")
-    stages = 2 if sch.is_hs else sch.degree + 1
-    model = scene.model(params)
-    nx = 2 * model.n + model.ell + model.p + model.m
-    per = _INVERSION_BYTES[0] * (stages * nx) ** _INVERSION_BYTES[1]
-    check_budget(f"{scene.name}: {command} --N {N} ({sch.name}, {nx} unknowns per node)", N,
-                 per * _INVERSION_SECONDS_PER_BYTE, per,
-                 "use --N {fit} or less (or --tol to refine only where needed)",
-                 diagnostics={"N_that_fits": int(min(usable_memory() / per,
-                                                     usable_time() / (per * _INVERSION_SECONDS_PER_BYTE)))})
-
-
-def check_saved_samples(duration: float, dt: float, rows: int, *, more: str = "", partial=None) -> None:
-    """A trajectory saved at step ``dt`` over ``duration`` (``rows`` signals) must fit in memory
-    (``partial``: the solved inverse, kept in the error).
-
-    Raises
-    ------
-    ResourceLimitError
-        It would not; the message names the ``--dt`` that fits.
-    """
-    samples = duration / dt + 1
-    per = 16.0 * rows  # the sampled signals and their interpolation temporaries
-    need, limit = samples * per, usable_memory()
-    if need <= limit:
-        return
-    fit = duration * per / limit
-    raise ResourceLimitError(
-        f"invert --dt {dt:g}: the saved trajectory would have {samples:.3g} samples ({duration:g} s{more}): about "
-        f"{_gib(need)} of memory, but {_gib(limit)} is usable; use --dt {fit:.3g} or more, or leave out --dt (1000 "
-        "samples over the horizon)", partial=partial,
-        diagnostics={"samples": samples, "bytes_needed": need, "bytes_usable": limit, "dt_that_fits": fit})
-
-
-def _check_dt(scene: Scene, params, o) -> None:
-    """``--dt`` against the memory before the solve, over the reference's transition (the horizon adds the
-    pre- and post-actuation; :func:`check_saved_samples` checks it again after the solve)."""
-    if o["dt"] is None:
-        return
-    from .tracking import tracking_model
-
-    model, ref = tracking_model(scene, params)
-    duration = ref.tf - ref.t0
-    if o["minimum_time"]:  # the transition is retimed; its shortest length is known only from --duration
-        if o["duration"] is None:
-            return
-        duration = min(duration, float(o["duration"].partition(":")[0]))
-    rows = 1 + 2 * model.n + model.ell + model.p + 2 * model.m + model.ny
-    check_saved_samples(duration, o["dt"], rows, more=" of the reference's transition alone, before the pre- and "
-                                                      "post-actuation")
-
-
-# ------------------------------------------------------------- after a run
-#: a contact run warns when it penetrates more than this share of the clearance, and fails beyond 1
-GAP_WARN = 0.1
-
-
-def _check_contact_data(name: str, d: dict) -> tuple[str | None, str | None]:
-    """(warning, failure) texts for one contact run's data: its largest penetration against the
-    clearance the scene declares (``Contact.clearance``) or, by default, the largest gap at the start
-    (the free room of a joint started in its clearance, the drop height of a ball; the largest gap seen
-    later would count the penetration of one side of a joint as room on the other).  A run that starts
-    with every contact closed and declares no clearance gives no scale: not judged."""
-    viol, gaps0 = d.get("max_gap_violation"), d.get("initial_gaps")
-    if viol is None or not gaps0:
-        return None, None
-    room = d.get("clearance") or max(gaps0)
-    if d.get("clearance") is None and room <= 1e-12:
-        return None, None
-    ratio = viol / room if room > 0 else (math.inf if viol > 0 else 0.0)
-    d["clearance_scale"], d["gap_violation_ratio"] = room, ratio
-    source = "the clearance the scene declares" if d.get("clearance") else "the largest gap at the start"
-    what = f"{name}: the largest penetration {viol:.3g} is {ratio:.3g} times the clearance scale ({source}, {room:.3g})"
-    fix = "use a smaller step (--set h=...), the projection (--set projection=1) or a larger clearance"
-    if not ratio <= 1.0:
-        return None, f"{what}: the contacts of this run are not resolved; {fix}"
-    if ratio > GAP_WARN:
-        return f"warning: {what}; {fix}", None
-    return None, None
-
-
-def check_contact_result(scene: Scene, result: CommandResult) -> CommandResult:
-    """Warn about, or fail on, the penetration of the runs in ``result`` (simulate or pipeline)."""
-    runs = result.data["runs"] if "runs" in result.data else {result.data.get("controller", scene.name): result.data}
-    warnings, failures = [], []
-    for name, d in runs.items():
-        w, f = _check_contact_data(f"{scene.name} ({name})", d)
-        warnings += [w] if w else []
-        failures += [f] if f else []
-    if failures:
-        written = result.data.get("out") or result.data.get("out_dir")
-        raise SimulationFailed("; ".join(failures) + (f" (the run was written to {written})" if written else ""),
-                               partial=result, diagnostics={"runs": {k: {kk: v.get(kk) for kk in (
-                                   "max_gap_violation", "clearance_scale", "gap_violation_ratio")}
-                                   for k, v in runs.items()}})
-    if warnings:
-        result.data.setdefault("warnings", []).extend(warnings)
-        result.text = result.text + "\n" + "\n".join(warnings)
-    return result
 
 
 # --------------------------------------------------------- interruptions
@@ -536,13 +256,14 @@ def _save_partial(exc: RunInterrupted, *, out=None, out_dir=None, meta=None, dt=
             else:
                 return
             exc.saved.append(str(path))
-    except Exception as err:  # noqa: BLE001 - the interruption is what must reach the user
+    except (OSError, ValueError, TypeError, InvctlError) as err:  # the interruption is what must reach the user
         exc.args = (f"{note}; writing the partial result failed ({type(err).__name__}: {err})",)
 
 
 def _interruptible(run, **where):
     """``run()``, saving what is complete on Ctrl-C (see :func:`_save_partial`). A failure after a
-    SIGINT is the interruption (compiled solvers turn Ctrl-C into their own errors)."""
+    SIGINT is the interruption (compiled solvers turn Ctrl-C into their own errors: a solver's failure, CasADi's
+    ``RuntimeError``, numbers of a cut-short solve, or what :data:`~invctl.errors.INTERRUPT_LIKE` lists)."""
     with watch_sigint() as sigint:
         try:
             return run()
@@ -551,7 +272,7 @@ def _interruptible(run, **where):
             raise
         except KeyboardInterrupt as exc:
             ri = RunInterrupted(str(exc) or "interrupted")
-        except Exception as exc:
+        except (InvctlError, RuntimeError, ValueError, ArithmeticError, SystemError, NotImplementedError) as exc:
             if not sigint.seen:
                 raise
             ri = RunInterrupted(f"interrupted (the solver stopped with {type(exc).__name__}: {str(exc)[:200]})",
@@ -560,60 +281,30 @@ def _interruptible(run, **where):
     raise ri from None
 
 
-def _load_inverse(path, scene: Scene, params) -> Any:
-    """A saved inverse for ``scene``: its recorded scene and its sizes must be this scene's."""
-    from ..errors import ResultFileError
-    from ..inversion import Inverse
-    from ..scenes import scene_reference
-
-    inv = Inverse.load(path)
-    recorded, here = inv.meta.get("scene"), scene_reference(scene)
-    if recorded is not None and recorded != here:
-        raise ResultFileError(f"--inverse {path}: the inverse was computed for scene {recorded!r}, not {here!r}")
-    model = scene.model(params)
-    sizes = {"n": model.n, "l": model.ell, "p": model.p, "m": model.m}
-    if {k: int(inv.sizes.get(k, -1)) for k in sizes} != sizes:
-        raise ResultFileError(f"--inverse {path}: its sizes {dict(inv.sizes)} are not those of {scene.name!r} {sizes}")
-    saved = {k: float(v) for k, v in dict(inv.meta.get("params") or {}).items()}
-    if saved != {k: float(v) for k, v in params.items()}:
-        raise ResultFileError(f"--inverse {path}: the inverse was computed with the parameters {saved}, this run "
-                              f"uses {dict(params)}; pass the same --set values or invert again")
-    return inv
-
-
 # ------------------------------------------------------------------ commands
 def analyze(scene, values=None, **options) -> CommandResult:
     """``invctl analyze``: what the scene's kind analyses (relative degree and internal dynamics for
     tracking scenes, Theorem 1 for switched ones, declared reports for contact scenes)."""
-    scene = _scene(scene)
-    scene.require("analyze")
     o = check_options("analyze", options)
-    params, settings = scene.split(values, preset=o["preset"])
-    _check_samples(scene, params, o["samples"])
-    return _kind(scene).analyze(scene, params, settings, samples=o["samples"])
+    bound = bind_scene(scene, "analyze", values, preset=o["preset"])
+    wf = workflow(bound.scene)
+    return wf.verbs.analyze(bound, **wf.prepare(bound, "analyze", o))
 
 
 def invert(scene, values=None, **options) -> CommandResult:
     """``invctl invert``: the stable inversion (feedforward with pre-actuation), forward-checked."""
-    scene = _scene(scene)
-    scene.require("invert")
     o = check_options("invert", options)
     if o["dt"] is not None and not o["out"]:
         raise OptionError("--dt sets the sampling of the saved trajectory; give --out FILE.npz too")
     out = str(check_output_path(o["out"], suffix=".npz", force=o["force"])) if o["out"] else None
-    params, settings = scene.split(values, preset=o["preset"])
-    limits = _limits(scene, o)
-    check_resources("invert", scene, params, settings, o)
-    _check_dt(scene, params, o)
-    from ..scenes import scene_reference
-
-    return _interruptible(lambda: _kind(scene).invert(scene, params, settings, N=o["N"], scheme=o["scheme"],
-                                                      tol=o["tol"], backend=o["backend"], out=out, dt=o["dt"],
-                                                      quiet=o["quiet"], max_wall_time=o["max_wall_time"], **limits),
-                          out=out, dt=o["dt"], meta={"scene": scene_reference(scene), "params": params})
+    bound = bind_scene(scene, "invert", values, preset=o["preset"])
+    wf = workflow(bound.scene)
+    kw = {**_limits(o), **wf.prepare(bound, "invert", o)}
+    return _interruptible(lambda: wf.verbs.invert(bound, out=out, **kw), out=out, dt=o["dt"],
+                          meta={"scene": bound.reference, "params": bound.params})
 
 
-def _limits(scene: Scene, o: dict) -> dict:
+def _limits(o: dict) -> dict:
     """``bounds``, ``objective`` and ``minimum_time`` of ``invctl invert`` from ``--bound``, ``--weight``,
     ``--minimum-time``, ``--energy`` and ``--duration`` (parsed, never evaluated)."""
     from ..inversion import Bounds, Objective
@@ -640,92 +331,50 @@ def _limits(scene: Scene, o: dict) -> dict:
             if not (sep and 0 < mt["duration"][0] < mt["duration"][1] and math.isfinite(mt["duration"][1])):
                 raise OptionError(f"--duration {o['duration']!r}: expected LO:HI with 0 < LO < HI")
         out["minimum_time"] = mt
-    workflow(scene).check_options(scene, {k: o[k] for k in ("bound", "weight", "minimum_time")})
     return out
 
 
 def design(scene, values=None, **options) -> CommandResult:
     """``invctl design``: the feedback design of the scene (funnel controller, or wrist/damping design)."""
-    scene = _scene(scene)
-    scene.require("design")
     o = check_options("design", options)
     plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
-    params, settings = scene.split(values, preset=o["preset"])
-    return _kind(scene).design(scene, params, settings, plot=plot)
+    bound = bind_scene(scene, "design", values, preset=o["preset"])
+    wf = workflow(bound.scene)
+    return wf.verbs.design(bound, plot=plot, **wf.prepare(bound, "design", o))
 
 
 def simulate(scene, values=None, **options) -> CommandResult:
     """``invctl simulate``: one run of one controller (tracking: C1/C2/C3 on the mismatched plant)."""
-    scene = _scene(scene)
-    scene.require("simulate")
     o = check_options("simulate", options)
+    plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
+    bound = bind_scene(scene, "simulate", values, preset=o["preset"])
+    wf = workflow(bound.scene)
     out = None
     if o["out"]:
         suffix = ".csv" if str(o["out"]).lower().endswith(".csv") else ".npz"
-        if suffix == ".csv" and not workflow(scene).csv:
-            from ..errors import OutputPathError
-
+        if suffix == ".csv" and not wf.csv:
             raise OutputPathError(f"--out {o['out']}: contact runs are written as .npz only; use --out FILE.npz")
         out = str(check_output_path(o["out"], suffix=suffix, force=o["force"]))
-    plot = _figure_path(o["plot"], o["force"]) if o["plot"] else None
-    params, settings = scene.split(values, preset=o["preset"])
-    kw = dict(controller=o["controller"], plant_params=_plant_params(o["plant_set"], scene), t_end=o["t_end"], out=out,
-              plot=plot, quiet=o["quiet"], **_recording(scene, o), **_integration(scene, o))
-    if o["inverse"]:
-        workflow(scene).check_options(scene, {"inverse": o["inverse"]})
-        kw["inverse"] = _load_inverse(o["inverse"], scene, params)
-    check_resources("simulate", scene, params, settings, o)
-    from ..scenes import scene_reference
-
-    result = _interruptible(lambda: _kind(scene).simulate(scene, params, settings, **kw), out=out,
-                            meta={"scene": scene_reference(scene), "params": params, "controller": o["controller"]})
-    check = workflow(scene).after_run
-    return check(scene, result) if check else result
-
-
-def _recording(scene: Scene, o: dict) -> dict:
-    """The recording options of a contact run (``--record-every``, ``--record``); an error for other kinds."""
-    given = {k: o[k] for k in ("record_every", "record") if o.get(k) is not None}
-    workflow(scene).check_options(scene, given)
-    return given
-
-
-def _integration(scene: Scene, o: dict) -> dict:
-    """The closed-loop options of a tracking run (``--dt``, ``--rtol``, ``--atol``, ``--max-steps``); an error
-    for other kinds."""
-    keys = ("rtol", "atol", "max_steps")
-    given = [k for k in ("dt",) + keys if o.get(k) is not None]
-    workflow(scene).check_options(scene, {k: o[k] for k in given})
-    out = {"integrator": {"max_num_steps" if k == "max_steps" else k: o[k] for k in keys if o.get(k) is not None}}
-    if o.get("dt") is not None:
-        out["dt"] = o["dt"]
-    return out if given else {}
+    kw = wf.prepare(bound, "simulate", o)
+    result = _interruptible(lambda: wf.verbs.simulate(bound, out=out, plot=plot, **kw), out=out,
+                            meta={"scene": bound.reference, "params": bound.params, "controller": o["controller"]})
+    return wf.after_run(bound.scene, result) if wf.after_run else result
 
 
 def pipeline(scene, values=None, **options) -> CommandResult:
     """``invctl pipeline``: the scene's whole job (tracking: invert, design, C1/C2/C3, compare, figures)."""
-    scene = _scene(scene)
-    scene.require("pipeline")
     o = check_options("pipeline", options)
-    params, settings = scene.split(values, preset=o["preset"])
-    plant = _plant_params(o["plant_set"], scene)
-    check_resources("pipeline", scene, params, settings, o)
+    bound = bind_scene(scene, "pipeline", values, preset=o["preset"])
     out_dir = check_output_dir(o["out_dir"])
-    from ..scenes import scene_reference
-
-    rec = {**_recording(scene, o), **_integration(scene, o)}
-
-    def run():
-        session = _kind(scene).Session(scene, params, settings, t_end=o["t_end"], plant_params=plant, quiet=o["quiet"],
-                                       **rec)
-        return run_pipeline(scene, session, params, out_dir=out_dir, animate=not o["no_animation"])
-
-    result = _interruptible(run, out_dir=out_dir, meta={"scene": scene_reference(scene), "params": params})
+    wf = workflow(bound.scene)
+    kw = wf.prepare(bound, "pipeline", o)
+    result = _interruptible(lambda: run_pipeline(bound, wf.verbs.Session(bound, **kw), out_dir=out_dir,
+                                                 animate=not o["no_animation"]),
+                            out_dir=out_dir, meta={"scene": bound.reference, "params": bound.params})
     stale = Path(out_dir) / "INTERRUPTED.txt"  # the note of an earlier interrupted run in this folder
     if stale.is_file():
         stale.unlink()
-    check = workflow(scene).after_run
-    return check(scene, result) if check else result
+    return wf.after_run(bound.scene, result) if wf.after_run else result
 
 
 def study(scene, kind: str, values=None, **options) -> CommandResult:
@@ -733,16 +382,14 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
     from .tradeoff import run_tradeoff
     from .tradeoff_specs import spec_for
 
-    scene = _scene(scene)
-    scene.require("study")
     if kind != "tradeoff":
         raise SceneError(f"unknown study {kind!r}; available: tradeoff")
     o = check_options("study", options)
-    params, settings = scene.split(values, preset=o["preset"])
-    check_resources("study", scene, params, settings, o)
+    bound = bind_scene(scene, "study", values, preset=o["preset"])
+    workflow(bound.scene).prepare(bound, "study", o)
     out = check_output_dir(o["out_dir"])
     smoke = os.environ.get("INVCTL_SMOKE") == "1"
-    spec = spec_for(scene, params, settings, smoke=smoke, job=o["job"])
+    spec = spec_for(bound.scene, bound.params, bound.settings, smoke=smoke, job=o["job"])
     result = _interruptible(lambda: run_tradeoff(spec, progress=not o["quiet"]), out_dir=out)
     stem = f"tradeoff_{spec.scene}"
     out.mkdir(parents=True, exist_ok=True)
@@ -762,21 +409,17 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
 def generate(scene, values=None, **options) -> CommandResult:
     """``invctl generate``: a trajectory library, the stable inverse at every point of a grid of scene
     parameters and reference arguments, warm-started from solved neighbours (:mod:`.library`)."""
-    from pathlib import Path
-
     from .library import generate as generate_library
 
-    scene = _scene(scene)
-    scene.require("invert")
     o = check_options("generate", options)
     if not o["grid"]:
         raise OptionError("invctl generate needs at least one --grid NAME=START:STOP:COUNT (a scene parameter "
                           "or a numeric argument of the scene's reference, e.g. --grid 'rf[0]=0.8:1.0:10')")
+    bound = bind_scene(scene, "invert", values)
     out = o["out"]
     if out is None:
-        out = str(check_output_dir("invctl-out") / f"library_{scene.name}.npz")
+        out = str(check_output_dir("invctl-out") / f"library_{bound.scene.name}.npz")
         Path(out).parent.mkdir(parents=True, exist_ok=True)
-    params, _settings = scene.split(values)
     executor: Any = "serial" if o["workers"] == 1 else None
     client: Any = None
     if o["dask"]:
@@ -786,8 +429,8 @@ def generate(scene, values=None, **options) -> CommandResult:
             raise OptionError("--dask needs dask.distributed (pip install 'dask[distributed]')") from None
         client = executor = Client(o["dask"])
     try:
-        lib = generate_library(scene, o["grid"], params=params, out=out, executor=executor, max_workers=o["workers"],
-                               backend=o["backend"] or "newton", N=o["N"], scheme=o["scheme"], tol=o["tol"],
+        lib = generate_library(bound.scene, o["grid"], params=bound.params, out=out, executor=executor,
+                               max_workers=o["workers"], backend=o["backend"] or "newton", N=o["N"], scheme=o["scheme"], tol=o["tol"],
                                continuation=not o["no_continuation"], verify=o["verify"], force=o["force"],
                                progress=not o["quiet"], compiled=False if o["no_compile"] else None)
     finally:

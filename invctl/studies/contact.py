@@ -29,7 +29,7 @@ import numpy as np
 
 from typing import TYPE_CHECKING, Any
 
-from ..errors import DimensionError, ParameterError, RunInterrupted, SceneError
+from ..errors import DimensionError, ParameterError, RunInterrupted, SceneError, SimulationFailed
 from ..scenes import CommandResult
 from . import pipeline
 from .pipeline import Step
@@ -87,13 +87,12 @@ def _values(scene, params, settings) -> dict:
     return {**scene.params, **scene.settings, **params, **settings}
 
 
-def contact_setup(scene, params=None, settings=None, *, controller=None, plant_params=None) -> ContactRun:
-    """Model, plant, law and initial state of a contact scene's run."""
+def contact_setup(scene, params=None, settings=None, *, controller=None, plant_params=None, model=None) -> ContactRun:
+    """Model (``model``: already built from ``params``), plant, law and initial state of a contact scene's run."""
     from ..control.pdplus import zero_input
-    from ..model.params import parse_assignments  # noqa: F401  (plant overrides arrive parsed)
 
     params, settings = dict(params or {}), dict(settings or {})
-    model = scene.model(params)
+    model = scene.model(params) if model is None else model
     plant_params = dict(plant_params or {})
     unknown = sorted(set(plant_params) - set(model.values))
     if unknown:
@@ -330,11 +329,13 @@ def _summary(run: ContactRun) -> tuple[list, dict]:
     return lines + law_lines, {**data, **law_data}
 
 
-def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
-             plot=None, quiet=False, record_every: int | None = None, record: str = "steps") -> CommandResult:
+def simulate(bound, *, controller=None, plant_params=None, t_end=None, out=None, plot=None, quiet=False,
+             record_every: int | None = None, record: str = "steps") -> CommandResult:
     """Run one controller of a contact scene and report (module docstring); a long run is recorded
     decimated unless ``record_every`` is given (:data:`DEFAULT_SAMPLES`)."""
-    run = run_contact(contact_setup(scene, params, settings, controller=controller, plant_params=plant_params),
+    scene, params = bound.scene, bound.params
+    run = run_contact(contact_setup(scene, params, bound.settings, controller=controller, plant_params=plant_params,
+                                    model=bound.model),
                       t_end=t_end, progress=None if not quiet else False, record_every=record_every, record=record)
     lines, data = _summary(run)
     rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
@@ -359,13 +360,14 @@ class Session(pipeline.Session):
     (``Contact.requires``; the others are listed as skipped, with the reason), each with its own setup and
     report, figure and animation."""
 
-    def __init__(self, scene, params, settings, *, t_end=None, plant_params=None, quiet=False,
-                 record_every: int | None = None, record: str = "steps"):
-        self.scene, self.params, self.settings = scene, params, settings
+    def __init__(self, bound, *, t_end=None, plant_params=None, quiet=False, record_every: int | None = None,
+                 record: str = "steps"):
+        self.bound, self.scene, self.params, self.settings = bound, bound.scene, bound.params, bound.settings
+        scene = self.scene
         self.options = {"t_end": t_end, "record_every": record_every, "record": record}
         self.plant_params = plant_params
         names = list(scene.contact.controllers) or ["none"]
-        values = _values(scene, params, settings)
+        values = _values(scene, self.params, self.settings)
         self.skipped = {k: why for k in names if (why := scene.contact.unmet(k, values))}
         self.controllers = [k for k in names if k not in self.skipped]
         if not self.controllers:
@@ -378,7 +380,8 @@ class Session(pipeline.Session):
         return lines, {"skipped": self.skipped}
 
     def run(self, name):
-        setup = contact_setup(self.scene, self.params, self.settings, controller=name, plant_params=self.plant_params)
+        setup = contact_setup(self.scene, self.params, self.settings, controller=name, plant_params=self.plant_params,
+                              model=self.bound.model)
         try:
             run = run_contact(setup, progress=False, **self.options)
         except RunInterrupted as exc:
@@ -407,10 +410,59 @@ class Session(pipeline.Session):
 
 
 
-def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:
+def analyze(bound, *, samples: int = 200) -> CommandResult:
     """The scene's declared analysis reports (e.g. pre-loading conditions against printed matrices)."""
-    model = scene.model(params)
-    full = {**scene.settings, **settings, "samples": float(samples)}
+    scene, params, model = bound.scene, bound.params, bound.model
+    full = {**scene.settings, **bound.settings, "samples": float(samples)}
     text, data = run_reports(scene, model, params, full, "analyze")
     head = f"invctl analyze {scene.name}: n = {model.n}, gaps: {', '.join(g.name for g in model.gaps)}"
     return CommandResult(head + ("\n" + text if text else ""), {"scene": scene.name, "reports": data})
+
+
+# ------------------------------------------------------------- after a run
+#: a contact run warns when it penetrates more than this share of the clearance, and fails beyond 1
+GAP_WARN = 0.1
+
+
+def _check_contact_data(name: str, d: dict) -> tuple[str | None, str | None]:
+    """(warning, failure) texts for one contact run's data: its largest penetration against the
+    clearance the scene declares (``Contact.clearance``) or, by default, the largest gap at the start
+    (the free room of a joint started in its clearance, the drop height of a ball; the largest gap seen
+    later would count the penetration of one side of a joint as room on the other).  A run that starts
+    with every contact closed and declares no clearance gives no scale: not judged."""
+    viol, gaps0 = d.get("max_gap_violation"), d.get("initial_gaps")
+    if viol is None or not gaps0:
+        return None, None
+    room = d.get("clearance") or max(gaps0)
+    if d.get("clearance") is None and room <= 1e-12:
+        return None, None
+    ratio = viol / room if room > 0 else (math.inf if viol > 0 else 0.0)
+    d["clearance_scale"], d["gap_violation_ratio"] = room, ratio
+    source = "the clearance the scene declares" if d.get("clearance") else "the largest gap at the start"
+    what = f"{name}: the largest penetration {viol:.3g} is {ratio:.3g} times the clearance scale ({source}, {room:.3g})"
+    fix = "use a smaller step (--set h=...), the projection (--set projection=1) or a larger clearance"
+    if not ratio <= 1.0:
+        return None, f"{what}: the contacts of this run are not resolved; {fix}"
+    if ratio > GAP_WARN:
+        return f"warning: {what}; {fix}", None
+    return None, None
+
+
+def check_contact_result(scene: Scene, result: CommandResult) -> CommandResult:
+    """Warn about, or fail on, the penetration of the runs in ``result`` (simulate or pipeline)."""
+    runs = result.data["runs"] if "runs" in result.data else {result.data.get("controller", scene.name): result.data}
+    warnings, failures = [], []
+    for name, d in runs.items():
+        w, f = _check_contact_data(f"{scene.name} ({name})", d)
+        warnings += [w] if w else []
+        failures += [f] if f else []
+    if failures:
+        written = result.data.get("out") or result.data.get("out_dir")
+        raise SimulationFailed("; ".join(failures) + (f" (the run was written to {written})" if written else ""),
+                               partial=result, diagnostics={"runs": {k: {kk: v.get(kk) for kk in (
+                                   "max_gap_violation", "clearance_scale", "gap_violation_ratio")}
+                                   for k, v in runs.items()}})
+    if warnings:
+        result.data.setdefault("warnings", []).extend(warnings)
+        result.text = result.text + "\n" + "\n".join(warnings)
+    return result

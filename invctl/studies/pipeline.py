@@ -17,7 +17,7 @@ from ..scenes import CommandResult
 
 if TYPE_CHECKING:
     from ..results import Trajectory
-    from ..scenes import Scene
+    from ..scenes import BoundScene
 
 
 @dataclass
@@ -64,9 +64,9 @@ class Session:
         return []
 
 
-def run_pipeline(scene: Scene, session: Session, params: dict, *, out_dir, animate: bool = True) -> CommandResult:
-    """Run every controller of ``session`` and compare them, writing runs, figures and animations to ``out_dir``.
-    Returns the report, its data and the runs by controller (each a :class:`~invctl.results.Trajectory`)."""
+def run_pipeline(bound: BoundScene, session: Session, *, out_dir, animate: bool = True) -> CommandResult:
+    """Run every controller of ``session`` and compare them, writing runs, figures and animations (of ``bound.model``)
+    to ``out_dir``. Returns the report, its data and the runs by controller (each a :class:`~invctl.results.Trajectory`)."""
     t0 = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -86,11 +86,11 @@ def run_pipeline(scene: Scene, session: Session, params: dict, *, out_dir, anima
             raise ri from None
         step.trajectory.to_npz(out / f"run_{name}.npz", meta=session.meta(name))
         session.figure(name, step, out)
-        if animate and scene.drawing is not None:
-            from ..plot.animate import animate_result
+        if animate and bound.drawing is not None:
+            from ..plot.animate import animate as draw, frames
 
-            animate_result(step.trajectory, out / f"anim_{name}.gif", scene=scene, params=params,
-                           **session.animation(name))
+            draw(bound.model, bound.drawing, *frames(step.trajectory, bound.model), out / f"anim_{name}.gif",
+                 **{"title": f"{bound.scene.name} ({name})", **session.animation(name)})
         runs[name] = step.trajectory
         lines += step.lines
         data["runs"][name] = step.data

@@ -54,7 +54,7 @@ def run_reports(scene, model, params, settings, command: str, *, result=None, co
             values = rep.compute(ctx)
         except InvctlError:
             raise
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - the boundary to the scene's code: anything a report raises
             raise SceneError(f"scene {scene.name!r}: report {rep.title!r} failed: {type(exc).__name__}: {exc}") from exc
         if not isinstance(values, dict):
             raise SceneError(f"scene {scene.name!r}: report {rep.title!r} must return a dict name -> value, "

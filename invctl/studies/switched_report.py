@@ -19,13 +19,13 @@ from .switched import (design_bf_min, design_bt_min, design_bt_visible, design_k
 __all__ = ["analyze", "simulate", "design", "Session"]
 
 
-def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:
+def analyze(bound, *, samples: int = 200) -> CommandResult:
     """Theorem 1 (visible eigenvectors, Lambda three ways, GUAS) and Theorem 2 (ISS)."""
     from ..stability.conewise import analyze as analyze_system
 
     if samples < 8:
         raise OptionError(f"--samples {samples}: need at least 8 initial directions for the ISS constant")
-    p = scene.model(params).params
+    scene, p = bound.scene, bound.model.params
     s = error_system(p)
     rep = analyze_system(s, with_iss=True, n_angles=min(int(samples), 720))
     head = f"scene {scene.name}: switched motion/force control against a stiff wall (002)"
@@ -50,21 +50,13 @@ def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> Comma
     return CommandResult(head + "\n" + rep.summary(), data)
 
 
-def _check_run_options(scene, controller, plant_params) -> None:
-    name = scene.name
-    if controller is not None:
-        raise SceneError(f"scene {name!r} has one controller, the switched law 002 (3); "
-                         "--controller is not applicable (change its gains with --set kp=..., bf=...)")
-    if plant_params:
-        raise OptionError(f"scene {name!r}: the controller (3) uses no plant model, so plant and model "
-                          "parameters coincide; --plant-set is not applicable (use --set)")
 
 
-def _run(scene, params: dict, t_end=None):
+def _run(bound, t_end=None):
     """The exact switched run (and, for the compliant wrist, the reduced model's run): ``(sim, reduced or None,
     text, data)``."""
+    scene, p = bound.scene, bound.model.params
     name = scene.name
-    p = scene.model(params).params
     sim = simulate_scenario(p, t_end=t_end, label=name)
     text = sim.summary()
     data = sim.to_dict()
@@ -90,11 +82,13 @@ def _figure(sim, red, path) -> None:
     plt.close(fig)
 
 
-def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
-             plot=None, quiet=False) -> CommandResult:
-    """Exact switched simulation; peak force, bounces, force RMS error."""
-    _check_run_options(scene, controller, plant_params)
-    sim, red, text, data = _run(scene, params, t_end)
+def simulate(bound, *, controller=None, plant_params=None, t_end=None, out=None, plot=None,
+             quiet=False) -> CommandResult:
+    """Exact switched simulation; peak force, bounces, force RMS error (the workflow has refused --plant-set)."""
+    if controller is not None:
+        raise SceneError(f"scene {bound.scene.name!r} has one controller, the switched law 002 (3); "
+                         "--controller is not applicable (change its gains with --set kp=..., bf=...)")
+    sim, red, text, data = _run(bound, t_end)
     if out:
         if str(out).lower().endswith(".csv"):
             sim.to_csv(out)
@@ -115,9 +109,9 @@ def _plot_fig7(full, reduced):
     return plot_simulation(full, overlay=reduced, overlay_label="(reduced)")
 
 
-def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
+def design(bound, *, plot=None) -> CommandResult:
     """Smallest bt, largest kt (wrist) or smallest bf (rigid wall) with GUAS."""
-    p = scene.model(params).params
+    scene, p = bound.scene, bound.model.params
     name = scene.name
     data: dict = {}
     lines = [f"scene {name}: design by Theorem 1 (002 Sect. 5.3)"]
@@ -185,18 +179,17 @@ class Session(pipeline.Session):
 
     controllers = ("switched",)
 
-    def __init__(self, scene, params, settings, *, t_end=None, plant_params=None, quiet=False):
-        _check_run_options(scene, None, plant_params)
-        self.scene, self.params, self.settings, self.t_end = scene, params, settings, t_end
+    def __init__(self, bound, *, t_end=None, plant_params=None, quiet=False):
+        self.bound, self.t_end = bound, t_end
         self._reduced = None
 
     def head(self, out):
-        a = analyze(self.scene, self.params, self.settings)
-        d = design(self.scene, self.params, self.settings, plot=out / "design.png")
+        a = analyze(self.bound)
+        d = design(self.bound, plot=out / "design.png")
         return [a.text, "", d.text, ""], {"analyze": a.data, "design": d.data}
 
     def run(self, name):
-        sim, self._reduced, text, data = _run(self.scene, self.params, self.t_end)
+        sim, self._reduced, text, data = _run(self.bound, self.t_end)
         return Step(sim, [text], data)
 
     def figure(self, name, step, out):

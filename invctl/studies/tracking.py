@@ -82,10 +82,10 @@ def check_controller(name: str) -> str:
                      f"({', '.join(f'{k}: {v}' for k, v in CONTROLLERS.items())})")
 
 
-def tracking_model(scene, params=None):
-    """``(model, reference)`` of a tracking scene with parameter overrides ``params``."""
+def tracking_model(scene, params=None, *, model=None):
+    """``(model, reference)`` of a tracking scene with parameter overrides ``params`` (``model``: its model, built)."""
     scene.require("invert")
-    model = scene.model(params)
+    model = scene.model(params) if model is None else model
     reference = scene.tracking.reference(model)
     from ..reference import Reference
 
@@ -389,19 +389,20 @@ class TrackingSetup:
 
 def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, invert=True, t_end=None, dt=1e-3,
                    feedback=None, plant_factors=None, q0=None, reference=None, progress=False,
-                   inversion_options=None, integrator=None) -> TrackingSetup:
+                   inversion_options=None, integrator=None, model=None) -> TrackingSetup:
     """Build the reference model (``params``), the plant (declared mismatch, then ``plant_params``),
     the linearization, the funnel controller (declared feedback updated by ``feedback``) and, if
     ``invert`` and no ``inverse`` is given, the servo-constraint inverse of the reference model.
     ``reference`` (a Reference or ``model -> Reference``) replaces the scene's reference; ``dt`` is the
-    output step of the runs and ``integrator`` their CVODES settings (:data:`INTEGRATOR_OPTIONS`)."""
+    output step of the runs and ``integrator`` their CVODES settings (:data:`INTEGRATOR_OPTIONS`); ``model``: the
+    model of ``params``, already built."""
     integrator = check_integrator_options(integrator)
     if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
         raise OptionError(f"dt (output step of the closed loop) must be a positive number of seconds, got {dt!r}")
     timings = {}
     t0 = time.perf_counter()
     params = dict(params or {})
-    model, ref = tracking_model(scene, params)
+    model, ref = tracking_model(scene, params, model=model)
     if reference is not None:
         ref = reference(model) if callable(reference) and not hasattr(reference, "expr") else reference
     if ref.t0 < 0:

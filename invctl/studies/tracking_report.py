@@ -1,7 +1,7 @@
 """The commands of tracking scenes (003): analyze, invert, design, simulate, pipeline.
 
-Each function takes the :class:`~invctl.scenes.Scene`, the parameter overrides and the command's
-options (already checked by :mod:`invctl.studies.commands`) and returns a
+Each function takes the :class:`~invctl.scenes.BoundScene` (the scene, its values, its model) and the
+command's options (already checked by :mod:`invctl.studies.commands` and the workflow) and returns a
 :class:`~invctl.scenes.CommandResult` whose text is built only from what the scene declares.
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ from .pipeline import Step
 from .tracking import (CONTROLLERS, NEEDS_INVERSE, check_controller, compare_runs, design_configuration,
                        invert_tracking, run_controller, setup_tracking, tracking_linearization, tracking_model)
 
-__all__ = ["analyze", "invert", "design", "simulate", "Session"]
+__all__ = ["analyze", "invert", "design", "simulate", "load_inverse", "Session"]
 
 #: frames per second of the animations the pipeline writes (GIF delays are whole 1/100 s: 10, 20, 25, 50 are exact)
 ANIMATION_FPS = 20
@@ -40,12 +40,12 @@ def _reports(scene, model, params, settings, command, result=None, controller=No
 
 
 # ------------------------------------------------------------------ analyze
-def analyze(scene, params: dict, settings: dict, *, samples: int = 200) -> CommandResult:
+def analyze(bound, *, samples: int = 200) -> CommandResult:
     """Relative degree, Gamma, internal dynamics (two routes), linearization, (A1)/(A2), eta2_ref^0."""
     from ..analysis.summary import analyze as analyze_model
 
     t0 = time.perf_counter()
-    model = scene.model(params)
+    scene, params, model = bound.scene, bound.params, bound.model
     t = scene.tracking
     ref = t.reference(model) if t.reference is not None else None
     point = design_configuration(scene, model, ref)
@@ -169,7 +169,7 @@ def _analyze_flat(scene, model, ref, point, samples, t0) -> CommandResult:
 
 
 # ------------------------------------------------------------------- invert
-def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None, backend=None, out=None,
+def invert(bound, *, N=None, scheme=None, tol=None, backend=None, out=None,
            dt=None, quiet=False, max_wall_time=None, bounds=None, objective=None, minimum_time=None) -> CommandResult:
     """Invert with the automatic setup (and the scene's overrides), forward-check, report.  ``bounds``
     (and ``objective``): the bounded inversion; ``minimum_time``: the shortest transition under them."""
@@ -179,7 +179,8 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
                               "max_wall_time": max_wall_time, "bounds": bounds, "objective": objective,
                               "minimum_time": minimum_time}.items() if v is not None}
     t_wall = time.perf_counter()
-    model, reference = tracking_model(scene, params)
+    scene, params = bound.scene, bound.params
+    model, reference = tracking_model(scene, params, model=bound.model)
     inv = invert_tracking(scene, model, reference, progress=not quiet, **opts)
     free = inv.diagnostics.get("free_time")
     # the retimed reference of a minimum-time transition is the one the inverse must track
@@ -240,15 +241,13 @@ def invert(scene, params: dict, settings: dict, *, N=None, scheme=None, tol=None
         lines.append("  meshes tried: " + ", ".join(f"N={m['N']} (err {m['error']:.1e})" for m in d["meshes"]))
     lines += _limit_lines(d)
     if out:
-        from ..scenes import scene_reference
-
         if dt is not None:
-            from .commands import check_saved_samples
+            from .workflow import check_saved_samples
 
             rows = 1 + 2 * model.n + model.ell + model.p + 2 * model.m + model.ny
             check_saved_samples(inv.Tf - inv.T0, dt, rows, more=f" of the horizon [{inv.T0:g}, {inv.Tf:g}]",
                                 partial=inv)
-        written = inv.to_npz(out, dt, meta={"scene": scene_reference(scene), "params": dict(params or {})})
+        written = inv.to_npz(out, dt, meta={"scene": bound.reference, "params": dict(params)})
         data["out"] = str(written)
         lines.append(f"  trajectory written to {written}")
     if not quiet:
@@ -290,9 +289,10 @@ def _limit_lines(d: dict) -> list[str]:
 
 
 # ------------------------------------------------------------------- design
-def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
+def design(bound, *, plot=None) -> CommandResult:
     """The funnel controller (48) of the scene: new output (41), (A1), funnels and gains, with the reasons."""
-    setup = setup_tracking(scene, params, invert=False)
+    scene = bound.scene
+    setup = setup_tracking(scene, bound.params, invert=False, model=bound.model)
     d, c = setup.design, setup.controller
     lines = [f"invctl design {scene.name}: funnel controller (48) of 003 Sect. 5",
              (f"  linearized internal dynamics: {setup.lin.k} unstable mode(s) of {setup.lin.Q.shape[0]}"
@@ -314,20 +314,41 @@ def design(scene, params: dict, settings: dict, *, plot=None) -> CommandResult:
     return CommandResult("\n".join(lines), data, d)
 
 
+def load_inverse(path, bound):
+    """The saved inverse of ``simulate --inverse``: its recorded scene, sizes and parameters must be ``bound``'s."""
+    from ..errors import ResultFileError
+    from ..inversion import Inverse
+
+    inv, params = Inverse.load(path), bound.params
+    recorded, here = inv.meta.get("scene"), bound.reference
+    if recorded is not None and recorded != here:
+        raise ResultFileError(f"--inverse {path}: the inverse was computed for scene {recorded!r}, not {here!r}")
+    model = bound.model
+    sizes = {"n": model.n, "l": model.ell, "p": model.p, "m": model.m}
+    if {k: int(inv.sizes.get(k, -1)) for k in sizes} != sizes:
+        raise ResultFileError(f"--inverse {path}: its sizes {dict(inv.sizes)} are not those of {bound.scene.name!r} {sizes}")
+    saved = {k: float(v) for k, v in dict(inv.meta.get("params") or {}).items()}
+    if saved != {k: float(v) for k, v in params.items()}:
+        raise ResultFileError(f"--inverse {path}: the inverse was computed with the parameters {saved}, this run "
+                              f"uses {dict(params)}; pass the same --set values or invert again")
+    return inv
+
+
 # ----------------------------------------------------------------- simulate
 def _step(dt) -> dict:
     """``dt=`` for :func:`setup_tracking` when given (its default otherwise)."""
     return {} if dt is None else {"dt": dt}
 
 
-def simulate(scene, params: dict, settings: dict, *, controller=None, plant_params=None, t_end=None, out=None,
-             plot=None, inverse=None, quiet=False, dt=None, integrator=None) -> CommandResult:
+def simulate(bound, *, controller=None, plant_params=None, t_end=None, out=None, plot=None, inverse=None, quiet=False,
+             dt=None, integrator=None) -> CommandResult:
     """One closed-loop run of ``controller`` (C1, C2, C3, C1-42) on the mismatched plant (output step ``dt``,
     CVODES settings ``integrator``: see :func:`~invctl.studies.tracking.setup_tracking`)."""
     name = (controller or "C1").upper()
     t0 = time.perf_counter()
+    scene, params, settings = bound.scene, bound.params, bound.settings
     setup = setup_tracking(scene, params, plant_params, inverse=inverse, invert=name in ("C1", "C3", "C1-42"),
-                           t_end=t_end, progress=not quiet, integrator=integrator, **_step(dt))
+                           t_end=t_end, progress=not quiet, integrator=integrator, model=bound.model, **_step(dt))
     res = run_controller(setup, name)
     wall_total = time.perf_counter() - t0
     s = res.summary()
@@ -370,12 +391,12 @@ class Session(pipeline.Session):
     """The tracking pipeline's session (:mod:`.pipeline`): one setup (inverse, design) for C1, C2, C3 (and the
     scene's other controllers) on the mismatched plant; the comparison of 003 Sect. 6 and its figures."""
 
-    def __init__(self, scene, params, settings=None, *, t_end=None, plant_params=None, quiet=False, dt=None, integrator=None):
-        self.scene, self.params, self.quiet = scene, params, quiet
-        self.controllers = tuple(check_controller(c) for c in scene.tracking.controllers)
-        self.setup = setup_tracking(scene, params, plant_params, t_end=t_end, progress=not quiet,
+    def __init__(self, bound, *, t_end=None, plant_params=None, quiet=False, dt=None, integrator=None):
+        self.scene, self.params, self.quiet = bound.scene, bound.params, quiet
+        self.controllers = tuple(check_controller(c) for c in self.scene.tracking.controllers)
+        self.setup = setup_tracking(self.scene, self.params, plant_params, t_end=t_end, progress=not quiet,
                                     invert=bool(set(NEEDS_INVERSE) & set(self.controllers)), integrator=integrator,
-                                    **_step(dt))
+                                    model=bound.model, **_step(dt))
 
     def run(self, name):
         if not self.quiet:

@@ -267,7 +267,8 @@ def _one_setting(spec: TradeoffSpec, value, rows: list, failures: list, min_time
         out["time_s"], out["repeats"] = min(times), len(times)
     except KeyError:
         raise
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - the boundary to the caller's job (a scene's study, a TradeoffSpec's run):
+        # whatever one setting raises is that setting's result, reported in ``failures``
         failures.append({"value": value, "message": f"{type(exc).__name__}: {exc}"})
         return
     rows.append({"value": value, **out})
