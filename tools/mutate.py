@@ -109,7 +109,8 @@ TEST_MAP = {
     "invctl/simulate/codegen.py": ["tests/test_timestepping.py"],
     "invctl/simulate/contact_record.py": ["tests/test_contact.py", "tests/test_results_shape.py"],
     "invctl/simulate/event_driven.py": ["tests/test_timestepping.py", "tests/test_mechanisms_000.py"],
-    "invctl/simulate/switched.py": ["tests/test_switched_sim.py", "tests/test_switched_cli.py"],
+    "invctl/simulate/switched.py": ["tests/test_switched_events.py", "tests/test_switched_sim.py",
+                                    "tests/test_switched_cli.py"],
     "invctl/simulate/timestepping.py": ["tests/test_timestepping.py"],
 }
 FALLBACK_TESTS = ["tests/test_inversion.py", "tests/test_model.py", "tests/test_contact.py"]
