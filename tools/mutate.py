@@ -95,7 +95,7 @@ TEST_MAP = {
     "invctl/inversion/options.py": _INVERSION + _OCP,
     "invctl/inversion/plan.py": ["tests/test_inversion_plan.py"],
     "invctl/inversion/problem.py": _OCP,
-    "invctl/inversion/refine.py": _INVERSION + _OCP,
+    "invctl/inversion/refine.py": ["tests/test_mesh_refinement.py"] + _INVERSION + _OCP,
     "invctl/inversion/result.py": ["tests/test_bounds_between_nodes.py", "tests/test_inversion.py"],
     "invctl/inversion/sensitivity.py": ["tests/test_sensitivity.py"],
     "invctl/inversion/solver.py": ["tests/test_inversion_solver.py", "tests/test_inversion.py"],
