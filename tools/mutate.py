@@ -102,7 +102,7 @@ TEST_MAP = {
     "invctl/model/urdf.py": ["tests/test_urdf.py"],
     "invctl/inversion/servo.py": ["tests/test_linear_solves.py"],
     "invctl/inversion/solve.py": _INVERSION,
-    "invctl/inversion/square.py": _INVERSION + _OCP,
+    "invctl/inversion/square.py": ["tests/test_inversion_residuals.py"] + _INVERSION + _OCP,
     "invctl/inversion/verify.py": ["tests/test_numbers_users_see.py", "tests/test_inversion.py"],
     "invctl/simulate/closed_loop.py": ["tests/test_numbers_users_see.py", "tests/test_closed_loop.py",
                                        "tests/test_closed_loop_setup.py"],
