@@ -30,4 +30,3 @@ def test_escape_is_recognised_from_the_fifth_output_sample():
 def test_no_escape_verdict_without_growth_over_three_steps(u):
     msg = ClosedLoop._advice(LOOP, _result([u]))
     assert msg.startswith("; the integrator reached its limits") and "escapes" not in msg
-

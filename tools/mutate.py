@@ -15,6 +15,7 @@ see each other's mutants in one tree), then the survivors again after new tests:
     python tools/mutate.py --max-mutants 16 --per-folder --rerun s1.txt s2.txt --out all.txt
 
 (with ``--shard`` again on the re-run, ``--merge --rerun all1.txt all2.txt`` joins the halves).
+``@FILE`` reads arguments from FILE, one a line (e.g. ``--only`` and a fixed list of keys).
 """
 from __future__ import annotations
 
@@ -426,7 +427,7 @@ def _interrupt(*_):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], fromfile_prefix_chars="@")
     ap.add_argument("--modules", nargs="+", default=CORE, metavar="PATHS",
                     help="files or folders to mutate, relative to --root (default: the core)")
     ap.add_argument("--max-mutants", type=int, default=None, metavar="N",
