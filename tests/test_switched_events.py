@@ -6,7 +6,6 @@ oscillator with constant forcing whose solution is written out here; crossings o
 """
 import math
 
-import numpy as np
 import pytest
 from scipy.optimize import brentq
 
