@@ -118,6 +118,11 @@ def test_start_outside_funnel_is_refused_and_stops_at_once(c2_setup):
     with pytest.raises(FunnelViolation) as exc:
         loop.run(s.q0)
     assert exc.value.partial.t[-1] <= 2e-3 and exc.value.diagnostics["ratio"] >= 1
+    # the reported ratio is the controller's monitor at the partial result's last sample; margin = 1 - ratio
+    d, part = exc.value.diagnostics, exc.value.partial
+    ratios = np.array(ctrl.functions()[2](part.t[-1], part.q[:, -1], part.v[:, -1], [])[0]).ravel()
+    assert d["ratio"] == pytest.approx(ratios.max(), rel=1e-9)
+    assert d["margin"] == pytest.approx(1 - ratios.max(), abs=1e-3)  # ratio ~ 2e10: an absolute check
 
 
 def test_larger_mismatch():

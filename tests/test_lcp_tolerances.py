@@ -140,3 +140,15 @@ def test_lcp_sx_lemke_keeps_its_pivot_budget_below_max_enum():
     z, ok = lcp_sx(A, b, with_flag=True)
     assert float(ca.evalf(ok)) == 1.0
     np.testing.assert_allclose(np.array(ca.evalf(z)).ravel(), [1, 0, 1], atol=1e-12)
+
+
+def test_lemke_meeting_a_singular_basis_is_a_contact_error():
+    """A non-P-matrix LCP on which Lemke's pivoting reaches a singular basis: ContactError (no solution
+    found), not numpy's LinAlgError; enumeration of all 16 active sets finds none either."""
+    A = np.array([[0.0, -0.01, -30.0, 1000.0], [0.02, -0.003, 30000.0, -0.002],
+                  [-1000.0, 0.0, 0.0002, -20000.0], [-20000.0, -3.0, -0.001, -20000.0]])
+    b = np.array([-1.0, -1.0, -2.0, -1.0])
+    with pytest.raises(ContactError, match=r"solve_lcp \(lemke\): no solution found"):
+        solve_lcp(A, b, method="lemke")
+    with pytest.raises(ContactError, match=r"solve_lcp \(enumeration\): no solution found"):
+        solve_lcp(A, b, method="auto")

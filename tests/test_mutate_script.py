@@ -196,6 +196,16 @@ def test_only_and_rerun(repo):
     assert bad.returncode == 2 and "not in this sample" in bad.stderr
 
 
+def test_arguments_from_a_file(repo):
+    """``@FILE``: one argument a line, e.g. a fixed sample of keys for --only."""
+    args = repo / "sample.txt"
+    args.write_text("--only\npkg/tiny.py:16:2 -> 1\npkg/tiny.py:12:+ -> -\n")
+    r = _run(repo, "--list", f"@{args}")
+    assert r.returncode == 0, r.stderr
+    assert [line.split("    ")[0] for line in r.stdout.splitlines() if line.startswith("pkg/")] == \
+        ["pkg/tiny.py:16:2 -> 1", "pkg/tiny.py:12:+ -> -"]
+
+
 def test_keys_of_removed_calls_survive_a_report_round_trip(repo):
     """``abs(x) -> (x)`` has an empty replacement; its key has no trailing blank, so --only, --rerun and the
     equivalent list find it again."""

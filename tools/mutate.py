@@ -15,6 +15,7 @@ see each other's mutants in one tree), then the survivors again after new tests:
     python tools/mutate.py --max-mutants 16 --per-folder --rerun s1.txt s2.txt --out all.txt
 
 (with ``--shard`` again on the re-run, ``--merge --rerun all1.txt all2.txt`` joins the halves).
+``@FILE`` reads arguments from FILE, one a line (e.g. ``--only`` and a fixed list of keys).
 """
 from __future__ import annotations
 
@@ -95,21 +96,23 @@ TEST_MAP = {
     "invctl/inversion/options.py": _INVERSION + _OCP,
     "invctl/inversion/plan.py": ["tests/test_inversion_plan.py"],
     "invctl/inversion/problem.py": _OCP,
-    "invctl/inversion/refine.py": _INVERSION + _OCP,
+    "invctl/inversion/refine.py": ["tests/test_mesh_refinement.py"] + _INVERSION + _OCP,
     "invctl/inversion/result.py": ["tests/test_bounds_between_nodes.py", "tests/test_inversion.py"],
     "invctl/inversion/sensitivity.py": ["tests/test_sensitivity.py"],
     "invctl/inversion/solver.py": ["tests/test_inversion_solver.py", "tests/test_inversion.py"],
     "invctl/model/urdf.py": ["tests/test_urdf.py"],
     "invctl/inversion/servo.py": ["tests/test_linear_solves.py"],
     "invctl/inversion/solve.py": _INVERSION,
-    "invctl/inversion/square.py": _INVERSION + _OCP,
+    "invctl/inversion/square.py": ["tests/test_inversion_residuals.py"] + _INVERSION + _OCP,
     "invctl/inversion/verify.py": ["tests/test_numbers_users_see.py", "tests/test_inversion.py"],
-    "invctl/simulate/closed_loop.py": ["tests/test_numbers_users_see.py", "tests/test_closed_loop.py",
+    "invctl/simulate/closed_loop.py": ["tests/test_closed_loop_advice.py", "tests/test_numbers_users_see.py",
+                                       "tests/test_closed_loop.py",
                                        "tests/test_closed_loop_setup.py"],
     "invctl/simulate/codegen.py": ["tests/test_timestepping.py"],
     "invctl/simulate/contact_record.py": ["tests/test_contact.py", "tests/test_results_shape.py"],
     "invctl/simulate/event_driven.py": ["tests/test_timestepping.py", "tests/test_mechanisms_000.py"],
-    "invctl/simulate/switched.py": ["tests/test_switched_sim.py", "tests/test_switched_cli.py"],
+    "invctl/simulate/switched.py": ["tests/test_switched_events.py", "tests/test_switched_sim.py",
+                                    "tests/test_switched_cli.py"],
     "invctl/simulate/timestepping.py": ["tests/test_timestepping.py"],
 }
 FALLBACK_TESTS = ["tests/test_inversion.py", "tests/test_model.py", "tests/test_contact.py"]
@@ -424,7 +427,7 @@ def _interrupt(*_):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], fromfile_prefix_chars="@")
     ap.add_argument("--modules", nargs="+", default=CORE, metavar="PATHS",
                     help="files or folders to mutate, relative to --root (default: the core)")
     ap.add_argument("--max-mutants", type=int, default=None, metavar="N",

@@ -189,7 +189,7 @@ def solve_lcp(A, b, *, method: str = "auto", tol: float = 1e-10, check_unique: b
     z = None
     used = method
     if method in ("auto", "lemke") and (method == "lemke" or m > 10):
-        z = _lemke(A.copy(), b.copy(), max_iter)
+        z = _lemke_or_none(A.copy(), b.copy(), max_iter)
         used = "lemke"
     if z is None and method != "lemke":
         if m > 16:
@@ -570,3 +570,11 @@ def lcp_sx(A, b, *, tol: float = 1e-13, max_enum: int = 4, pgs_sweeps: int = 50,
     else:
         z, ok, _ = pivot_sx(A, b, start=start, max_iter=max_iter, res_tol=res_tol)
     return (z, ok) if with_flag else z
+
+
+def _lemke_or_none(A, b, max_iter):
+    """:func:`_lemke`, with a pivot onto a singular basis (degenerate, non-P-matrix LCPs) ending like a ray: None."""
+    try:
+        return _lemke(A, b, max_iter)
+    except np.linalg.LinAlgError:
+        return None
