@@ -99,7 +99,8 @@ def test_killed_survived_timeout_and_restored(repo):
     equivalent = repo / "equivalent.txt"
     equivalent.write_text("# comment\npkg/tiny.py:6:< -> <=  # x == lo returns lo either way\n")
     out = repo / "report.txt"
-    r = _run(repo, "--out", str(out), "--equivalent", str(equivalent), "--timeout", "3")
+    # 10 s: the looping mutant's cost; the others end in about 1 s unloaded (python + pytest start)
+    r = _run(repo, "--out", str(out), "--equivalent", str(equivalent), "--timeout", "10")
     assert r.returncode == 0, r.stderr
     assert (repo / "pkg" / "tiny.py").read_bytes() == source
     status = {line.split(None, 3)[3]: line.split()[1]
@@ -172,7 +173,8 @@ def test_only_and_rerun(repo):
         f.write("\n\ndef test_untested():\n    from pkg.tiny import untested\n"
                 "    assert untested(1, 2) == 3\n")
     out = repo / "rerun.txt"
-    r = _run(repo, "--rerun", str(earlier), "--timeout", "3", "--out", str(out))
+    # nothing re-run here loops: a generous timeout keeps a loaded machine from turning a kill into a timeout
+    r = _run(repo, "--rerun", str(earlier), "--timeout", "60", "--out", str(out))
     assert r.returncode == 0, r.stderr
     status = {line.split(None, 3)[3]: line.split()[1:3]
               for line in out.read_text().splitlines() if line.startswith("[")}
