@@ -73,6 +73,30 @@ def test_monitor_from_the_disk_cache_gives_the_vm_values(c2_setup, c2_run, tmp_p
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-13)
 
 
+def test_right_hand_side_from_the_disk_cache_gives_the_vm_run(c2_setup, tmp_path, monkeypatch):
+    """A loop built when its DAE's generated C (with the Jacobian CVODES uses) is in the disk cache integrates
+    with it: the same closed loop as the virtual machine's to the integrator's tolerance (plant alone, 0.1 s)."""
+    from invctl.inversion.compiled import compiler
+    from invctl.simulate.closed_loop import ClosedLoop, _compiled_dae
+
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("INVCTL_CACHE", str(tmp_path))
+    s = c2_setup
+
+    def build():
+        return ClosedLoop(s.plant, s.reference, t_end=0.1, dt=1e-3, chunks=2)
+
+    vm_loop = build()
+    assert vm_loop.rhs_backend == "vm"
+    assert _compiled_dae(vm_loop.dae, wait=True) is not None  # what the background compile leaves in the cache
+    c_loop = build()
+    assert c_loop.rhs_backend == "c"
+    a, b = vm_loop.run(s.q0), c_loop.run(s.q0)
+    assert b.t.size == a.t.size and np.abs(b.q - a.q).max() < 1e-7 and np.abs(b.v - a.v).max() < 1e-6
+    assert b.cumulative_output_error == pytest.approx(a.cumulative_output_error, rel=1e-6)
+
+
 def test_quadrature_matches_trapezoid_of_grid(c2_run):
     r = c2_run
     assert np.trapezoid(r.output_error, r.t) == pytest.approx(r.cumulative_output_error, rel=1e-5)
