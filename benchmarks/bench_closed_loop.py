@@ -67,7 +67,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     setup = setup_tracking(scene.SCENE, invert=not args.no_ff, progress=True)
     print(f"setup (analysis, controller, inversion): {time.perf_counter() - t0:.2f} s  {setup.timings}")
-    rows = []
+    rows, backends = [], []
     atol = args.rtol * 1e-2
     for name in controllers:
         loop = setup.loop(name)
@@ -80,6 +80,7 @@ def main(argv=None):
         tic = time.perf_counter()
         fun, jac = fused_peer(loop_tol, theta)
         build_peer = time.perf_counter() - tic
+        backends.append((loop_tol.rhs_backend, "c" if loop_tol.monitor.class_name() == "External" else "vm"))
         res = loop_tol.run(setup.q0, controller_label=name)  # first call (not timed: both sides warm)
         x0 = np.concatenate([res.q[:, 0], res.v[:, 0], res.z[:, 0]])
         sol = peer_run(loop_tol, fun, jac, x0, args.rtol, atol)
@@ -102,6 +103,9 @@ def main(argv=None):
         print(f"{name:4s} {wmin:15.4f} {wmed:8.4f} {smin:13.4f} {smed:8.4f} {nfev:5d} {njev:5d} {smin / wmin:8.1f}x "
               f"{diff:9.2g} {cum:9.4g} {build:9.3f} {build_peer:10.3f}")
     print("speed-up: peer min / invctl min (peer: scipy LSODA on one fused CasADi right-hand side + its Jacobian)")
+    print("invctl right-hand side and monitor: " + ", ".join(f"{r[0]} {b}/{m}" for r, (b, m) in zip(rows, backends))
+          + " (c = generated C from the disk cache, vm = SX virtual machine: a graph's first run compiles it in "
+          "the background)")
     return rows
 
 
