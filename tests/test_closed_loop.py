@@ -48,6 +48,55 @@ def test_compiled_loop_matches_independent_scipy_run(c2_setup, c2_run):
     assert np.trapezoid(e, t) == pytest.approx(c2_run.cumulative_output_error, rel=1e-4)
 
 
+def test_monitor_from_the_disk_cache_gives_the_vm_values(c2_setup, c2_run, tmp_path, monkeypatch):
+    """A loop built when the monitor's generated C is in the disk cache evaluates it compiled: the same SX as
+    the virtual machine's, so every output (u, y, ratios, drift, ...) agrees to round-off."""
+    from invctl.inversion.compiled import compile_cached, compiler
+
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("INVCTL_CACHE", str(tmp_path))
+    ref = c2_setup.loop("C2")
+
+    def build():
+        return type(ref)(c2_setup.plant, c2_setup.reference, controller=ref.controller, signals=c2_setup.signals,
+                         t_end=c2_setup.t_end, dt=c2_setup.dt, chunks=1)
+
+    vm_loop = build()
+    assert vm_loop.monitor.class_name() != "External"
+    X, theta = np.vstack([c2_run.q, c2_run.v, c2_run.z]), c2_setup.plant.theta_values
+    vm = vm_loop._monitor(c2_run.t, X, theta)
+    compile_cached(vm_loop.monitor)  # what the background compile leaves in the cache
+    c_loop = build()
+    assert c_loop.monitor.class_name() == "External"
+    for a, b in zip(vm, c_loop._monitor(c2_run.t, X, theta)):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-13)
+
+
+def test_right_hand_side_from_the_disk_cache_gives_the_vm_run(c2_setup, tmp_path, monkeypatch):
+    """A loop built when its DAE's generated C (with the Jacobian CVODES uses) is in the disk cache integrates
+    with it: the same closed loop as the virtual machine's to the integrator's tolerance (plant alone, 0.1 s)."""
+    from invctl.inversion.compiled import compiler
+    from invctl.simulate.closed_loop import ClosedLoop, _compiled_dae
+
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("INVCTL_CACHE", str(tmp_path))
+    s = c2_setup
+
+    def build():
+        return ClosedLoop(s.plant, s.reference, t_end=0.1, dt=1e-3, chunks=2)
+
+    vm_loop = build()
+    assert vm_loop.rhs_backend == "vm"
+    assert _compiled_dae(vm_loop.dae, wait=True) is not None  # what the background compile leaves in the cache
+    c_loop = build()
+    assert c_loop.rhs_backend == "c"
+    a, b = vm_loop.run(s.q0), c_loop.run(s.q0)
+    assert b.t.size == a.t.size and np.abs(b.q - a.q).max() < 1e-7 and np.abs(b.v - a.v).max() < 1e-6
+    assert b.cumulative_output_error == pytest.approx(a.cumulative_output_error, rel=1e-6)
+
+
 def test_quadrature_matches_trapezoid_of_grid(c2_run):
     r = c2_run
     assert np.trapezoid(r.output_error, r.t) == pytest.approx(r.cumulative_output_error, rel=1e-5)

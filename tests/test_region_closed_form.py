@@ -21,7 +21,7 @@ def test_contains_is_the_open_box_and_the_strict_constraint():
     expected = np.array([_closed_form(q) for q in grid])
     assert expected.any() and not expected.all()
     assert [region.contains(q) for q in grid] == expected.tolist()     # boundary points are outside
-    assert region._inside(grid).tolist() == expected.tolist()
+    assert region.inside(grid).tolist() == expected.tolist()
 
 
 def test_samples_stay_in_the_sampling_box_and_fill_it():

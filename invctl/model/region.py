@@ -43,7 +43,7 @@ class OperatingRegion:
             return False
         return all(c(q) > 0 for c in self.constraints)
 
-    def _inside(self, Q: np.ndarray) -> np.ndarray:
+    def inside(self, Q: np.ndarray) -> np.ndarray:
         """:meth:`contains` for the rows of ``Q``: the box test on all rows at once, the constraints (scalar
         callables) only on the rows inside the box."""
         lo, hi = np.asarray(self.q_lower, float), np.asarray(self.q_upper, float)
@@ -67,7 +67,7 @@ class OperatingRegion:
         got = 0
         for _ in range(max_tries):
             cand = rng.uniform(lo, hi, size=(4 * count, lo.size))
-            acc = cand[self._inside(cand)]
+            acc = cand[self.inside(cand)]
             qs.append(acc)
             got += acc.shape[0]
             if got >= count:

@@ -9,7 +9,8 @@ so drift of ``g`` and ``G v`` decays instead of growing; both are reported.  Pla
 (:class:`invctl.control.funnel_nmp.NMPFunnelController` or none), feedforward (sampled causal
 ``u_ff``, a B-spline of time) and reference form ONE CasADi expression graph that drives CVODES
 (BDF, exact Jacobian by AD) over the output grid; cumulative errors are quadratures of the same
-integrator.  The run is split into chunks (one integrator, start time as parameter) so that leaving
+integrator; the graph is expanded to SX and, once its generated C (with the Jacobian) is in the disk cache,
+CVODES calls that.  The run is split into chunks (one integrator, start time as parameter) so that leaving
 the funnel stops it with :class:`~invctl.errors.FunnelViolation` carrying the trajectory so far.
 """
 from __future__ import annotations
@@ -345,11 +346,23 @@ class ClosedLoop:
         self.n_quad = len(quad)
         self._signal_sizes = [int(s.numel()) for s in sig]
         dae = {"t": t, "x": x, "p": ca.vertcat(theta, t_start), "ode": ca.vertcat(v, a, zdot), "quad": ca.vertcat(*quad)}
+        self.dae = dae  # the closed loop's right-hand side (``p`` = theta, start time of the chunk)
         grid = np.linspace(0.0, self.per_chunk * self.dt, self.per_chunk + 1)[1:]
         opts = {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": self.max_num_steps,
-                "linear_solver": "csparse", "print_stats": False, "disable_internal_warnings": True}
-        self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
-        self.step_integrator = ca.integrator("closed_loop_step", "cvodes", dae, 0.0, [self.dt], opts)
+                "linear_solver": "csparse", "print_stats": False, "disable_internal_warnings": True, "expand": True}
+        compiled = _compiled_dae(dae)
+        self.rhs_backend = "vm" if compiled is None else "c"
+        if compiled is not None:  # generated C of the right-hand side and its Jacobian (disk cache)
+            opts.pop("expand")
+            self.integrator = ca.integrator("closed_loop", "cvodes", compiled, 0.0, grid, opts)
+            self.step_integrator = ca.integrator("closed_loop_step", "cvodes", compiled, 0.0, [self.dt], opts)
+        else:
+            try:  # the right-hand side and its Jacobian as SX (one flat instruction list, no MX call overhead)
+                self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
+            except RuntimeError:  # a graph that does not expand
+                opts["expand"] = False
+                self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
+            self.step_integrator = ca.integrator("closed_loop_step", "cvodes", dae, 0.0, [self.dt], opts)
         G = plant.function("G")(q, theta)
         mon = ca.Function("monitor", [t, t_start, x, theta],
                           [u, uff, ufb, h, yref, ca.vertcat(*sig) if sig else ca.MX(0, 1),
@@ -358,8 +371,23 @@ class ClosedLoop:
                            phib, ca.norm_inf(plant.function("g")(q, theta)), ca.norm_inf(ca.mtimes(G, v))],
                           ["t", "t_start", "x", "theta"],
                           ["u", "u_ff", "u_fb", "y", "y_ref", "s", "s_ref", "ratios", "e_bar", "phi_bar", "g", "Gv"])
-        self.monitor = mon
+        self.monitor = _fast(mon)
         self._mon_map = {}
+
+    def _mon_buffers(self, N):
+        """The monitor mapped over ``N`` columns with numpy arrays bound as its arguments and results (no
+        conversion to and from CasADi matrices per call)."""
+        fn = self.monitor.map(N)
+        buf, run = fn.buffer()
+        ins = [np.zeros((fn.size1_in(i), N), order="F") for i in range(fn.n_in())]
+        outs = [np.zeros((fn.size1_out(i), N), order="F") for i in range(fn.n_out())]
+        for i, a in enumerate(ins):
+            buf.set_arg(i, memoryview(a.reshape(-1, order="F")))
+        for i, o in enumerate(outs):
+            if o.size:
+                buf.set_res(i, memoryview(o.reshape(-1, order="F")))
+        self._mon_map[N] = (ins, outs, run, buf)
+        return self._mon_map[N]
 
     def _monitor(self, t, X, theta):
         """The monitor's outputs at the columns of ``X``, in blocks of at most :data:`MONITOR_BLOCK` columns (a
@@ -369,11 +397,10 @@ class ClosedLoop:
             check_interrupt()
             tb, Xb = t[a:a + MONITOR_BLOCK], X[:, a:a + MONITOR_BLOCK]
             N = tb.size
-            fn = self._mon_map.get(N)
-            if fn is None:
-                fn = self._mon_map[N] = self.monitor.map(N)
-            out = fn(tb[None, :], np.zeros((1, N)), Xb, np.tile(theta[:, None], (1, N)))
-            parts.append([np.array(o) for o in out])
+            ins, outs, run, _ = self._mon_map.get(N) or self._mon_buffers(N)
+            ins[0][0], ins[2][:], ins[3][:] = tb, Xb, theta[:, None]
+            run()
+            parts.append([o.copy() for o in outs])
         if not parts:
             return [np.zeros((self.monitor.size1_out(i), 0)) for i in range(self.monitor.n_out())]
         return [np.hstack(p) for p in zip(*parts)] if len(parts) > 1 else parts[0]
@@ -552,10 +579,8 @@ class ClosedLoop:
         k = int(bad[0]) if bad.size else None
         if k is None:
             step = max(1, q.shape[1] // 400)
-            for kk in range(0, q.shape[1], step):
-                if not region.contains(q[:, kk]):
-                    k = kk
-                    break
+            out_ = np.flatnonzero(~region.inside(q[:, ::step].T))
+            k = int(out_[0]) * step if out_.size else None
         if k is None:
             return None
         names = self.plant.q_names
@@ -584,6 +609,72 @@ class ClosedLoop:
             wall_s=wall, signals=signals, signals_ref=signals_ref, controller=label, ratio_names=names,
             q_names=list(plant.q_names), y_names=list(plant.y_names), u_names=list(plant.u_names),
             stats={"chunks": self.chunks, "dt": self.dt})
+
+
+def _fast(fn: ca.Function) -> ca.Function:
+    """``fn`` expanded to SX, as compiled C when it is in the disk cache; else the C is built in the background
+    for the next run (:mod:`invctl.inversion.compiled`; off with ``INVCTL_BACKGROUND_COMPILE=0``)."""
+    from ..inversion.compiled import compile_cached, compile_in_background, is_cached
+
+    try:
+        fn = fn.expand()
+    except RuntimeError:
+        return fn
+    try:
+        if is_cached(fn):
+            return compile_cached(fn)
+    except RuntimeError:
+        return fn
+    compile_in_background([fn])
+    return fn
+
+
+def _compiled_dae(dae, wait: bool = False):
+    """The closed loop's DAE (expanded to SX) as generated C from the disk cache, with its Jacobian as
+    ``jac_<name>`` in the same library (CVODES's Newton iterations use it); ``None`` when it is not there yet:
+    then it is generated and a detached, low-priority compiler builds it for the next loop of the same graph
+    (as :mod:`invctl.inversion.compiled`; off with ``INVCTL_BACKGROUND_COMPILE=0``). ``wait``: compile now."""
+    import hashlib
+    import os
+    import shutil
+    import subprocess
+    import tempfile
+
+    from ..inversion.compiled import background_enabled, cache_dir, compiler
+
+    if compiler() is None or os.name != "posix":
+        return None
+    try:
+        fn = ca.Function("cl", [dae["t"], dae["x"], ca.MX.sym("z", 0), dae["p"], ca.MX.sym("u", 0)],
+                         [dae["ode"], ca.MX(0, 1), dae["quad"], ca.MX(0, 1)], ca.dyn_in(), ca.dyn_out()).expand()
+    except RuntimeError:
+        return None
+    name = "closed_loop_" + hashlib.sha1(fn.serialize().encode()).hexdigest()[:16]
+    lib = cache_dir() / f"{name}.so"
+    if lib.exists():
+        try:
+            return ca.external(name, str(lib))
+        except RuntimeError:
+            return None
+    lock = lib.with_suffix(".lock")
+    if not wait and (not background_enabled() or (lock.exists() and time.time() - lock.stat().st_mtime < 600)):
+        return None
+    fn = ca.Function(name, fn.sx_in(), fn.call(fn.sx_in()), ca.dyn_in(), ca.dyn_out())
+    tmp = tempfile.mkdtemp(prefix="invctl-cl-")
+    cg = ca.CodeGenerator(f"{name}.c", {"with_header": False})
+    cg.add(fn)
+    cg.add(fn.jacobian())  # named jac_<name>: casadi.external finds it
+    cg.generate(tmp + os.sep)
+    lock.write_text(str(os.getpid()))
+    part = lib.with_suffix(f".{os.getpid()}.part")
+    # -O1: long straight-line code (the Jacobian), which -O3 compiles for much longer
+    script = '"$0" -O1 -fPIC -shared -o "$1" "$2" -lm && mv "$1" "$3"; rm -rf "$4"; rm -f "$5" "$1"'
+    job = subprocess.Popen((["nice", "-n", "19"] if shutil.which("nice") else []) + [
+        "sh", "-c", script, str(compiler()), str(part), os.path.join(tmp, f"{name}.c"), str(lib), tmp, str(lock)],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    if wait and job.wait() == 0 and lib.exists():
+        return ca.external(name, str(lib))
+    return None
 
 
 def _stack(mons):
