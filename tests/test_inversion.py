@@ -273,7 +273,7 @@ def test_paper_selection_is_rank_deficient_in_the_stabilized_formulation(model, 
     # 13 conditions belong at T0 and 1 at Tf. On the 2-dim tangent space of the invariant manifold at
     # Tf the paper's 4 end conditions have rank 2 (2 exactly redundant), on the growing mode rank 1.
     from invctl.inversion import dichotomy
-    from invctl.inversion.collocation import get_scheme
+    from invctl.inversion.schemes import get_scheme
     from invctl.inversion.solve import transcription
 
     sv = servo_model(model)
@@ -312,7 +312,7 @@ def test_compiled_evaluators_match_numpy_assembly(model, ref, inv160, scheme, N)
     # (mapped right-hand side + einsum), and the banded LU against SuperLU on that Jacobian
     import scipy.sparse.linalg as spl
 
-    from invctl.inversion.collocation import get_scheme
+    from invctl.inversion.schemes import get_scheme
     from invctl.inversion.solve import transcription
 
     sv = servo_model(model)

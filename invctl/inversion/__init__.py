@@ -4,7 +4,8 @@ IPOPT, the :class:`Inverse` result; bounded inversion and free transition time a
 control problems on the same transcription; and, independently, through the normal form
 (003 Sect. 2) for any uniform relative degree (:func:`invert_normal_form`)."""
 from .boundary import EquilibriumSolver, Selection, dichotomy, resolve_selection
-from .collocation import Scheme, Transcription, get_scheme
+from .collocation import Transcription
+from .schemes import Scheme, get_scheme
 from .normal_form import NormalForm, invert_normal_form, normal_form
 from .options import Bounds, Discretization, Horizon, Objective, SolverOptions
 from .plan import InversionPlan, check_reference, plan_inversion

@@ -1,5 +1,5 @@
 """Shared pieces of the collocation NLPs: sparse assembly of dense per-interval blocks (mapped SX outputs)
-into global CSC matrices, quadrature weights of the collocation points, compiled-function helpers."""
+into global CSC matrices, compiled-function helpers."""
 from __future__ import annotations
 
 import casadi as ca
@@ -31,20 +31,6 @@ def _block_triplets(nrow: int, index: np.ndarray, row0: int):
     j = np.tile(np.repeat(np.arange(nz), nrow), count)
     i = np.tile(np.arange(nrow), count * nz)
     return row0 + k * nrow + i, index[k, j]
-
-
-def quadrature_weights(scheme) -> np.ndarray:
-    """Weights of the collocation points alone: ``int_0^1 l_r(s) ds`` for the Lagrange basis on
-    ``tau`` (Gauss-Legendre: exact to degree ``2d - 1``; Radau IIA: ``2d - 2``)."""
-    tau = scheme.tau
-    w = np.zeros(tau.size)
-    for r in range(tau.size):
-        c = np.poly1d([1.0])
-        for j in range(tau.size):
-            if j != r:
-                c *= np.poly1d([1.0, -tau[j]]) / (tau[r] - tau[j])
-        w[r] = np.polyint(c)(1.0)
-    return w
 
 
 def _all_cached(functions) -> bool:

@@ -80,7 +80,7 @@ def compiled_key(servo, scheme) -> str:
     global _SOURCE_KEY
     if _SOURCE_KEY is None:
         here = Path(__file__).parent
-        text = "".join((here / f).read_text() for f in ("servo.py", "collocation.py"))
+        text = "".join((here / f).read_text() for f in ("servo.py", "schemes.py", "collocation.py"))
         _SOURCE_KEY = hashlib.sha1(text.encode()).hexdigest()
     return "|".join([model_key(servo.model), servo.formulation, repr(servo.omega), scheme.name, _SOURCE_KEY])
 

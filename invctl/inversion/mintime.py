@@ -134,7 +134,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         guess = None
     sch, N = setup.scheme, t_mesh.size - 1
     tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True, bounded=rb.bounded,
-                           rated=rb.rated, interior="points" if sch.is_hs else None, compiled=disc.compiled)
+                           rated=rb.rated, interior=sch.tracking_interior, compiled=disc.compiled)
     tc = tr.collocation_times(t_mesh)
     tau0 = float(np.clip(tau_ref if warm_start is None else warm_start.tf - warm_start.t0, lo, hi))
     no_inverse = None  # a shorter duration at which the exact inverse of the shape was not found

@@ -79,7 +79,7 @@ class Discretization:
     forward_options: Mapping | None = None
 
     def __post_init__(self):
-        from .collocation import get_scheme
+        from .schemes import get_scheme
         from .servo import FORMULATIONS
 
         w = "Discretization: "

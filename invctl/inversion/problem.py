@@ -13,7 +13,7 @@ from ..errors import BoundaryConditionError, NoDichotomyError, OptionError, Refe
 from .boundary import (BLOCKS, Selection, _resolve, dichotomy, explain_dichotomy, explain_no_dichotomy,
                        resolve_selection)
 from .cache import _QS_LAST, equilibrium_solver, servo_model
-from .collocation import Scheme, get_scheme
+from .schemes import Scheme, get_scheme
 from .guess import default_mesh, quasi_static_guess
 
 

@@ -32,7 +32,7 @@ import scipy.sparse.linalg as spl
 
 from ..errors import BoundaryConditionError, InversionFailed, ParameterError
 from .boundary import EquilibriumSolver, Selection, dichotomy, explain_dichotomy
-from .collocation import get_scheme
+from .schemes import get_scheme
 from .result import Inverse
 from .cache import model_key, servo_model, transcription
 from .guess import quasi_static_guess
@@ -289,7 +289,7 @@ class ParametricInverse:
         eq, th = _equilibria(model), model.theta_values
         obj.E0 = eq.solve(yends[:, 0], guess_w=obj._w(obj.E0), theta=th, where=f" at T0 = {inverse.T0}")[0]
         obj.Ef = eq.solve(yends[:, 1], guess_w=obj._w(obj.Ef), theta=th, where=f" at Tf = {inverse.Tf}")[0]
-        obj.x = tr.pack(inverse.X_mesh, None if obj.scheme.is_hs else inverse.X_col)
+        obj.x = tr.pack(inverse.X_mesh, inverse.X_col)
         obj.p = tr.parameters(obj.t_mesh, Y, th, obj.E0, obj.Ef)
         obj._base_modes = obj._mode_counts(obj.servo, obj.E0, obj.Ef, yends, th)[0]
         res = float(np.max(np.abs(tr.evaluators()[0](obj.x, obj.p))))
@@ -433,11 +433,9 @@ class ParametricInverse:
     def _make_inverse(self, servo, reference, tr, t_mesh, x, Y, th) -> Inverse:
         Xmesh, Xcol = tr.unpack(x)
         N = t_mesh.size - 1
-        if self.scheme.is_hs:  # the transcription's (possibly compiled) right-hand side at the mesh
-            rhs = tr._rhs_map(N + 1) if hasattr(tr, "_rhs_map") else servo.rhs.map(N + 1)
-            dX = np.array(rhs(Xmesh, Y[:, :N + 1], th))
-        else:
-            dX = np.zeros_like(Xmesh)
+        # the transcription's (possibly compiled) right-hand side at the mesh
+        rhs = tr._rhs_map(N + 1) if hasattr(tr, "_rhs_map") else servo.rhs.map(N + 1)
+        dX = self.scheme.mesh_slopes(Xmesh, lambda: rhs(Xmesh, Y[:, :N + 1], th))
         L = servo.layout
         return Inverse(self.scheme.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
                        reference.t0, reference.tf, servo.names, {}, y_ref_fn=reference)
@@ -447,8 +445,8 @@ class ParametricInverse:
         (Hermite-Simpson midpoints, where the interpolant is least accurate; collocation points)."""
         ts = tr.sample_times(inv.t_mesh)
         N = inv.t_mesh.size - 1
-        if self.scheme.is_hs:
-            ts, Y = ts[N + 1:], Y[:, N + 1:]
+        inner = self.scheme.interior_samples(N)
+        ts, Y = ts[inner], Y[:, inner]
         pos = np.array(servo.residuals.map(ts.size)(inv.X(ts), Y, th)[0])
         return float(np.max(np.abs(pos))) if pos.size else 0.0
 
@@ -473,7 +471,7 @@ class ParametricInverse:
         th = md.theta_values
         names = list(md.params.names) if names is None else [names] if isinstance(names, str) else list(names)
         chain = parameter_chain(md, names, derived=derived)
-        nth, nx, n = th.size, servo.layout.nx, md.n
+        nth, n = th.size, md.n
         dF, dR = _functions(servo)
         # equilibria: R(w, y, theta) = 0  ->  dw/dtheta = -R_w^-1 R_theta
         dE = []
@@ -488,14 +486,7 @@ class ParametricInverse:
         Y = np.asarray(self.p[N:o]).reshape(trs.m4, trs.nY, order="F")
         Xm, Xc = trs.unpack(self.x)
         fn = _interval_theta(trs)
-        if self.scheme.is_hs:
-            F = np.array(servo.rhs.map(N + 1)(Xm, Y[:, :N + 1], th))
-            Ft = np.array(dF.map(N + 1)(Xm, Y[:, :N + 1], th))
-            D = fn.map(N)(Xm[:, :N], Xm[:, 1:], F[:, :N], F[:, 1:], Ft[:, :nth * N], Ft[:, nth:], h[None, :],
-                          Y[:, N + 1:], th)
-        else:
-            D = fn.map(N)(Xm[:, :N], Xc, Xm[:, 1:], h[None, :], Y, th)
-        D = np.array(D)
+        D, Ft = self.scheme.bvp_theta_jacobian(fn, servo.rhs, dF, Xm, Xc, h, Y, th)
         r = D.shape[0]
         sel = self.selection
         gp = np.vstack([D.reshape(r, N, nth).transpose(1, 0, 2).reshape(N * r, nth),
@@ -508,11 +499,7 @@ class ParametricInverse:
         tr = self.transcription()
         dXm = np.stack([tr.unpack(dx[:, j])[0] for j in range(nth)])
         dXc = np.stack([tr.unpack(dx[:, j])[1] for j in range(nth)])
-        ddX = np.zeros_like(dXm)
-        if self.scheme.is_hs:  # slopes of the Hermite pieces: dF = F_X dX + F_theta (y_ref fixed)
-            _F, JF = servo.rhs_jac.map(N + 1)(Xm, Y[:, :N + 1], th)
-            JF = np.array(JF).reshape(nx, N + 1, nx).transpose(1, 0, 2)
-            ddX = np.einsum("kij,pjk->pik", JF, dXm) + Ft.reshape(nx, N + 1, nth).transpose(2, 0, 1)
+        ddX = self.scheme.slope_sensitivities(servo.rhs_jac, Xm, Y, th, dXm, Ft)
         return Sensitivities(self, names, np.array([md.values[k] for k in names]), chain, dXm, ddX, dXc,
                              dE[0], dE[1], time.perf_counter() - t_start)
 
@@ -526,12 +513,7 @@ def _interval_theta(trs) -> ca.Function:
         ins = [ca.SX.sym(iv.name_in(i), iv.sparsity_in(i)) for i in range(iv.n_in())]
         defect = iv(*ins)[0]
         th = ins[-1]
-        D = ca.jacobian(defect, th)
-        if trs.scheme.is_hs:  # inputs Xa, Xb, Fa, Fb, h, Ym, theta
-            Fta, Ftb = ca.SX.sym("Fta", nx, nth), ca.SX.sym("Ftb", nx, nth)
-            D = D + ca.mtimes(ca.jacobian(defect, ins[2]), Fta) + ca.mtimes(ca.jacobian(defect, ins[3]), Ftb)
-            ins = ins[:4] + [Fta, Ftb] + ins[4:]
-        fn = _FUN[trs] = ca.Function("interval_dtheta", ins, [ca.densify(D)])
+        fn = _FUN[trs] = trs.scheme.bvp_theta_function(iv, ins, defect, ca.jacobian(defect, th), nx, nth)
     return fn
 
 

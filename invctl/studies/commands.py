@@ -60,7 +60,7 @@ def _at_least(k):
 
 
 def _scheme(v):
-    from ..inversion.collocation import get_scheme
+    from ..inversion.schemes import get_scheme
 
     try:
         get_scheme(v)
@@ -373,10 +373,10 @@ def _check_inversion(scene: Scene, params, o, command: str = "invert") -> None:
     N = o.get("N")
     if N is None or N <= 2000:
         return
-    from ..inversion.collocation import get_scheme
+    from ..inversion.schemes import get_scheme
 
     sch = get_scheme(o.get("scheme") or "hermite-simpson")
-    stages = 2 if sch.is_hs else sch.degree + 1
+    stages = sch.stages
     model = scene.model(params)
     nx = 2 * model.n + model.ell + model.p + model.m
     per = _INVERSION_BYTES[0] * (stages * nx) ** _INVERSION_BYTES[1]

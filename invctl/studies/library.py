@@ -575,7 +575,7 @@ def check_library_size(scene, params, counts, N, scheme, slots: int = 1, *, nc: 
     ResourceLimitError
         Naming ``--grid`` (and the number of points that fit) or ``--N``.
     """
-    from ..inversion.collocation import get_scheme
+    from ..inversion.schemes import get_scheme
     from .commands import _check_inversion, check_budget
 
     counts = [int(c) for c in counts]
@@ -591,7 +591,7 @@ def check_library_size(scene, params, counts, N, scheme, slots: int = 1, *, nc: 
     nx = 2 * sizes["n"] + sizes["l"] + sizes["p"] + sizes["m"]
     if nc is None:
         sch = get_scheme(scheme or "hermite-simpson")
-        nc = 0 if sch.is_hs else n_int * sch.degree
+        nc = sch.n_col(n_int)
     per_b = 16.0 * ((2 * nx + 1) * (n_int + 1) + nx * nc) + _POINT_BYTES
     per_s = _POINT_SECONDS_PER_INTERVAL * n_int / max(1, slots)
     shown = " x ".join(str(c) for c in counts) + f" = {P}" if len(counts) > 1 else str(P)
