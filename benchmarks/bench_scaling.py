@@ -53,7 +53,7 @@ NS = (2, 4, 8, 16, 32)
 
 def worker(n: int, coordinates: str = "angles", pivot_order: int | None = None) -> dict:
     from invctl.inversion import forward_check
-    from invctl.inversion.solve import servo_model
+    from invctl.inversion import servo_model
     from invctl.scenes import load_scene
     from invctl.studies.tracking import invert_tracking, run_controller, setup_tracking
 

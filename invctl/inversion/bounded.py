@@ -57,9 +57,7 @@ INFEASIBLE = ("Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeas
 
 
 def constraint_points(inv, servo, reference, theta):
-    """States and rates of an (exact) inverse where the bounded problem imposes its bounds:
-    ``(t_states, X, t_rates, U')`` (mesh and collocation points / midpoints; rates where
-    ``F`` is evaluated)."""
+    """``(t_states, X, t_rates, U')`` where the bounded problem imposes its bounds (:meth:`Scheme.bound_points`)."""
     return inv._scheme.bound_points(inv, servo.rhs, lambda t: servo.reference_samples(reference, t), theta,
                                     servo.layout.blocks["u"])
 

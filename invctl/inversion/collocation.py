@@ -84,7 +84,6 @@ class Transcription:
         self.f = self.objective * ca.sum2(energy) if self.objective else ca.MX(0)
         self._x, self._p = x, p
         self._solvers: dict = {}
-        self._newton = None
         self.build_s = time.perf_counter() - t_build
 
     def upgradable(self) -> bool:
@@ -341,13 +340,3 @@ class Transcription:
         if k not in cache:
             cache[k] = self._c(self.servo.rhs_jac).map(k)
         return cache[k]
-
-    def newton_functions(self):
-        """``(x, p) -> g`` and ``(x, p) -> dg/dx`` (sparse), for the Newton backend."""
-        if self._newton is None:
-            if not self.square:
-                raise ValueError("the Newton backend needs a square system (as many conditions as unknowns)")
-            gfun = ca.Function("servo_g", [self._x, self._p], [self.g])
-            jfun = ca.Function("servo_jac", [self._x, self._p], [ca.jacobian(self.g, self._x)])
-            self._newton = (gfun, jfun)
-        return self._newton

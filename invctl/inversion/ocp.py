@@ -58,8 +58,46 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from .assembly import _all_cached, _assembly, _block_triplets, _compile
 from .schemes import Scheme
+
+
+def _assembly(rows, cols, shape, *, summed: bool = False):
+    """Sparsity of the triplets ``(rows, cols)`` and the sparse 0/1 matrix mapping values in
+    triplet order to its nonzeros in CSC order (duplicates are added when ``summed``)."""
+    rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+    key = cols * shape[0] + rows
+    uniq = np.unique(key)
+    if not summed and uniq.size != key.size:
+        raise RuntimeError("duplicate entries in a Jacobian pattern")
+    pos = np.searchsorted(uniq, key)
+    ucols, urows = uniq // shape[0], uniq % shape[0]
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(ucols, minlength=shape[1]))])
+    sparsity = ca.Sparsity(int(shape[0]), int(shape[1]), indptr.astype(np.int64).tolist(),
+                           urows.astype(np.int64).tolist())
+    S = ca.DM(ca.Sparsity.triplet(int(uniq.size), int(key.size), pos.tolist(), list(range(key.size))), 1.0)
+    return sparsity, S
+
+
+def _block_triplets(nrow: int, index: np.ndarray, row0: int):
+    """Global (row, col) of the vec of a mapped dense block output ``(nrow x nz)`` per repetition
+    (``index``: ``(count, nz)`` global columns; rows ``row0 + k nrow + i``), in vec order."""
+    count, nz = index.shape
+    k = np.repeat(np.arange(count), nz * nrow)
+    j = np.tile(np.repeat(np.arange(nz), nrow), count)
+    i = np.tile(np.arange(nrow), count * nz)
+    return row0 + k * nrow + i, index[k, j]
+
+
+def _all_cached(functions) -> bool:
+    from .compiled import is_cached
+
+    return all(is_cached(f) for f in functions)
+
+
+def _compile(fn):
+    from .compiled import compile_cached
+
+    return compile_cached(fn)
 
 
 def slack_scale(servo, duration: float) -> float:
@@ -100,16 +138,10 @@ class PathRow:
     point: int
 
 
-#: the names of OCPTranscription.__init__ the structured Hessian (ocp_hessian.py) reads
+#: the names of OCPTranscription.__init__ the structured Hessian (structured_hessian) reads
 _HESSIAN_CONTEXT = (
     "zeta", "pin", "G", "n_def", "n_ip", "npr", "n_el", "flat_pts", "pts_keys", "x", "p",
 )
-
-
-def _structured_hessian(tr):
-    from .ocp_hessian import structured_hessian
-
-    return structured_hessian(tr)
 
 
 class OCPTranscription:
@@ -354,7 +386,7 @@ class OCPTranscription:
         pts_keys, flat_pts = list(pts_map), list(pts_map.values())
         ctx.__dict__.update({k: v for k, v in locals().items() if k in _HESSIAN_CONTEXT})
         self._hx = ctx
-        self._build_exact_hessian = lambda: _structured_hessian(self)
+        self._build_exact_hessian = lambda: structured_hessian(self)
         self.g = self._gfun(x, p)
         self.f = f
         self._plain = (f, g)  # the same NLP without custom derivatives (hessian="exact")
@@ -509,3 +541,63 @@ class OCPTranscription:
         tau = tau_ref if tau is None else tau  # samples given for the actual duration: no retiming
         args = [zeta, Ysamples] + ([tau] if self.free_time else []) + [theta, c, np.ones(self.m), np.ones(3), tau_ref]
         return np.array(self._functions["point"].map(k)(*args))
+
+
+# ---------------------------------------------------------------- the exact Hessian, structured
+def structured_hessian(tr) -> ca.Function:
+    """``(x, p, lam_f, lam_g) -> triu(Hessian of the Lagrangian)`` of ``tr`` (``hessian="exact"``).
+
+    Every point (mesh point, midpoint, collocation point) contributes ``G = (F, r)``; per interval the
+    constraint rows and residuals are low-degree formulas in the point outputs, the local states and
+    ``h(tau)``.  The Hessian is the sum of, per point, the Hessian of ``w . G`` in ``(zeta, tau)`` with ``w``
+    the *total* adjoint weight of the point's outputs (through the Hermite-Simpson midpoint state too), and,
+    per interval, the exact second-order expansion of the interval formulas with the point outputs replaced
+    by their first-order models (``G + J dzeta + G_tau dtau``) plus the midpoint's point Hessian pulled back
+    through ``dzeta_m / dz`` (:meth:`~invctl.inversion.schemes.Scheme.hessian_interval`).  Checked against
+    CasADi's AD of the whole graph in ``tests/test_ocp.py`` (relative 1e-12)."""
+    c = tr._hx
+    nG, zeta, tau, G, n_def, n_ip, h, dh, N = c.nG, c.zeta, c.tau, c.G, c.n_def, c.n_ip, c.h, c.dh, c.N
+    npr, n_el, x, p, ip, common, scheme = c.npr, c.n_el, c.x, c.p, c.ip, c.common, tr.scheme
+    wv = ca.SX.sym("w", nG)
+    pvars = ca.vertcat(zeta, tau) if tau is not None else zeta
+    npv = int(pvars.numel())
+    pt_hess = ca.Function("ocp_point_hess", c.pin + [wv], [ca.densify(ca.hessian(ca.dot(wv, G), pvars)[0])])
+    lam_s, mu_s, fs = ca.SX.sym("lam", n_def), ca.SX.sym("mu", n_ip), ca.SX.sym("fs")
+    hd_sym = ca.SX.sym("dt") if tau is not None else ca.SX(0)
+    h_d = h + (dh * hd_sym if tau is not None else 0)
+    iv_w, iv_h = scheme.hessian_interval(c, lam_s, mu_s, fs, hd_sym, h_d, npv)
+    hfuns = [pt_hess, iv_w, iv_h]
+    if tr._compile_request is True or (tr._compile_request == "auto" and _all_cached(hfuns)):
+        pt_hess, iv_w, iv_h = (_compile(fn) for fn in hfuns)
+    # ---- MX assembly
+    xs2, ps2 = ca.MX.sym("x", tr.nX), ca.MX.sym("p", tr.np)
+    lf, lg = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", tr.ng)
+    Pm = {k: ps2[sl] for k, sl in tr._p_slices.items()}
+    fsv = lf * (Pm["eps"] if tr.elastic else Pm["fscale"])
+    base_p = tr.n_defect + tr.n_bc
+    lam_def = ca.reshape(lg[:N * n_def], n_def, N)
+
+    def path_mult(a, n_):  # multipliers of path rows a..a+n_ (both copies when elastic)
+        out = lg[base_p + a:base_p + a + n_]
+        return out + lg[base_p + npr + a:base_p + npr + a + n_] if tr.elastic else out
+
+    mu_ip = ca.reshape(path_mult(n_el, N * n_ip), n_ip, N) if n_ip else ca.MX(0, N)
+    outs = dict(zip(c.pts_keys, ca.substitute(c.flat_pts, [x, p], [xs2, ps2])))
+    ip2 = ca.substitute(ip, [p, x], [ps2, xs2]) if ip else []
+    com2 = ca.substitute(common, [p, x], [ps2, xs2])
+    trip_h = scheme.hessian_blocks(c, outs, iv_w, iv_h, pt_hess, lam_def, mu_ip, fsv, ip2, com2, path_mult, tr.i_tau)
+    rr, cc, vv = [], [], []
+    for index, blk in trip_h:
+        count, nzl = index.shape
+        r_, c_ = _block_triplets(nzl, index, 0)  # rows here are local: recompute global rows
+        k = np.repeat(np.arange(count), nzl * nzl)
+        i_loc = np.tile(np.arange(nzl), count * nzl)
+        grow = index[k, i_loc]
+        keep = grow <= c_
+        rr.append(grow[keep])
+        cc.append(c_[keep])
+        vv.append(ca.vec(blk)[np.flatnonzero(keep).tolist()])
+    sp_h, S_h = _assembly(np.concatenate(rr), np.concatenate(cc), (tr.nX, tr.nX), summed=True)
+    H = ca.MX(sp_h, ca.mtimes(S_h, ca.vertcat(*vv)))
+    return ca.Function("structured_hess_lag", [xs2, ps2, lf, lg], [H], ["x", "p", "lam_f", "lam_g"],
+                       ["triu_hess_gamma_x_x"])

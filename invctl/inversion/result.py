@@ -118,33 +118,16 @@ class Inverse(Trajectory):
                     if abs(z.imag) < 1e-9 and 0 < z.real < 1]
         return np.array(out, float)
 
-    def _block(self, block, t):
-        return self.X(t)[self._slice(block)]
+    def _curve(self, block: str) -> Curve:
+        return Curve(self.X_mesh[self._slice(block)], lambda t: self.X(t)[self._slice(block)])
 
-    @property
-    def q(self) -> Curve:
-        """Coordinates ``q(t)``: shape ``(n, len(t))`` (the mesh values; call it at any times)."""
-        return Curve(self.X_mesh[self._slice("q")], lambda t: self._block("q", t))
-
-    @property
-    def v(self) -> Curve:
-        """Velocities ``v(t)``: shape ``(n, len(t))`` (the mesh values; call it at any times)."""
-        return Curve(self.X_mesh[self._slice("v")], lambda t: self._block("v", t))
-
-    @property
-    def lam(self) -> Curve:
-        """Holonomic multipliers ``lam(t)``: shape ``(l, len(t))`` (the mesh values; call it at any times)."""
-        return Curve(self.X_mesh[self._slice("lam")], lambda t: self._block("lam", t))
-
-    @property
-    def mu(self) -> Curve:
-        """Non-holonomic multipliers ``mu(t)``: shape ``(p, len(t))`` (the mesh values; call it at any times)."""
-        return Curve(self.X_mesh[self._slice("mu")], lambda t: self._block("mu", t))
-
-    @property
-    def u(self) -> Curve:
-        """The non-causal feedforward ``u_ff(t)`` (with pre-/post-actuation): ``(m, len(t))`` (the mesh values; call it at any times)."""
-        return Curve(self.X_mesh[self._slice("u")], lambda t: self._block("u", t))
+    q = property(lambda self: self._curve("q"), doc="Coordinates ``q(t)``: shape ``(n, len(t))`` (the mesh values; "
+                 "call it at any times).")
+    v = property(lambda self: self._curve("v"), doc="Velocities ``v(t)``: shape ``(n, len(t))``.")
+    lam = property(lambda self: self._curve("lam"), doc="Holonomic multipliers ``lam(t)``: shape ``(l, len(t))``.")
+    mu = property(lambda self: self._curve("mu"), doc="Non-holonomic multipliers ``mu(t)``: shape ``(p, len(t))``.")
+    u = property(lambda self: self._curve("u"), doc="The non-causal feedforward ``u_ff(t)`` (with pre-/post-actuation): "
+                 "``(m, len(t))``.")
 
     def u_causal(self, t) -> np.ndarray:
         """The causal feedforward of 003 Sect. 6: zero before ``t0``, ``u_bvp(t)`` after."""

@@ -15,6 +15,7 @@ derivatives and bound points of :class:`~invctl.inversion.ocp.OCPTranscription` 
 from __future__ import annotations
 
 import re
+from typing import Any, Callable
 
 import casadi as ca
 import numpy as np
@@ -48,51 +49,50 @@ class Scheme:
     rates_between_nodes: bool
     buffered: bool
 
-    def __eq__(self, other):
-        return isinstance(other, Scheme) and other.name == self.name
-
-    def __hash__(self):
-        return hash(self.name)
-
     def __repr__(self):
         return f"{type(self).__name__}({self.name!r})"
-
-    # ------------------------------------------------------------ sizes and times
-    def n_col(self, N: int) -> int:
-        """Number of collocation states ``X_col`` (columns) of an ``N``-interval mesh."""
-        raise NotImplementedError
-
-    def n_samples(self, N: int) -> int:
-        """Number of reference samples (points where ``F`` is evaluated)."""
-        raise NotImplementedError
-
-    def sample_times(self, t_mesh) -> np.ndarray:
-        """Times of the reference samples, in the order of ``Y`` (and of the slacks)."""
-        raise NotImplementedError
-
-    def collocation_times(self, t_mesh) -> np.ndarray:
-        """Times of the collocation states ``X_col``."""
-        raise NotImplementedError
-
-    def interior_samples(self, N: int) -> slice:
-        """The samples of :meth:`sample_times` strictly inside the intervals."""
-        raise NotImplementedError
 
     def mesh_slopes(self, X_mesh, slopes) -> np.ndarray:
         """``dX_mesh`` of an :class:`~invctl.inversion.result.Inverse` (``slopes()``: ``F`` at the mesh, called
         only by a scheme whose polynomial needs it)."""
         return np.zeros_like(X_mesh)
 
-    # ------------------------------------------------------------ the polynomial between the nodes
-    def evaluate(self, X_mesh, dX_mesh, X_col, k, h, s, derivative: bool = False) -> np.ndarray:
-        """The solution polynomial of intervals ``k`` (lengths ``h``) at fractions ``s`` (its time derivative
-        with ``derivative``)."""
-        raise NotImplementedError
-
-    def coefficients(self, X_mesh, dX_mesh, X_col, row: int, h) -> np.ndarray:
-        """``(poly_degree + 1, N)``: the polynomial of ``X[row]`` in ``s = (t - t_k) / h`` on every interval,
-        highest power first."""
-        raise NotImplementedError
+    # methods of the subclasses -- sizes and times: collocation states ``X_col`` (columns) and reference samples
+    # (where ``F`` is evaluated) of an N-interval mesh, their times (samples in the order of ``Y`` and of the
+    # slacks), the samples strictly inside the intervals
+    n_col: Callable[[int], int]
+    n_samples: Callable[[int], int]
+    sample_times: Callable[..., np.ndarray]
+    collocation_times: Callable[..., np.ndarray]
+    interior_samples: Callable[[int], slice]
+    # the polynomial between the nodes: ``evaluate(X_mesh, dX_mesh, X_col, k, h, s, derivative=False)`` on the
+    # intervals ``k`` (lengths ``h``) at fractions ``s``; ``coefficients(X_mesh, dX_mesh, X_col, row, h)``:
+    # ``(poly_degree + 1, N)`` in ``s = (t - t_k) / h``, highest power first
+    evaluate: Callable[..., np.ndarray]
+    coefficients: Callable[..., np.ndarray]
+    # the square transcription's pieces (collocation.py) and their parameter derivatives (sensitivity.py)
+    bvp_interval: Callable[..., Any]
+    bvp_defects: Callable[..., Any]
+    bvp_blocks: Callable[..., Any]
+    bvp_jacobian_values: Callable[..., list]
+    bvp_pattern: Callable[..., tuple]
+    bvp_residual: Callable[..., tuple]
+    bvp_theta_function: Callable[..., Any]
+    bvp_theta_jacobian: Callable[..., tuple]
+    slope_sensitivities: Callable[..., np.ndarray]
+    # the bounded problems' pieces (ocp.py, bounded.py)
+    bound_points: Callable[..., tuple]
+    path_points: Callable[..., Any]
+    n_points: Callable[[int, int], int]
+    default_fractions: Callable[[int, int], list]
+    point_slots: Callable[[], int]
+    rate_extrema: Callable[..., None]
+    ocp_interval: Callable[..., tuple]
+    ocp_graph: Callable[..., tuple]
+    ocp_interval_rows: Callable[..., list]
+    ocp_mesh_rates: Callable[..., tuple]
+    hessian_interval: Callable[..., tuple]
+    hessian_blocks: Callable[..., list]
 
 
 class HermiteSimpson(Scheme):
@@ -128,8 +128,7 @@ class HermiteSimpson(Scheme):
             s2 = s * s
             return ((X_mesh[:, k + 1] - X_mesh[:, k]) * (6 * s - 6 * s2) / h
                     + dX_mesh[:, k] * (3 * s2 - 4 * s + 1) + dX_mesh[:, k + 1] * (3 * s2 - 2 * s))
-        s2, s3 = s * s, s * s * s
-        h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
+        h00, h10, h01, h11 = self._hermite(s)
         return (X_mesh[:, k] * h00 + dX_mesh[:, k] * (h10 * h)
                 + X_mesh[:, k + 1] * h01 + dX_mesh[:, k + 1] * (h11 * h))
 
@@ -267,8 +266,7 @@ class HermiteSimpson(Scheme):
         return (np.concatenate([tm, tmid]), np.hstack([inv.X_mesh, Xm]), np.concatenate([tm, tmid]),
                 np.hstack([inv.dX_mesh[ub], Fm[ub]]))
 
-
-    # ------------------------------------------------------------ the OCP's pieces (ocp.py, ocp_hessian.py)
+    # ------------------------------------------------------------ the OCP's pieces (ocp.py)
     @staticmethod
     def _hermite(s):
         """The cubic Hermite basis ``h00, h10, h01, h11`` at ``s`` (numbers, arrays or SX)."""
@@ -276,11 +274,8 @@ class HermiteSimpson(Scheme):
         return 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
 
     def path_points(self, Xa, Xb, Fa, Fb, Fm, h, sp, bnd, rate_rows, hull: bool):
-        """The interval's bound rows (:mod:`~invctl.inversion.ocp` module doc).  ``hull``: the interior Bezier
-        control points of the interpolating cubics of ``X[bnd]`` (``X_k + h F_k / 3``, ``X_{k+1} - h F_{k+1} / 3``)
-        and the middle Bernstein coefficient ``2 F_m - (F_k + F_{k+1}) / 2`` of the quadratic derivatives of
-        ``X[rate_rows]``; otherwise the cubics at the interval fractions ``sp[:nb]`` and ``sp[nb:2 nb]``
-        and the derivatives at ``sp[2 nb:]``."""
+        """The interval's bound rows (:mod:`~invctl.inversion.ocp` module doc): Bezier control points (``hull``)
+        or the cubics at the fractions ``sp[:nb]``, ``sp[nb:2 nb]`` and their derivatives at ``sp[2 nb:]``."""
         nb, out = len(bnd), []
         fa, fb, b1 = Fa[rate_rows], Fb[rate_rows], 2 * Fm[rate_rows] - (Fa[rate_rows] + Fb[rate_rows]) / 2
         if hull:
@@ -317,9 +312,8 @@ class HermiteSimpson(Scheme):
             pts[2 * nb + r] = np.where((s > 0) & (s < 1), s, 0.5)
 
     def ocp_interval(self, c):
-        """One interval of :class:`~invctl.inversion.ocp.OCPTranscription`: the rows ``(defect, residual, path)``
-        as SX, their function, its Jacobian by the chain rule through the midpoint, the global columns of its
-        local variables, and the midpoint state function (``c``: the transcription's building blocks)."""
+        """One interval of :class:`~invctl.inversion.ocp.OCPTranscription` (``c``: its building blocks): the rows
+        ``(defect, residual, path)``, their function and Jacobian, the columns of its variables, a local function."""
         nx, nG, nz_pt, h, dh, tau, sp = c.nx, c.nG, c.nz_pt, c.h, c.dh, c.tau, c.sp
         bnd, rate_rows, hull, lin, cols, N = c.bnd, c.rate_rows, c.hull, c.lin, c.cols, c.N
         Xa, Xb, Xm = ca.SX.sym("Xa", nx), ca.SX.sym("Xb", nx), ca.SX.sym("Xm", nx)
@@ -398,9 +392,7 @@ class HermiteSimpson(Scheme):
         return ([ca.vec(Gn[rate_rows, :])], [("rate", j, "mesh", k) for k in range(N + 1) for j in rated], pj)
 
     def hessian_interval(self, c, lam_s, mu_s, fs, hd_sym, h_d, npv):
-        """``(weights, Hessian)`` functions of one interval for :mod:`~invctl.inversion.ocp_hessian`: the total
-        adjoint weights of the point outputs, and the second-order expansion of the interval formulas plus the
-        midpoint's point Hessian pulled back through ``dzeta_m / dz``."""
+        """``(weights, Hessian)`` functions of one interval for :func:`~invctl.inversion.ocp.structured_hessian`."""
         nx, nG, nz_pt, h, tau, lin, ipars = c.nx, c.nG, c.nz_pt, c.h, c.tau, c.lin, c.ipars
 
         def hull(Xa, Xb, Fa, Fb, Fm, hh):  # the interval's path rows
@@ -544,13 +536,14 @@ class Collocation(Scheme):
         return ca.Function("coll_block", [Js, hs, cs], [(cs * ca.DM.eye(nx) - hs * Js).T])
 
     def _blocks(self):
-        """``(i, j)`` of the dense blocks of one interval: row block ``i`` (``d``: continuity), column
-        block ``j`` (0: ``X_k``, 1..d: ``X_col``, d+1: ``X_{k+1}``)."""
-        d = self.degree
-        return [(i, j) for i in range(d + 1) for j in range(d + 2) if not (j == d + 1 and i < d)]
+        """``(i, j, c)`` of the dense blocks ``c I`` (``- h J`` on the diagonal ``j = i + 1``) of one interval: row
+        block ``i`` (``d``: continuity), column block ``j`` (0: ``X_k``, 1..d: ``X_col``, d+1: ``X_{k+1}``)."""
+        d, C, D = self.degree, self.C, self.D
+        return [(i, j, C[j, i] if i < d else 1.0 if j == d + 1 else -D[j])
+                for i in range(d + 1) for j in range(d + 2) if not (j == d + 1 and i < d)]
 
     def bvp_jacobian_values(self, tr, x, Xmesh, h, Y, theta, rj):
-        nx, N, d, C, D = tr.nx, tr.N, self.degree, self.C, self.D
+        nx, N, d, C = tr.nx, tr.N, self.degree, self.C
         Xcol = ca.reshape(x[nx * (N + 1):], nx, tr.n_col)
         _F, JF = rj.map(d * N)(Xcol, Y, theta)
         blk = tr._c(tr.block_function())
@@ -558,16 +551,11 @@ class Collocation(Scheme):
         crep = ca.DM(np.tile([C[i + 1, i] for i in range(d)], N)).T
         Bt = blk.map(d * N)(JF, hrep, crep)
         vals = []
-        for i, j in self._blocks():
+        for i, j, c in self._blocks():
             if i < d and j - 1 == i:
-                cols = [c for k in range(N) for c in range((k * d + i) * nx, (k * d + i + 1) * nx)]
-                vals.append(ca.vec(Bt[:, cols]))
-                continue
-            if i < d:
-                M = C[j, i] * np.eye(nx)
+                vals.append(ca.vec(Bt[:, [q for k in range(N) for q in range((k * d + i) * nx, (k * d + i + 1) * nx)]]))
             else:
-                M = np.eye(nx) if j == d + 1 else -D[j] * np.eye(nx)
-            vals.append(ca.DM(np.tile(M.ravel(), N)))
+                vals.append(ca.DM(np.tile((c * np.eye(nx)).ravel(), N)))
         return vals
 
     def bvp_pattern(self, tr):
@@ -576,7 +564,7 @@ class Collocation(Scheme):
         base = k * nx * (d + 1)
         col0 = nx * (N + 1)
         rows, cols = [], []
-        for i, j in self._blocks():
+        for i, j, _c in self._blocks():
             rb = base[:, None, None] + i * nx + r[None, :, None]
             if j == 0:
                 cb = k[:, None, None] * nx + r[None, None, :]
@@ -603,11 +591,8 @@ class Collocation(Scheme):
         if not jacobian:
             return g_int, None
         I, hh, vals = np.eye(nx), h[:, None, None], []  # noqa: E741
-        for i, j in self._blocks():
-            if i < d:
-                blk = C[j, i] * I - (hh * JF[:, i] if j - 1 == i else 0.0)
-            else:
-                blk = I if j == d + 1 else -D[j] * I
+        for i, j, c in self._blocks():
+            blk = c * I - (hh * JF[:, i] if i < d and j - 1 == i else 0.0)
             vals.append(np.ascontiguousarray(np.broadcast_to(blk, (N, nx, nx))).ravel())
         return g_int, vals
 
@@ -625,20 +610,12 @@ class Collocation(Scheme):
         Fc = np.array(rhs.map(tc.size)(inv.X_col, samples(tc), theta))
         return np.concatenate([tm, tc]), np.hstack([inv.X_mesh, inv.X_col]), tc, Fc[ub]
 
-
-    # ------------------------------------------------------------ the OCP's pieces (ocp.py, ocp_hessian.py)
+    # ------------------------------------------------------------ the OCP's pieces (ocp.py)
     def quadrature_weights(self) -> np.ndarray:
-        """Weights of the collocation points alone: ``int_0^1 l_r(s) ds`` for the Lagrange basis on
-        ``tau`` (Gauss-Legendre: exact to degree ``2d - 1``; Radau IIA: ``2d - 2``)."""
-        tau = self.tau
-        w = np.zeros(tau.size)
-        for r in range(tau.size):
-            c = np.poly1d([1.0])
-            for j in range(tau.size):
-                if j != r:
-                    c *= np.poly1d([1.0, -tau[j]]) / (tau[r] - tau[j])
-            w[r] = np.polyint(c)(1.0)
-        return w
+        """Weights of the collocation points alone, ``int_0^1 l_r(s) ds`` for the Lagrange basis on ``tau``: the
+        interpolatory rule, exact for ``s^k``, ``k < d`` (Gauss-Legendre: to degree ``2d - 1``; Radau IIA: ``2d - 2``)."""
+        d = self.degree
+        return np.linalg.solve(np.vander(self.tau, d, increasing=True).T, 1.0 / np.arange(1, d + 1))
 
     def bernstein_interior(self) -> np.ndarray:
         """``(d+1, d-1)``: the values of a degree-``d`` polynomial at ``0`` and the collocation points
@@ -652,9 +629,8 @@ class Collocation(Scheme):
         return np.linalg.inv(A).T[:, 1:d]
 
     def path_points(self, Xall, sp, bnd, interior):
-        """The interval's bound rows: ``X[bnd]`` of the interval's polynomial (values ``Xall`` at 0 and the
-        collocation points) at the fractions ``sp[q nb:(q + 1) nb]``, ``q < d - 1`` ("points"), its interior
-        Bernstein coefficients ("hull"), or none."""
+        """The interval's bound rows: ``X[bnd]`` of its polynomial (values ``Xall`` at 0 and ``tau``) at the fractions
+        ``sp[q nb:(q + 1) nb]``, ``q < d - 1`` ("points"), its interior Bernstein coefficients ("hull"), or none."""
         if interior == "hull":
             return ca.vec(ca.mtimes(Xall[bnd, :], ca.DM(self.bernstein_interior())))
         nb, out = len(bnd), []

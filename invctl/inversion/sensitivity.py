@@ -31,25 +31,17 @@ import numpy as np
 import scipy.sparse.linalg as spl
 
 from ..errors import BoundaryConditionError, InversionFailed, ParameterError
-from .boundary import EquilibriumSolver, Selection, dichotomy, explain_dichotomy
+from .boundary import Selection, dichotomy, explain_dichotomy
 from .schemes import get_scheme
 from .result import Inverse
-from .cache import model_key, servo_model, transcription
+from .backends import _newton
+from .cache import equilibrium_solver, model_key, servo_model, transcription
 from .guess import quasi_static_guess
+from .square import make_inverse
 
 __all__ = ["ParametricInverse", "Sensitivities", "mapped_mesh", "parameter_chain"]
 
-_EQ: dict = {}
 _FUN: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
-def _equilibria(model) -> EquilibriumSolver:
-    key = model_key(model)
-    if key not in _EQ:
-        if len(_EQ) >= 16:
-            _EQ.pop(next(iter(_EQ)))
-        _EQ[key] = EquilibriumSolver(model)
-    return _EQ[key]
 
 
 def _selection(servo, text: str) -> Selection:
@@ -179,52 +171,6 @@ def _factor(tr, J):
     return spl.splu(J.tocsc(), permc_spec="COLAMD")
 
 
-def _newton(tr, x0, p, *, lu=None, tol: float, max_iter: int):
-    """Newton's method on ``g(x, p) = 0`` with Jacobian reuse: a kept factorization (e.g. of a
-    neighbouring problem) is used while it contracts the residual by 4 per step, refreshed
-    otherwise; a refreshed step that does not decrease the residual is halved."""
-    residual, residual_and_jacobian = tr.evaluators()
-    x = np.array(x0, float)
-    g = residual(x, p)
-    nrm = np.linalg.norm(g)
-    fresh, n_fact, status, it = False, 0, "Maximum_Iterations_Exceeded", 0
-    for it in range(max_iter + 1):
-        if np.max(np.abs(g)) < tol:
-            status = "Solve_Succeeded"
-            break
-        if it == max_iter or not np.isfinite(nrm):
-            status = status if np.isfinite(nrm) else "Invalid_Number_Detected"
-            break
-        if lu is not None and not fresh:
-            dx = -lu.solve(g)
-            g2 = residual(x + dx, p)
-            n2 = np.linalg.norm(g2)
-            if np.isfinite(n2) and (n2 <= 0.25 * nrm or np.max(np.abs(g2)) < tol):
-                x, g, nrm = x + dx, g2, n2
-                continue
-        try:
-            lu = _factor(tr, residual_and_jacobian(x, p)[1])
-        except RuntimeError:
-            status = "Singular_Jacobian"
-            break
-        n_fact += 1
-        dx = -lu.solve(g)
-        s = 1.0
-        while s >= 1e-6:
-            g2 = residual(x + s * dx, p)
-            n2 = np.linalg.norm(g2)
-            if np.isfinite(n2) and (n2 <= (1 - 1e-4 * s) * nrm or np.max(np.abs(g2)) < tol):
-                break
-            s *= 0.5
-        if s < 1e-6:
-            status = "Line_Search_Failed"
-            break
-        x, g, nrm = x + s * dx, g2, n2
-        fresh = s < 1.0
-    return x, {"status": status, "success": status == "Solve_Succeeded", "iterations": it,
-               "factorizations": n_fact, "max_constraint_violation": float(np.max(np.abs(g)))}, lu
-
-
 class ParametricInverse:
     """A solved stable inverse with its collocation system (see the module doc).
 
@@ -257,7 +203,7 @@ class ParametricInverse:
     @classmethod
     def solve(cls, model, reference, **invert_options) -> "ParametricInverse":
         """:func:`~invctl.inversion.invert` with ``invert_options``, kept with its collocation system."""
-        from .solve import invert
+        from .solver import invert
 
         return cls.from_inverse(model, reference, invert(model, reference, **invert_options))
 
@@ -286,7 +232,7 @@ class ParametricInverse:
                   p=np.zeros(0), E0=inverse.X(inverse.T0)[:, 0], Ef=inverse.X(inverse.Tf)[:, 0])
         tr = obj.transcription()
         Y, yends = obj._samples(reference, obj.t_mesh)
-        eq, th = _equilibria(model), model.theta_values
+        eq, th = equilibrium_solver(model), model.theta_values
         obj.E0 = eq.solve(yends[:, 0], guess_w=obj._w(obj.E0), theta=th, where=f" at T0 = {inverse.T0}")[0]
         obj.Ef = eq.solve(yends[:, 1], guess_w=obj._w(obj.Ef), theta=th, where=f" at Tf = {inverse.Tf}")[0]
         obj.x = tr.pack(inverse.X_mesh, inverse.X_col)
@@ -360,7 +306,7 @@ class ParametricInverse:
         tr = self.transcription()
         t_mesh = self.mesh_for(reference)
         Y, yends = self._samples(reference, t_mesh)
-        eq, th, n = _equilibria(model), model.theta_values, model.n
+        eq, th, n = equilibrium_solver(model), model.theta_values, model.n
         g0, gf = guess if guess is not None else (self.E0, self.Ef)
         how = "given" if x0 is not None else ("continuation" if warm else "quasi-static")
         if not warm and x0 is None:
@@ -379,8 +325,9 @@ class ParametricInverse:
         Ef = eq.solve(yends[:, 1], guess_w=self._w(np.asarray(gf, float)), theta=th, where=f" at Tf = {t_mesh[-1]}")[0]
         modes = self._check_modes(servo, E0, Ef, yends, th) if check_modes else None
         p = tr.parameters(t_mesh, Y, th, E0, Ef)
-        x, info, self._lu = _newton(tr, self.x if x0 is None else x0, p, lu=self._lu,
-                                    tol=self.newton_tol if tol is None else tol, max_iter=max_iter)
+        x, info = _newton(tr, self.x if x0 is None else x0, p, lu=self._lu,
+                          tol=self.newton_tol if tol is None else tol, max_iter=max_iter)
+        self._lu = tr._lu if info["success"] else self._lu
         inv = self._make_inverse(servo, reference, tr, t_mesh, x, Y, th)
         res = self._position_residual(servo, tr, inv, Y, th)
         inv.diagnostics.update(info)
@@ -432,13 +379,9 @@ class ParametricInverse:
 
     def _make_inverse(self, servo, reference, tr, t_mesh, x, Y, th) -> Inverse:
         Xmesh, Xcol = tr.unpack(x)
-        N = t_mesh.size - 1
-        # the transcription's (possibly compiled) right-hand side at the mesh
-        rhs = tr._rhs_map(N + 1) if hasattr(tr, "_rhs_map") else servo.rhs.map(N + 1)
-        dX = self.scheme.mesh_slopes(Xmesh, lambda: rhs(Xmesh, Y[:, :N + 1], th))
-        L = servo.layout
-        return Inverse(self.scheme.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
-                       reference.t0, reference.tf, servo.names, {}, y_ref_fn=reference)
+        N = t_mesh.size - 1  # slopes: the transcription's (possibly compiled) right-hand side at the mesh
+        dX = self.scheme.mesh_slopes(Xmesh, lambda: tr._rhs_map(N + 1)(Xmesh, Y[:, :N + 1], th))
+        return make_inverse(self.model, reference, servo, self.scheme, t_mesh, Xmesh, Xcol, th, dX=dX)
 
     def _position_residual(self, servo, tr, inv, Y, th) -> float:
         """Largest position-level residual of (35) (``g = 0``, ``h = y_ref``) between the mesh points
