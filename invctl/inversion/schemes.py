@@ -57,17 +57,13 @@ class Scheme:
         only by a scheme whose polynomial needs it)."""
         return np.zeros_like(X_mesh)
 
-    # methods of the subclasses -- sizes and times: collocation states ``X_col`` (columns) and reference samples
-    # (where ``F`` is evaluated) of an N-interval mesh, their times (samples in the order of ``Y`` and of the
-    # slacks), the samples strictly inside the intervals
+    # methods of the subclasses (see HermiteSimpson, Collocation): sizes and times
     n_col: Callable[[int], int]
     n_samples: Callable[[int], int]
     sample_times: Callable[..., np.ndarray]
     collocation_times: Callable[..., np.ndarray]
     interior_samples: Callable[[int], slice]
-    # the polynomial between the nodes: ``evaluate(X_mesh, dX_mesh, X_col, k, h, s, derivative=False)`` on the
-    # intervals ``k`` (lengths ``h``) at fractions ``s``; ``coefficients(X_mesh, dX_mesh, X_col, row, h)``:
-    # ``(poly_degree + 1, N)`` in ``s = (t - t_k) / h``, highest power first
+    # the polynomial between the nodes (values, derivative; coefficients in s = (t - t_k) / h)
     evaluate: Callable[..., np.ndarray]
     coefficients: Callable[..., np.ndarray]
     # the square transcription's pieces (collocation.py) and their parameter derivatives (sensitivity.py)
@@ -124,6 +120,7 @@ class HermiteSimpson(Scheme):
         return np.asarray(slopes(), float)
 
     def evaluate(self, X_mesh, dX_mesh, X_col, k, h, s, derivative=False):
+        """The solution on the intervals ``k`` (lengths ``h``) at fractions ``s`` (time derivative with ``derivative``)."""
         if derivative:
             s2 = s * s
             return ((X_mesh[:, k + 1] - X_mesh[:, k]) * (6 * s - 6 * s2) / h

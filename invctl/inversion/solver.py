@@ -9,12 +9,7 @@ When the new parameters move the automatic horizon the same transcription runs o
 (``info["remapped"]``); a new boundary selection or ``N`` builds another one
 (``info["rebuilt"]``), never an error.
 
-:func:`invert` is a one-shot solver: one call resolves its options (:mod:`invctl.inversion.options`),
-sets the problem up (:mod:`invctl.inversion.problem`: selection, horizon, mesh, equilibria,
-quasi-static guess), solves -- the square system in :mod:`invctl.inversion.square`, bounded problems
-in :mod:`invctl.inversion.bounded` --, checks the residuals and returns an :class:`Inverse`.  With
-``tol`` it refines the mesh until the forward-check output error is below ``tol``
-(:mod:`invctl.inversion.refine`).
+:func:`invert` is a one-shot solver (its docstring lists the options).
 """
 from __future__ import annotations
 
