@@ -327,7 +327,7 @@ class ParametricInverse:
         p = tr.parameters(t_mesh, Y, th, E0, Ef)
         x, info = _newton(tr, self.x if x0 is None else x0, p, lu=self._lu,
                           tol=self.newton_tol if tol is None else tol, max_iter=max_iter)
-        self._lu = tr._lu if info["success"] else self._lu
+        self._lu = getattr(tr, "_lu", self._lu) if info["success"] else self._lu
         inv = self._make_inverse(servo, reference, tr, t_mesh, x, Y, th)
         res = self._position_residual(servo, tr, inv, Y, th)
         inv.diagnostics.update(info)
