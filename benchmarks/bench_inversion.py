@@ -31,7 +31,7 @@ import invctl_scenes.manipulator as scene
 from invctl.inversion import InversionSolver, forward_check, quasi_static_guess, resolve_selection, servo_model
 from invctl.studies.tracking import invert_tracking
 from invctl.inversion import compiled as _compiled_mod
-from invctl.inversion import solve as _solve_mod
+from invctl.inversion import cache as _cache_mod
 
 SMOKE = bool({"--smoke", "--quick"} & set(sys.argv[1:]))
 ROUNDS = 1 if SMOKE else 5
@@ -43,10 +43,10 @@ def rss_mb() -> float:
 
 
 def clear_caches():
-    _solve_mod._TRANS_CACHE.clear()
-    _solve_mod._SERVO_CACHE.clear()
-    _solve_mod._EQ_CACHE.clear()
-    _solve_mod._QS_LAST.clear()
+    _cache_mod._TRANS_CACHE.clear()
+    _cache_mod._SERVO_CACHE.clear()
+    _cache_mod._EQ_CACHE.clear()
+    _cache_mod._QS_LAST.clear()
     _compiled_mod._NAMES.clear()
 
 
@@ -234,7 +234,7 @@ def main():
         for _ in range(ROUNDS):
             b = invert_tracking(scene.SCENE, model, ref, N=100, ipopt_options=opts)
             colds.append(b.diagnostics["solve_s"])
-        tr = next(iter(_solve_mod._TRANS_CACHE.values()))
+        tr = next(iter(_cache_mod._TRANS_CACHE.values()))
         st = list(tr._solvers.values())[-1].stats()
         cb_cold = sum(v for k, v in st.items() if k.startswith("t_wall_nlp"))
         res, its = [], []
@@ -278,7 +278,7 @@ def main():
           f"{d['factorizations']} factorizations, compiled={d['compiled']}), error {err:.2e}")
     colds = []
     for _ in range(ROUNDS):  # solve only on the built problem, from the quasi-static guess, no factorization kept
-        for tr in _solve_mod._TRANS_CACHE.values():
+        for tr in _cache_mod._TRANS_CACHE.values():
             tr._lu = None
         colds.append(invert_tracking(scene.SCENE, model, ref, N=100, backend="newton").diagnostics["solve_s"])
     newton_cold = float(np.median(colds))

@@ -56,7 +56,7 @@ NS = (2, 4, 8, 16, 32)
 
 def worker(n: int, coordinates: str = "angles", pivot_order: int | None = None) -> dict:
     from invctl.inversion import forward_check
-    from invctl.inversion.solve import servo_model
+    from invctl.inversion import servo_model
     from invctl.scenes import load_scene
     from invctl.studies.tracking import invert_tracking, run_controller, setup_tracking
 
@@ -99,7 +99,7 @@ def robot_worker(name: str, dynamics: str = "newton-euler") -> dict:
     """Inversion of a scene built from a URDF (the automatic setup, like the arm's), its model formed by
     ``dynamics`` (Robot.model's default for this process), with the sizes of M, f and the servo Jacobian."""
     from invctl.inversion import forward_check
-    from invctl.inversion.solve import servo_model
+    from invctl.inversion import servo_model
     from invctl.model.urdf import Robot
     from invctl.scenes import load_scene
     from invctl.studies.tracking import invert_tracking, tracking_model

@@ -351,7 +351,7 @@ def test_cli_analyze_preset_paper_prints_the_printed_split(capsys):
 def inverse_modes(request):
     """The index-reduced inverse model linearized at the start and end equilibria of y_ref."""
     from invctl.inversion.boundary import tangent_dynamics
-    from invctl.inversion.solve import _equilibrium_solver, servo_model
+    from invctl.inversion.cache import equilibrium_solver as _equilibrium_solver, servo_model
 
     model = scene.build(**({} if request.param == "default" else scene.PRESETS["paper"]))
     ref = scene.reference(model)

@@ -169,7 +169,7 @@ def test_interior_rows_have_exact_derivatives(scheme, free_time, interior):
     import invctl_scenes.manipulator as mn
     from invctl.inversion.boundary import resolve_selection
     from invctl.inversion.cache import ocp_transcription
-    from invctl.inversion.collocation import get_scheme
+    from invctl.inversion.schemes import get_scheme
 
     md = mn.build()
     sv = servo_model(md)
@@ -202,7 +202,7 @@ def test_extremum_points_find_the_interior_extrema():
     # interval's cubic, checked against the sign changes of u' on a fine grid
     from invctl.inversion.boundary import resolve_selection
     from invctl.inversion.cache import ocp_transcription
-    from invctl.inversion.collocation import get_scheme
+    from invctl.inversion.schemes import get_scheme
 
     md = cp.build()
     sv = servo_model(md)

@@ -273,8 +273,8 @@ def test_paper_selection_is_rank_deficient_in_the_stabilized_formulation(model, 
     # 13 conditions belong at T0 and 1 at Tf. On the 2-dim tangent space of the invariant manifold at
     # Tf the paper's 4 end conditions have rank 2 (2 exactly redundant), on the growing mode rank 1.
     from invctl.inversion import dichotomy
-    from invctl.inversion.collocation import get_scheme
-    from invctl.inversion.solve import transcription
+    from invctl.inversion.schemes import get_scheme
+    from invctl.inversion.cache import transcription
 
     sv = servo_model(model)
     inv = invert_tracking(scene.SCENE, model, ref, N=40, backend="newton")
@@ -312,8 +312,8 @@ def test_compiled_evaluators_match_numpy_assembly(model, ref, inv160, scheme, N)
     # (mapped right-hand side + einsum), and the banded LU against SuperLU on that Jacobian
     import scipy.sparse.linalg as spl
 
-    from invctl.inversion.collocation import get_scheme
-    from invctl.inversion.solve import transcription
+    from invctl.inversion.schemes import get_scheme
+    from invctl.inversion.cache import transcription
 
     sv = servo_model(model)
     sel = resolve_selection(sv, scene.BOUNDARY["start"], scene.BOUNDARY["end"])
@@ -362,13 +362,14 @@ def test_banded_lu_random_and_singular():
 
 
 def test_newton_banded_and_superlu_agree(model, ref):
-    from invctl.inversion import solve as S
+    from invctl.inversion import cache
+    from invctl.inversion import square as S
 
     a = invert_tracking(scene.SCENE, model, ref, N=60, backend="newton")
     orig = S._newton
     try:
         S._newton = lambda *args, **kw: orig(*args, **dict(kw, banded=False))
-        for tr in S._TRANS_CACHE.values():
+        for tr in cache._TRANS_CACHE.values():
             tr._lu = None
         b = invert_tracking(scene.SCENE, model, ref, N=60, backend="newton")
     finally:
@@ -380,7 +381,8 @@ def test_newton_banded_and_superlu_agree(model, ref):
 def test_batched_equilibria_match_pointwise_continuation(model, ref):
     # the quasi-static guess solves every 4th point by continuation and the rest in one batched Newton;
     # the pointwise Gauss-Newton continuation over all points is the reference
-    from invctl.inversion.solve import _equilibrium_solver, quasi_static_guess
+    from invctl.inversion.cache import equilibrium_solver as _equilibrium_solver
+    from invctl.inversion.guess import quasi_static_guess
 
     times = np.linspace(-1.0, 2.0, 47)
     G = quasi_static_guess(model, ref, times, np.zeros(model.n))

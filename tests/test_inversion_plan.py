@@ -14,7 +14,7 @@ from invctl.errors import (BoundaryConditionError, HorizonTooLongError, ModelErr
                            SingularDecouplingError)
 from invctl.inversion import dichotomy, invert, resolve_selection, servo_model
 from invctl.inversion.plan import check_reference, choose_rows, graded_mesh, plan_inversion
-from invctl.inversion.solve import default_mesh
+from invctl.inversion.guess import default_mesh
 from invctl.model import Model, ParamSet
 from invctl.reference import Reference, poly9_timing_law
 from invctl.testing import assert_inverts

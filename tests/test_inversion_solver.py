@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 import invctl_scenes.manipulator as scene
-from invctl.errors import ParameterError
+from invctl.errors import InversionFailed, ParameterError
 from invctl.inversion import InversionSolver, invert
 from invctl.inversion import collocation as coll
+from invctl.results import Status
 
 #: Newton to 1e-12 in max |g|: two converged solves of the same problem agree to round-off
 KW = dict(N=60, backend="newton", newton_tol=1e-12, compiled=False)
@@ -93,6 +94,31 @@ def test_other_reference_that_moves_the_selection_rebuilds_and_says_so(model, re
     assert solver.info["remapped"] is None  # the same horizon (to round-off): not reported as moved
     fresh = invert(model, other, q_guess=q0, **KW)
     assert _rel(inv.X_mesh, fresh.X_mesh) < 1e-10 and np.allclose(inv.t_mesh, fresh.t_mesh, rtol=0, atol=1e-12)
+
+
+def test_other_model_and_mesh_reuse_the_transcription_and_equal_a_fresh_solve(model, ref, count_transcriptions):
+    hand = {k: scene.INVERSION[k] for k in ("T0", "Tf", "start", "end")}
+    solver = InversionSolver(model, ref, **hand, **KW)
+    solver.solve()
+    tr, n_built = solver.transcription, len(count_transcriptions)
+    mesh = hand["T0"] + (hand["Tf"] - hand["T0"]) * np.linspace(0.0, 1.0, KW["N"] + 1) ** 1.1  # graded, same N
+    other = model.with_params(c=5.5)
+    inv = solver.solve(model=other, mesh=mesh)
+    assert solver.transcription is tr and len(count_transcriptions) == n_built
+    assert np.array_equal(inv.t_mesh, mesh) and solver.info["rebuilt"] is None
+    fresh = invert(other, ref, mesh=mesh, **hand, **KW)
+    assert _rel(inv.X_mesh, fresh.X_mesh) < 1e-10
+
+
+def test_a_failed_solve_is_data_with_throw_false(model, ref):
+    hand = {k: scene.INVERSION[k] for k in ("T0", "Tf", "start", "end")}
+    solver = InversionSolver(model, ref, **hand, **dict(KW, max_iter=1))
+    with pytest.raises(InversionFailed) as err:
+        solver.solve()
+    inv = solver.solve(throw=False)
+    assert inv.status is Status.FAILED and inv.diagnostics["error"].startswith("InversionFailed: ")
+    assert np.array_equal(inv.X_mesh, err.value.partial.X_mesh)  # the same last iterate as the exception's
+    assert solver.last is None  # a failed solve is not a solution to warm-start from
 
 
 def test_unknown_parameter_is_a_parameter_error(model, ref):

@@ -13,7 +13,7 @@ from invctl.inversion import (Bounds, Discretization, Horizon, Objective, Solver
                               resolve_selection, servo_model)
 from invctl.inversion.bounded import _limits, constraint_points
 from invctl.inversion.cache import ocp_transcription
-from invctl.inversion.collocation import get_scheme
+from invctl.inversion.schemes import get_scheme
 from invctl.inversion.mintime import minimum_time, retime
 from invctl.model import Model, ParamSet
 from invctl.reference import rest_to_rest

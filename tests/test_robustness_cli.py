@@ -314,12 +314,12 @@ def test_sigint_during_mesh_refinement_keeps_the_last_accepted_mesh(tmp_path):
 
 _SLOW_IPOPT = textwrap.dedent("""
     import sys, time
-    from invctl.inversion import solve
-    ev = solve._Progress.eval
+    from invctl.inversion import backends
+    ev = backends._Progress.eval
     def slow_eval(self, arg):  # each IPOPT iteration lasts 0.2 s: the signal lands inside IPOPT
         time.sleep(0.2)
         return ev(self, arg)
-    solve._Progress.eval = slow_eval
+    backends._Progress.eval = slow_eval
     from invctl.cli import main
     sys.exit(main(sys.argv[1:]))
     """)

@@ -3,15 +3,19 @@ boundary conditions (36) -- chosen automatically or by hand --, collocation thro
 IPOPT, the :class:`Inverse` result; bounded inversion and free transition time as optimal
 control problems on the same transcription; and, independently, through the normal form
 (003 Sect. 2) for any uniform relative degree (:func:`invert_normal_form`)."""
-from .boundary import EquilibriumSolver, Selection, dichotomy, resolve_selection
-from .collocation import Scheme, Transcription, get_scheme
+from ..analysis.equilibrium import EquilibriumSolver
+from .boundary import Selection, dichotomy, resolve_selection
+from .collocation import Transcription
+from .schemes import Scheme, get_scheme
 from .normal_form import NormalForm, invert_normal_form, normal_form
 from .options import Bounds, Discretization, Horizon, Objective, SolverOptions
 from .plan import InversionPlan, check_reference, plan_inversion
 from .result import Inverse
 from .servo import ServoModel
-from .solve import interval_errors, invert, quasi_static_guess, servo_model
-from .solver import InversionSolver
+from .cache import servo_model
+from .guess import quasi_static_guess
+from .refine import interval_errors
+from .solver import InversionSolver, invert
 from .mintime import minimum_time, retime
 from .verify import forward_check
 

@@ -90,7 +90,7 @@ def _progress_of(tr, label) -> _Progress:
     return cb
 
 
-def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label, banded=True):
+def _newton(tr, x0, p, *, max_iter, tol, max_wall_time=np.inf, progress=False, label="", banded=True, lu=None):
     """Newton's method on the square collocation system with Jacobian reuse.
 
     Residual and Jacobian come from :meth:`Transcription.evaluators`; the Jacobian, permuted
@@ -98,7 +98,8 @@ def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label, banded=
     is too wide or ``banded=False``). The factorization is kept (also across calls on the
     same transcription, e.g. re-solves after a parameter change) while it contracts the
     residual by at least a factor 4 per step (simplified Newton), and refreshed
-    otherwise; a refreshed step that does not decrease the residual is damped."""
+    otherwise; a refreshed step that does not decrease the residual is damped.  ``lu``: a factorization to
+    start with (e.g. of a neighbouring problem; default: the transcription's kept one)."""
     x = np.array(x0, float)
     t_start = time.perf_counter()
     residual, residual_and_jacobian = tr.evaluators()
@@ -106,7 +107,7 @@ def _newton(tr, x0, p, *, max_iter, max_wall_time, tol, progress, label, banded=
     band = band if band is not None and band.worthwhile else None
     g = residual(x, p)
     nrm = np.linalg.norm(g)
-    lu = getattr(tr, "_lu", None)
+    lu = getattr(tr, "_lu", None) if lu is None else lu
     fresh = False
     status, it, n_fact = "Maximum_Iterations_Exceeded", 0, 0
     for it in range(1, max_iter + 1):

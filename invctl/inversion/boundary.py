@@ -17,7 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..analysis.equilibrium import EquilibriumSolver  # noqa: F401  (moved; re-exported here)
 from ..errors import BoundaryConditionError
 
 BLOCKS = ("q", "v", "lam", "mu", "u")

@@ -57,20 +57,9 @@ INFEASIBLE = ("Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeas
 
 
 def constraint_points(inv, servo, reference, theta):
-    """States and rates of an (exact) inverse where the bounded problem imposes its bounds:
-    ``(t_states, X, t_rates, U')`` (mesh and collocation points / midpoints; rates where
-    ``F`` is evaluated)."""
-    tm = inv.t_mesh
-    ub = servo.layout.blocks["u"]
-    if inv._scheme.is_hs:
-        tmid = 0.5 * (tm[:-1] + tm[1:])
-        Xm = inv.X(tmid)  # the Hermite interpolant at the midpoint is the HS midpoint state
-        Fm = np.array(servo.rhs.map(tmid.size)(Xm, servo.reference_samples(reference, tmid), theta))
-        return (np.concatenate([tm, tmid]), np.hstack([inv.X_mesh, Xm]), np.concatenate([tm, tmid]),
-                np.hstack([inv.dX_mesh[ub], Fm[ub]]))
-    tc = (tm[:-1, None] + np.diff(tm)[:, None] * inv._scheme.tau[None, :]).ravel()
-    Fc = np.array(servo.rhs.map(tc.size)(inv.X_col, servo.reference_samples(reference, tc), theta))
-    return np.concatenate([tm, tc]), np.hstack([inv.X_mesh, inv.X_col]), tc, Fc[ub]
+    """``(t_states, X, t_rates, U')`` where the bounded problem imposes its bounds (:meth:`Scheme.bound_points`)."""
+    return inv._scheme.bound_points(inv, servo.rhs, lambda t: servo.reference_samples(reference, t), theta,
+                                    servo.layout.blocks["u"])
 
 
 def between_nodes(inv, rb, reference=None, samples: int = CHECK_SAMPLES) -> dict:
@@ -115,7 +104,7 @@ def check_between_nodes(inv, rb, reference, where: str) -> dict:
     if _beyond_tolerance(rb, chk):
         label = chk["max_violation_bound"]
         hint = ("rate bounds hold between the collocation points with scheme='hermite-simpson' only; use it"
-                if label in rb.rate_labels and not inv._scheme.is_hs else "try a finer mesh (N) or more iterations "
+                if label in rb.rate_labels and not inv._scheme.rates_between_nodes else "try a finer mesh (N) or more iterations "
                 "(max_iter)")
         inv.diagnostics["success"] = False
         raise InversionFailed(
@@ -542,10 +531,9 @@ def _violation(g, lbg, ubg, x, lbx, ubx) -> float:
 def _inverse(tr, servo, reference, sch, t_mesh, x, Y, theta, c, make_inverse, tau=None, tau_ref=1.0):
     """The :class:`Inverse` of a bounded solution (Hermite-Simpson slopes from the relaxed model)."""
     Xm, Xc, S, _tau, _r = tr.unpack(x)
-    dX = None
-    if sch.is_hs:
-        zeta = np.vstack([Xm, S[:, :Xm.shape[1]]]) if tr.relaxed else Xm
-        dX = tr.point_values(zeta, Y[:, :Xm.shape[1]], theta, c, tau=tau, tau_ref=tau_ref)[:tr.nx]
+    zeta = np.vstack([Xm, S[:, :Xm.shape[1]]]) if tr.relaxed else Xm
+    dX = sch.mesh_slopes(Xm, lambda: tr.point_values(zeta, Y[:, :Xm.shape[1]], theta, c, tau=tau,
+                                                     tau_ref=tau_ref)[:tr.nx])
     return make_inverse(servo.model, reference, servo, sch, t_mesh, Xm, Xc, theta, dX=dX)
 
 

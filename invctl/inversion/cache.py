@@ -6,7 +6,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-from .boundary import EquilibriumSolver
+from ..analysis.equilibrium import EquilibriumSolver
 from .collocation import Transcription
 from .servo import ServoModel
 
@@ -50,15 +50,20 @@ def servo_model(model, formulation: str = "baumgarte", omega: float = 10.0) -> S
                     lambda: ServoModel(model, formulation, omega))
 
 
+def _held(cache: dict, key, servo, make):
+    """``remember`` for objects built on ``servo`` (keyed by its id: an entry whose servo model was evicted and
+    its id reused, or whose compiled pieces landed in the disk cache since it was built, is made again)."""
+    tr = cache.get(key)
+    if tr is not None and (tr.servo is not servo or getattr(tr, "upgradable", lambda: False)()):
+        del cache[key]
+    return remember(cache, key, make)
+
+
 def transcription(servo, selection, scheme, N: int, objective: float = 0.0, compiled="auto") -> Transcription:
     """The cached :class:`Transcription` for (servo model, selection, scheme, N)."""
     key = (id(servo), selection.start, selection.end, scheme.name, int(N), float(objective), compiled)
-    tr = _TRANS_CACHE.get(key)
-    if tr is not None and (tr.servo is not servo or tr.upgradable()):  # a servo model evicted and its id
-        del _TRANS_CACHE[key]  # reused, or compiled pieces landed in the disk cache since it was built
-    return remember(_TRANS_CACHE, key,
-                    lambda: Transcription(servo, selection, scheme, N, objective=objective, compiled=compiled,
-                                          cache_key=compiled_key(servo, scheme)))
+    return _held(_TRANS_CACHE, key, servo, lambda: Transcription(servo, selection, scheme, N, objective=objective,
+                                                                 compiled=compiled, cache_key=compiled_key(servo, scheme)))
 
 
 def ocp_transcription(servo, selection, scheme, N: int, **structure):
@@ -67,10 +72,7 @@ def ocp_transcription(servo, selection, scheme, N: int, **structure):
     from .ocp import OCPTranscription
 
     key = (id(servo), selection.start, selection.end, scheme.name, int(N), tuple(sorted(structure.items())))
-    tr = _OCP_CACHE.get(key)
-    if tr is not None and tr.servo is not servo:
-        del _OCP_CACHE[key]
-    return remember(_OCP_CACHE, key, lambda: OCPTranscription(servo, selection, scheme, N, **structure))
+    return _held(_OCP_CACHE, key, servo, lambda: OCPTranscription(servo, selection, scheme, N, **structure))
 
 
 def compiled_key(servo, scheme) -> str:
@@ -80,7 +82,7 @@ def compiled_key(servo, scheme) -> str:
     global _SOURCE_KEY
     if _SOURCE_KEY is None:
         here = Path(__file__).parent
-        text = "".join((here / f).read_text() for f in ("servo.py", "collocation.py"))
+        text = "".join((here / f).read_text() for f in ("servo.py", "schemes.py", "collocation.py"))
         _SOURCE_KEY = hashlib.sha1(text.encode()).hexdigest()
     return "|".join([model_key(servo.model), servo.formulation, repr(servo.omega), scheme.name, _SOURCE_KEY])
 

@@ -1,11 +1,6 @@
-"""Direct collocation of ``X' = F(X, Y(t), theta)`` on a mesh of ``[T0, Tf]``.
-
-Schemes (a scheme is a coefficient table):
-
-``hermite-simpson``  compressed Hermite-Simpson (Lobatto IIIA, order 4): states at
-                     the mesh points, cubic Hermite interpolant collocated at the midpoint;
-``legendre<d>``      Gauss-Legendre collocation with ``d`` points (order 2d);
-``radau<d>``         Radau IIA collocation with ``d`` points (order 2d - 1).
+"""Direct collocation of ``X' = F(X, Y(t), theta)`` on a mesh of ``[T0, Tf]``: the square
+boundary value problem of the exact inverse (:class:`Transcription`; the scheme's equations come from
+its :class:`~invctl.inversion.schemes.Scheme`).
 
 The transcription is built once per (servo model, selection, scheme, N): the
 step sizes, the reference samples ``Y = (y, y', y'', y''')`` at every
@@ -17,66 +12,14 @@ so its size does not grow with N.
 """
 from __future__ import annotations
 
-import re
 import time
-from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from .schemes import Scheme
 from .servo import NUMERIC_SOLVES_NX
-
-SCHEME_RE = re.compile(r"^(hermite-simpson|hs|legendre(\d+)|radau(\d+))$")
-
-
-
-@dataclass(frozen=True)
-class Scheme:
-    """A collocation scheme: points ``tau`` in (0, 1], derivative matrix ``C``,
-    continuity weights ``D`` and quadrature weights ``B`` (empty for Hermite-Simpson)."""
-
-    name: str
-    degree: int
-    tau: np.ndarray
-    C: np.ndarray
-    D: np.ndarray
-    B: np.ndarray
-    order: int
-
-    @property
-    def is_hs(self) -> bool:
-        return self.name == "hermite-simpson"
-
-
-def get_scheme(name: str) -> Scheme:
-    """Parse ``hermite-simpson``, ``legendre<d>`` or ``radau<d>`` (d = 1..9)."""
-    key = str(name).strip().lower()
-    mt = SCHEME_RE.match(key)
-    if not mt:
-        raise ValueError(f"unknown collocation scheme {name!r}; use 'hermite-simpson', 'legendre<d>' or "
-                         "'radau<d>' (e.g. legendre3, radau3)")
-    if key in ("hermite-simpson", "hs"):
-        return Scheme("hermite-simpson", 3, np.array([0.5, 1.0]), np.zeros((0, 0)), np.zeros(0), np.zeros(0), 4)
-    kind = "legendre" if key.startswith("legendre") else "radau"
-    d = int(mt.group(2) or mt.group(3))
-    if not 1 <= d <= 9:
-        raise ValueError(f"collocation degree must be 1..9, got {d}")
-    tau = np.array(ca.collocation_points(d, kind))
-    allt = np.concatenate([[0.0], tau])
-    C = np.zeros((d + 1, d))
-    D = np.zeros(d + 1)
-    B = np.zeros(d + 1)
-    for j in range(d + 1):
-        coeff = np.poly1d([1.0])
-        for r in range(d + 1):
-            if r != j:
-                coeff *= np.poly1d([1.0, -allt[r]]) / (allt[j] - allt[r])
-        D[j] = coeff(1.0)
-        dcoeff = np.polyder(coeff)
-        C[j, :] = dcoeff(tau)
-        B[j] = np.polyint(coeff)(1.0)
-    return Scheme(f"{kind}{d}", d, tau, C, D, B, 2 * d if kind == "legendre" else 2 * d - 1)
 
 
 class Transcription:
@@ -102,32 +45,8 @@ class Transcription:
         self.nx, self.m4, self.ntheta = nx, m4, ntheta
         N = self.N
         rhs = servo.rhs
-        th = ca.SX.sym("theta", ntheta)
-        hs = ca.SX.sym("h")
-        ub = L.blocks["u"]
-        if scheme.is_hs:
-            Xa, Xb, Fa, Fb, Ym = (ca.SX.sym(s, nx) if s != "Ym" else ca.SX.sym(s, m4)
-                                  for s in ("Xa", "Xb", "Fa", "Fb", "Ym"))
-            Xm = 0.5 * (Xa + Xb) + hs / 8 * (Fa - Fb)
-            Fm = rhs(Xm, Ym, th)
-            defect = Xb - Xa - hs / 6 * (Fa + 4 * Fm + Fb)
-            energy = hs / 6 * (ca.sumsqr(Xa[ub]) + 4 * ca.sumsqr(Xm[ub]) + ca.sumsqr(Xb[ub]))
-            interval = ca.Function("hs_interval", [Xa, Xb, Fa, Fb, hs, Ym, th], [defect, energy],
-                                   ["Xa", "Xb", "Fa", "Fb", "h", "Ym", "theta"], ["defect", "energy"])
-            self.n_col, self.nY = 0, 2 * N + 1
-        else:
-            d = scheme.degree
-            Xk, Xk1 = ca.SX.sym("Xk", nx), ca.SX.sym("Xk1", nx)
-            Xc, Yc = ca.SX.sym("Xc", nx, d), ca.SX.sym("Yc", m4, d)
-            Xall = ca.horzcat(Xk, Xc)
-            Fc = ca.horzcat(*[rhs(Xc[:, r], Yc[:, r], th) for r in range(d)])
-            res = ca.mtimes(Xall, ca.DM(scheme.C)) - hs * Fc
-            cont = Xk1 - ca.mtimes(Xall, ca.DM(scheme.D))
-            energy = hs * sum(scheme.B[r + 1] * ca.sumsqr(Xc[ub, r]) for r in range(d))
-            interval = ca.Function("coll_interval", [Xk, Xc, Xk1, hs, Yc, th],
-                                   [ca.vertcat(ca.vec(res), cont), energy],
-                                   ["Xk", "Xc", "Xk1", "h", "Yc", "theta"], ["defect", "energy"])
-            self.n_col, self.nY = d * N, d * N
+        interval = scheme.bvp_interval(self, rhs, L.blocks["u"])
+        self.n_col, self.nY = scheme.n_col(N), scheme.n_samples(N)
         if self._compile_request == "auto" and nx > NUMERIC_SOLVES_NX:
             self._compile_request = False  # large models: numeric solves, nothing to look up in the cache
         self.compiled_pieces: tuple = ()
@@ -135,7 +54,7 @@ class Transcription:
         if self._compile_request:
             from .compiled import compile_cached, compile_in_background, is_cached
 
-            wanted = [rhs, interval, servo.rhs_jac, self._block_function()]
+            wanted = [rhs, interval, servo.rhs_jac, self.block_function()]
             if self._compile_request is True:
                 have = {f.name() for f in wanted}
             else:  # "auto": what the disk cache has now; the rest compiles in the background
@@ -155,12 +74,7 @@ class Transcription:
         p = ca.MX.sym("p", self.np)
         Xmesh = ca.reshape(x[:nx * (N + 1)], nx, N + 1)
         h, Y, theta, E0, Ef = self._split_p(p)
-        if scheme.is_hs:
-            Fn = rhs.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
-            defect, energy = interval.map(N)(Xmesh[:, :N], Xmesh[:, 1:], Fn[:, :N], Fn[:, 1:], h, Y[:, N + 1:], theta)
-        else:
-            Xcol = ca.reshape(x[nx * (N + 1):], nx, self.n_col)
-            defect, energy = interval.map(N)(Xmesh[:, :N], Xcol, Xmesh[:, 1:], h, Y, theta)
+        defect, energy = scheme.bvp_defects(self, interval, rhs, x, Xmesh, h, Y, theta)
         s0, sf = list(selection.start), list(selection.end)
         bc = ca.vertcat(Xmesh[s0, 0] - E0[s0], Xmesh[sf, N] - Ef[sf])
         self.g = ca.vertcat(ca.vec(defect), bc)
@@ -170,7 +84,6 @@ class Transcription:
         self.f = self.objective * ca.sum2(energy) if self.objective else ca.MX(0)
         self._x, self._p = x, p
         self._solvers: dict = {}
-        self._newton = None
         self.build_s = time.perf_counter() - t_build
 
     def upgradable(self) -> bool:
@@ -192,17 +105,11 @@ class Transcription:
 
     def sample_times(self, t_mesh: np.ndarray) -> np.ndarray:
         """Times at which the reference is sampled (order of ``Y`` in ``p``)."""
-        h = np.diff(t_mesh)
-        if self.scheme.is_hs:
-            return np.concatenate([t_mesh, t_mesh[:-1] + 0.5 * h])
-        return (t_mesh[:-1, None] + h[:, None] * self.scheme.tau[None, :]).ravel()
+        return self.scheme.sample_times(t_mesh)
 
     def collocation_times(self, t_mesh: np.ndarray) -> np.ndarray:
-        """Times of the collocation states ``X_col`` (empty for Hermite-Simpson)."""
-        if self.scheme.is_hs:
-            return np.zeros(0)
-        h = np.diff(t_mesh)
-        return (t_mesh[:-1, None] + h[:, None] * self.scheme.tau[None, :]).ravel()
+        """Times of the collocation states ``X_col``."""
+        return self.scheme.collocation_times(t_mesh)
 
     def parameters(self, t_mesh, Ysamples, theta, E0, Ef) -> np.ndarray:
         return np.concatenate([np.diff(t_mesh), np.asarray(Ysamples, float).ravel(order="F"),
@@ -222,36 +129,11 @@ class Transcription:
         return Xmesh, Xcol
 
     # ------------------------------------------------------------ solvers
-    def _block_function(self) -> ca.Function:
-        """SX function of the Jacobian blocks of one interval (HS) or one collocation point."""
+    def block_function(self) -> ca.Function:
+        """SX function of the Jacobian blocks of one interval or collocation point (the scheme's)."""
         if getattr(self, "_blk", None) is None:
-            nx, m4 = self.nx, self.m4
-            I = ca.DM.eye(nx)  # noqa: E741
-            if self.scheme.is_hs:
-                Xa, Xb, Fa, Fb = (ca.SX.sym(s, nx) for s in ("Xa", "Xb", "Fa", "Fb"))
-                Ja, Jb = ca.SX.sym("Ja", nx, nx), ca.SX.sym("Jb", nx, nx)
-                hs, Ym, th = ca.SX.sym("h"), ca.SX.sym("Ym", m4), ca.SX.sym("th", self.ntheta)
-                Xm = 0.5 * (Xa + Xb) + hs / 8 * (Fa - Fb)
-                _Fm, Jm = self.servo.rhs_jac(Xm, Ym, th)
-                Da = -I - hs / 6 * (Ja + 4 * ca.mtimes(Jm, 0.5 * I + hs / 8 * Ja))
-                Db = I - hs / 6 * (Jb + 4 * ca.mtimes(Jm, 0.5 * I - hs / 8 * Jb))
-                self._blk = ca.Function("hs_blocks", [Xa, Xb, Fa, Fb, Ja, Jb, hs, Ym, th], [Da.T, Db.T])
-            else:
-                Js, hs, cs = ca.SX.sym("J", nx, nx), ca.SX.sym("h"), ca.SX.sym("c")
-                self._blk = ca.Function("coll_block", [Js, hs, cs], [(cs * I - hs * Js).T])
+            self._blk = self.scheme.bvp_blocks(self)
         return self._blk
-
-    def _product_function(self) -> ca.Function:
-        """MX ``(Ja, Jb, Jm, h) -> (Da^T, Db^T)``: the Hermite-Simpson blocks from the right-hand side
-        Jacobians at both ends and the midpoint (the same formulas as :meth:`_block_function`)."""
-        if getattr(self, "_prod", None) is None:
-            nx = self.nx
-            I = ca.DM.eye(nx)  # noqa: E741
-            Ja, Jb, Jm, hs = ca.MX.sym("Ja", nx, nx), ca.MX.sym("Jb", nx, nx), ca.MX.sym("Jm", nx, nx), ca.MX.sym("h")
-            Da = -I - hs / 6 * (Ja + 4 * ca.mtimes(Jm, 0.5 * I + hs / 8 * Ja))
-            Db = I - hs / 6 * (Jb + 4 * ca.mtimes(Jm, 0.5 * I - hs / 8 * Jb))
-            self._prod = ca.Function("hs_block_products", [Ja, Jb, Jm, hs], [Da.T, Db.T])
-        return self._prod
 
     def _jacobian_mx(self, x, p):
         """The Jacobian of ``g`` as a sparse MX built from mapped per-node/per-interval
@@ -267,49 +149,7 @@ class Transcription:
         indices, indptr, perm, s0, sf = self._pattern()
         Xmesh = ca.reshape(x[:nx * (N + 1)], nx, N + 1)
         h, Y, theta, _E0, _Ef = self._split_p(p)
-        rj_sx = self.servo.rhs_jac
-        rj = self._c(rj_sx)
-        vals = []
-        if self.scheme.is_hs and not self.compiled and nx > NUMERIC_SOLVES_NX:
-            # large blocks: the right-hand side Jacobian with numeric solves by M (ServoModel.rhs_jac_numeric),
-            # at the midpoints by the mapped function, and the two nx^3 products of every interval as MX
-            # matrix products (compiled C loops), not as nx^3 SX instructions per interval
-            rjn = self.servo.rhs_jac_numeric
-            F, JF = rjn.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
-            Fa, Fb = F[:, :N], F[:, 1:]
-            Xm = 0.5 * (Xmesh[:, :N] + Xmesh[:, 1:]) + ca.repmat(h / 8, nx, 1) * (Fa - Fb)
-            _Fm, JFm = rjn.map(N)(Xm, Y[:, N + 1:], theta)
-            DaT, DbT = self._product_function().map(N)(JF[:, :nx * N], JF[:, nx:], JFm, h)
-            vals = [ca.vec(DaT), ca.vec(DbT)]
-        elif self.scheme.is_hs:
-            blk = self._c(self._block_function())
-            F, JF = rj.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
-            DaT, DbT = blk.map(N)(Xmesh[:, :N], Xmesh[:, 1:], F[:, :N], F[:, 1:], JF[:, :nx * N], JF[:, nx:],
-                                  h, Y[:, N + 1:], theta)
-            vals = [ca.vec(DaT), ca.vec(DbT)]
-        else:
-            d = self.scheme.degree
-            C, D = self.scheme.C, self.scheme.D
-            Xcol = ca.reshape(x[nx * (N + 1):], nx, self.n_col)
-            _F, JF = rj.map(d * N)(Xcol, Y, theta)
-            blk = self._c(self._block_function())
-            hrep = ca.repmat(h, d, 1)
-            hrep = ca.reshape(hrep, 1, d * N)
-            crep = ca.DM(np.tile([C[i + 1, i] for i in range(d)], N)).T
-            Bt = blk.map(d * N)(JF, hrep, crep)
-            for i in range(d + 1):
-                for j in range(d + 2):
-                    if j == d + 1 and i < d:
-                        continue
-                    if i < d and j - 1 == i:
-                        cols = [c for k in range(N) for c in range((k * d + i) * nx, (k * d + i + 1) * nx)]
-                        vals.append(ca.vec(Bt[:, cols]))
-                        continue
-                    if i < d:
-                        M = C[0, i] * np.eye(nx) if j == 0 else C[j, i] * np.eye(nx)
-                    else:
-                        M = np.eye(nx) if j == d + 1 else -D[j] * np.eye(nx)
-                    vals.append(ca.DM(np.tile(M.ravel(), N)))
+        vals = self.scheme.bvp_jacobian_values(self, x, Xmesh, h, Y, theta, self._c(self.servo.rhs_jac))
         vals.append(ca.DM.ones(s0.size + sf.size))
         return ca.vertcat(*vals)[np.asarray(perm, np.int64).tolist()]
 
@@ -372,33 +212,7 @@ class Transcription:
         if getattr(self, "_pat", None) is not None:
             return self._pat
         nx, N = self.nx, self.N
-        r = np.arange(nx)
-        rows, cols = [], []
-        if self.scheme.is_hs:
-            k = np.arange(N)
-            for off in (0, 1):  # d defect_k / d X_{k+off}
-                rows.append((k[:, None, None] * nx + r[None, :, None]).repeat(nx, 2))
-                cols.append(((k + off)[:, None, None] * nx + r[None, None, :]).repeat(nx, 1))
-            nrow_int = N * nx
-        else:
-            d = self.scheme.degree
-            k = np.arange(N)
-            base = k * nx * (d + 1)
-            col0 = nx * (N + 1)
-            for i in range(d + 1):  # row block i (d = continuity)
-                rb = base[:, None, None] + i * nx + r[None, :, None]
-                for j in range(d + 2):  # column block: 0 = X_k, 1..d = X_c, d+1 = X_{k+1}
-                    if j == d + 1 and i < d:
-                        continue
-                    if j == 0:
-                        cb = k[:, None, None] * nx + r[None, None, :]
-                    elif j <= d:
-                        cb = col0 + (k * d + j - 1)[:, None, None] * nx + r[None, None, :]
-                    else:
-                        cb = (k + 1)[:, None, None] * nx + r[None, None, :]
-                    rows.append(rb.repeat(nx, 2))
-                    cols.append(cb.repeat(nx, 1))
-            nrow_int = N * nx * (d + 1)
+        rows, cols, nrow_int = self.scheme.bvp_pattern(self)
         s0, sf = np.array(self.selection.start, int), np.array(self.selection.end, int)
         bc_rows = nrow_int + np.arange(s0.size + sf.size)
         bc_cols = np.concatenate([s0, N * nx + sf])
@@ -420,12 +234,12 @@ class Transcription:
         the Jacobian at HS N = 100 compiled, against ~0.8 and ~3.5 ms for the numpy assembly of
         :meth:`residual` / :meth:`residual_and_jacobian` (which stays as the independent
         reference in tests).  The buffers are shared, so calls are serialized by a lock.
-        ``None`` (default): buffered for Hermite-Simpson or compiled functions; otherwise the
+        ``None`` (default): buffered for compiled functions or as the scheme says (Hermite-Simpson); otherwise the
         numpy assembly, as fast in CasADi's VM for Legendre/Radau and without the memory of a
         second expression graph per cached transcription.
         """
         if buffered is None:
-            buffered = self.compiled or self.scheme.is_hs
+            buffered = self.compiled or self.scheme.buffered
         if not buffered:
             return self.residual, self.residual_and_jacobian
         if getattr(self, "_evals", None) is None:
@@ -507,67 +321,9 @@ class Transcription:
         theta = p[o:o + self.ntheta]
         o += self.ntheta
         E0, Ef = p[o:o + nx], p[o + nx:o + 2 * nx]
-        I = np.eye(nx)  # noqa: E741
+        g_int, vals = self.scheme.bvp_residual(self, Xmesh, Xcol, h, Y, theta, jacobian)
         if not jacobian:
-            rm = self._rhs_map
-            if self.scheme.is_hs:
-                F = np.array(rm(N + 1)(Xmesh, Y[:, :N + 1], theta))
-                Xm = 0.5 * (Xmesh[:, :-1] + Xmesh[:, 1:]) + h / 8 * (F[:, :-1] - F[:, 1:])
-                Fm = np.array(rm(N)(Xm, Y[:, N + 1:], theta))
-                g_int = (Xmesh[:, 1:] - Xmesh[:, :-1] - h / 6 * (F[:, :-1] + 4 * Fm + F[:, 1:])).ravel(order="F")
-            else:
-                d = self.scheme.degree
-                F = np.array(rm(d * N)(Xcol, Y, theta)).reshape(nx, N, d)
-                Xall = np.concatenate([Xmesh[:, :-1, None], Xcol.reshape(nx, N, d)], axis=2)
-                res = np.einsum("rkj,ji->rki", Xall, self.scheme.C) - h[None, :, None] * F
-                cont = Xmesh[:, 1:] - np.einsum("rkj,j->rk", Xall, self.scheme.D)
-                g_int = np.concatenate([res.transpose(0, 2, 1).reshape(nx * d, N, order="F"), cont],
-                                       axis=0).ravel(order="F")
             return np.concatenate([g_int, Xmesh[s0, 0] - E0[s0], Xmesh[sf, N] - Ef[sf]]), None
-        if self.scheme.is_hs:
-            F, JF = self._rhs_jac_map(N + 1)(Xmesh, Y[:, :N + 1], theta)
-            F = np.array(F)
-            JF = np.array(JF).reshape(nx, N + 1, nx).transpose(1, 0, 2)
-            Fa, Fb, JFa, JFb = F[:, :-1], F[:, 1:], JF[:-1], JF[1:]
-            Xm = 0.5 * (Xmesh[:, :-1] + Xmesh[:, 1:]) + h / 8 * (Fa - Fb)
-            Fm, JFm = self._rhs_jac_map(N)(Xm, Y[:, N + 1:], theta)
-            Fm = np.array(Fm)
-            JFm = np.array(JFm).reshape(nx, N, nx).transpose(1, 0, 2)
-            defect = Xmesh[:, 1:] - Xmesh[:, :-1] - h / 6 * (Fa + 4 * Fm + Fb)
-            hh = h[:, None, None]
-            dXa = 0.5 * I + hh / 8 * JFa
-            dXb = 0.5 * I - hh / 8 * JFb
-            Da = -I - hh / 6 * (JFa + 4 * np.einsum("kij,kjl->kil", JFm, dXa))
-            Db = I - hh / 6 * (JFb + 4 * np.einsum("kij,kjl->kil", JFm, dXb))
-            vals = [Da.ravel(), Db.ravel()]
-            g_int = defect.ravel(order="F")
-        else:
-            d = self.scheme.degree
-            C, D = self.scheme.C, self.scheme.D
-            F, JF = self._rhs_jac_map(d * N)(Xcol, Y, theta)
-            F = np.array(F).reshape(nx, N, d)
-            JF = np.array(JF).reshape(nx, N, d, nx).transpose(1, 2, 0, 3)  # k, i, row, col
-            Xc = Xcol.reshape(nx, N, d)
-            Xall = np.concatenate([Xmesh[:, :-1, None], Xc], axis=2)  # nx, N, d+1
-            res = np.einsum("rkj,ji->rki", Xall, C) - h[None, :, None] * F
-            cont = Xmesh[:, 1:] - np.einsum("rkj,j->rk", Xall, D)
-            g_int = np.concatenate([res.transpose(0, 2, 1).reshape(nx * d, N, order="F"), cont], axis=0)
-            g_int = g_int.ravel(order="F")
-            vals = []
-            hh = h[:, None, None]
-            for i in range(d + 1):
-                for j in range(d + 2):
-                    if j == d + 1 and i < d:
-                        continue
-                    if i < d:
-                        if j == 0:
-                            blk = np.broadcast_to(C[0, i] * I, (N, nx, nx))
-                        else:
-                            blk = C[j, i] * I - (hh * JF[:, i] if j - 1 == i else 0.0)
-                            blk = np.broadcast_to(blk, (N, nx, nx))
-                    else:
-                        blk = np.broadcast_to(I if j == d + 1 else -D[j] * I, (N, nx, nx))
-                    vals.append(np.ascontiguousarray(blk).ravel())
         g = np.concatenate([g_int, Xmesh[s0, 0] - E0[s0], Xmesh[sf, N] - Ef[sf]])
         data = np.concatenate(vals + [np.ones(s0.size + sf.size)])[perm]
         J = sp.csc_matrix((data, indices, indptr), shape=(self.ng, self.nX))
@@ -584,13 +340,3 @@ class Transcription:
         if k not in cache:
             cache[k] = self._c(self.servo.rhs_jac).map(k)
         return cache[k]
-
-    def newton_functions(self):
-        """``(x, p) -> g`` and ``(x, p) -> dg/dx`` (sparse), for the Newton backend."""
-        if self._newton is None:
-            if not self.square:
-                raise ValueError("the Newton backend needs a square system (as many conditions as unknowns)")
-            gfun = ca.Function("servo_g", [self._x, self._p], [self.g])
-            jfun = ca.Function("servo_jac", [self._x, self._p], [ca.jacobian(self.g, self._x)])
-            self._newton = (gfun, jfun)
-        return self._newton

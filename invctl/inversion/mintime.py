@@ -115,6 +115,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     plan_result = resolve_plan(model, reference, disc, opts.horizon)
     relaxed = objective is not None
     setup = prepare(model, reference, disc, opts.horizon, plan_result=plan_result, any_count=relaxed)
+    from .solver import InversionSolver
     from .square import make_inverse, solve_square
 
     t_mesh = setup.t_mesh
@@ -134,7 +135,7 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         guess = None
     sch, N = setup.scheme, t_mesh.size - 1
     tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True, bounded=rb.bounded,
-                           rated=rb.rated, interior="points" if sch.is_hs else None, compiled=disc.compiled)
+                           rated=rb.rated, interior=sch.tracking_interior, compiled=disc.compiled)
     tc = tr.collocation_times(t_mesh)
     tau0 = float(np.clip(tau_ref if warm_start is None else warm_start.tf - warm_start.t0, lo, hi))
     no_inverse = None  # a shorter duration at which the exact inverse of the shape was not found
@@ -146,6 +147,9 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         # estimate is refined on exact inverses of the retimed shape (a fixed-point iteration, as the
         # parts of the inputs that do not scale, e.g. gravity, make the power laws approximate)
         cur, tau_cur, mesh_cur = guess, tau_ref, t_mesh
+        # one held solver for the retimed exact inverses: the mesh keeps N, so its transcription is reused
+        held = InversionSolver(model, reference, discretization=disc, solver=opts.solver,
+                               horizon=replace(hz, plan=None))
         for _round in range(8):
             target = float(np.clip(_feasible_duration(cur, servo, retime(reference, tau_cur), theta, rb, tau_cur),
                                    lo, hi))
@@ -155,10 +159,8 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
             for _halving in range(3):
                 mesh_s = tr.retimed_mesh(t_mesh, mask, tau_ref, tau_s)
                 try:
-                    cur = solve_square(model, retime(reference, tau_s), replace(
-                        opts, horizon=replace(hz, T0=float(mesh_s[0]), Tf=float(mesh_s[-1]), plan=None),
-                        discretization=replace(disc, mesh=mesh_s), bounds=None, objective=None),
-                        warm_start=_Retimed(cur, mesh_cur, mesh_s))
+                    cur = held.solve(reference=retime(reference, tau_s), mesh=mesh_s,
+                                     warm_start=_Retimed(cur, mesh_cur, mesh_s))
                     break
                 except InversionFailed:
                     if tau_s < tau_cur:
@@ -286,7 +288,7 @@ def _refined(model, reference, opts, problem, warm_start):
     import sys
 
     from ..errors import check_interrupt
-    from .collocation import get_scheme
+    from .schemes import get_scheme
     from .verify import forward_check
 
     disc = opts.discretization

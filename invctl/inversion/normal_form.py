@@ -1,7 +1,7 @@
 """Stable inversion through the normal form (003 Sect. 2, (10)-(19)), for any uniform relative degree.
 
 The second, independent route to the inverse of 003 (1) (the first is the servo-constraint DAE
-(35) of :mod:`invctl.inversion.solve`, which needs the vector relative degree (2, ..., 2)).
+(35) of :mod:`invctl.inversion.solver`, which needs the vector relative degree (2, ..., 2)).
 
 Method
 ------

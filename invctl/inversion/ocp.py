@@ -58,8 +58,46 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from .assembly import _all_cached, _assembly, _block_triplets, _compile, quadrature_weights  # noqa: F401
-from .collocation import Scheme
+from .schemes import Scheme
+
+
+def _assembly(rows, cols, shape, *, summed: bool = False):
+    """Sparsity of the triplets ``(rows, cols)`` and the sparse 0/1 matrix mapping values in
+    triplet order to its nonzeros in CSC order (duplicates are added when ``summed``)."""
+    rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+    key = cols * shape[0] + rows
+    uniq = np.unique(key)
+    if not summed and uniq.size != key.size:
+        raise RuntimeError("duplicate entries in a Jacobian pattern")
+    pos = np.searchsorted(uniq, key)
+    ucols, urows = uniq // shape[0], uniq % shape[0]
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(ucols, minlength=shape[1]))])
+    sparsity = ca.Sparsity(int(shape[0]), int(shape[1]), indptr.astype(np.int64).tolist(),
+                           urows.astype(np.int64).tolist())
+    S = ca.DM(ca.Sparsity.triplet(int(uniq.size), int(key.size), pos.tolist(), list(range(key.size))), 1.0)
+    return sparsity, S
+
+
+def _block_triplets(nrow: int, index: np.ndarray, row0: int):
+    """Global (row, col) of the vec of a mapped dense block output ``(nrow x nz)`` per repetition
+    (``index``: ``(count, nz)`` global columns; rows ``row0 + k nrow + i``), in vec order."""
+    count, nz = index.shape
+    k = np.repeat(np.arange(count), nz * nrow)
+    j = np.tile(np.repeat(np.arange(nz), nrow), count)
+    i = np.tile(np.arange(nrow), count * nz)
+    return row0 + k * nrow + i, index[k, j]
+
+
+def _all_cached(functions) -> bool:
+    from .compiled import is_cached
+
+    return all(is_cached(f) for f in functions)
+
+
+def _compile(fn):
+    from .compiled import compile_cached
+
+    return compile_cached(fn)
 
 
 def slack_scale(servo, duration: float) -> float:
@@ -87,76 +125,6 @@ def relaxed_rhs(servo) -> ca.Function:
     return fn
 
 
-def _hermite(s):
-    """The cubic Hermite basis ``h00, h10, h01, h11`` at ``s`` (numbers, arrays or SX)."""
-    s2, s3 = s * s, s * s * s
-    return 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
-
-
-def hs_points(Xa, Xb, Fa, Fb, Fm, h, sp, bnd, rate_rows, hull: bool):
-    """Hermite-Simpson interval rows (module doc).  ``hull``: the interior Bezier control points of
-    the interpolating cubics of ``X[bnd]`` (``X_k + h F_k / 3``, ``X_{k+1} - h F_{k+1} / 3``) and the
-    middle Bernstein coefficient ``2 F_m - (F_k + F_{k+1}) / 2`` of the quadratic derivatives of
-    ``X[rate_rows]``; otherwise the cubics at the interval fractions ``sp[:nb]`` and ``sp[nb:2 nb]``
-    and the derivatives at ``sp[2 nb:]``."""
-    nb, out = len(bnd), []
-    fa, fb, b1 = Fa[rate_rows], Fb[rate_rows], 2 * Fm[rate_rows] - (Fa[rate_rows] + Fb[rate_rows]) / 2
-    if hull:
-        return ca.vertcat(Xa[bnd] + h / 3 * Fa[bnd], Xb[bnd] - h / 3 * Fb[bnd], b1)
-    for q in range(2 if nb else 0):
-        h00, h10, h01, h11 = _hermite(sp[q * nb:(q + 1) * nb])
-        out.append(Xa[bnd] * h00 + h * Fa[bnd] * h10 + Xb[bnd] * h01 + h * Fb[bnd] * h11)
-    if len(rate_rows):
-        r = sp[2 * nb:]
-        out.append(fa * (1 - r) ** 2 + 2 * b1 * r * (1 - r) + fb * r ** 2)
-    return ca.vertcat(*out) if out else ca.SX(0, 1)
-
-
-def lagrange_basis(scheme: Scheme) -> list:
-    """Coefficients (highest power first) of the Lagrange polynomials through ``0`` and the
-    collocation points (the interpolant of :class:`~invctl.inversion.result.Inverse`)."""
-    allt = np.concatenate([[0.0], scheme.tau])
-    out = []
-    for j in range(allt.size):
-        c = np.poly1d([1.0])
-        for r in range(allt.size):
-            if r != j:
-                c *= np.poly1d([1.0, -allt[r]]) / (allt[j] - allt[r])
-        out.append(c.coeffs)
-    return out
-
-
-def bernstein_interior(scheme: Scheme) -> np.ndarray:
-    """``(d+1, d-1)``: the values of a degree-``d`` polynomial at ``0`` and the collocation points
-    (a row) times it give its interior Bernstein coefficients on ``[0, 1]``."""
-    from math import comb
-
-    d = scheme.degree
-    s = np.concatenate([[0.0], scheme.tau])[:, None]
-    i = np.arange(d + 1)[None, :]
-    A = np.array([[comb(d, k) for k in range(d + 1)]]) * s ** i * (1 - s) ** (d - i)
-    return np.linalg.inv(A).T[:, 1:d]
-
-
-def coll_points(Xall, sp, bnd, basis, hull=None):
-    """Legendre/Radau interval rows: ``X[bnd]`` of the interval's polynomial (values ``Xall`` at 0
-    and the collocation points) at the fractions ``sp[q nb:(q + 1) nb]``, ``q < d - 1``, or with
-    ``hull`` (:func:`bernstein_interior`) its interior Bernstein coefficients."""
-    if hull is not None:
-        return ca.vec(ca.mtimes(Xall[bnd, :], ca.DM(hull)))
-    nb, out = len(bnd), []
-    for q in range(len(basis) - 2):
-        s = sp[q * nb:(q + 1) * nb]
-        val = 0
-        for j, coeffs in enumerate(basis):
-            lj = 0
-            for a in coeffs:  # Horner
-                lj = lj * s + float(a)
-            val = val + Xall[bnd, j] * lj
-        out.append(val)
-    return ca.vertcat(*out) if out else ca.SX(0, 1)
-
-
 @dataclass(frozen=True)
 class PathRow:
     """One bounded quantity of a transcription: ``kind`` ("X": an entry of ``X``; "rate": an
@@ -170,18 +138,10 @@ class PathRow:
     point: int
 
 
-#: the names of OCPTranscription.__init__ the structured Hessian (ocp_hessian.py) reads
+#: the names of OCPTranscription.__init__ the structured Hessian (structured_hessian) reads
 _HESSIAN_CONTEXT = (
-    "nG", "zeta", "tau", "pin", "G", "n_def", "n_ip", "h", "dh", "hs", "nx", "m", "nz_pt", "lin",
-    "bnd", "rate_rows", "ipars", "scheme", "d", "N", "npr", "n_el", "flat_pts", "pts_keys", "x",
-    "p", "ip", "common", "iv_index", "point_cols", "basis", "hull", "bern",
+    "zeta", "pin", "G", "n_def", "n_ip", "npr", "n_el", "flat_pts", "pts_keys", "x", "p",
 )
-
-
-def _structured_hessian(tr):
-    from .ocp_hessian import structured_hessian
-
-    return structured_hessian(tr)
 
 
 class OCPTranscription:
@@ -233,9 +193,9 @@ class OCPTranscription:
         self.servo, self.selection, self.scheme, self.N = servo, selection, scheme, int(N)
         self.relaxed, self.free_time, self.elastic = bool(relaxed), bool(free_time), bool(elastic)
         if interior == "auto":
-            interior = "hull" if scheme.is_hs else None
-        if interior not in ("hull", "points", None) or (interior is None and scheme.is_hs):
-            raise ValueError(f"interior must be 'hull', 'points' (or None for Legendre/Radau), got {interior!r}")
+            interior = scheme.interiors[0]
+        if interior not in scheme.interiors:
+            raise ValueError(f"interior must be one of {scheme.interiors} for {scheme.name}, got {interior!r}")
         self.interior = interior
         self.bounded, self.rated = tuple(int(i) for i in bounded), tuple(int(i) for i in rated)
         L = servo.layout
@@ -243,17 +203,14 @@ class OCPTranscription:
         nth = servo.model.theta.shape[0]
         self.nx, self.m, self.m4, self.ntheta = nx, m, m4, nth
         N = self.N
-        hs = scheme.is_hs
-        d = 1 if hs else scheme.degree
-        self.n_col = 0 if hs else d * N
-        self.nY = 2 * N + 1 if hs else d * N
+        self.n_col, self.nY = scheme.n_col(N), scheme.n_samples(N)
         self.nS = self.nY  # slacks where F is evaluated: nodes + midpoints (HS), collocation points
         ub = L.blocks["u"]
         u_idx = list(range(ub.start, ub.stop))
         rate_rows = [u_idx[i] for i in self.rated]
         bnd = list(self.bounded)
         # interior points per interval (module doc): positions are parameters
-        self.n_points = ((2 * len(bnd) + len(rate_rows)) if hs else (d - 1) * len(bnd)) if interior == "points" else 0
+        self.n_points = scheme.n_points(len(bnd), len(rate_rows)) if interior == "points" else 0
         hull = interior == "hull"
         # ---------------------------------------------------------------- global layout
         self.nXs = nx * (N + 1) + nx * self.n_col
@@ -318,85 +275,10 @@ class OCPTranscription:
             out = ca.mtimes(JG, dzeta)
             return out if tau is None else out + Gt * dt
 
-        if hs:
-            Xa, Xb, Xm = ca.SX.sym("Xa", nx), ca.SX.sym("Xb", nx), ca.SX.sym("Xm", nx)
-            Ga, Gb, Gm = ca.SX.sym("Ga", nG), ca.SX.sym("Gb", nG), ca.SX.sym("Gm", nG)
-            mid_state = ca.Function("ocp_hs_mid", [Xa, Xb, Ga, Gb] + ipars,
-                                    [0.5 * (Xa + Xb) + h / 8 * (Ga[:nx] - Gb[:nx])])
-            Fa, Fb, Fm = Ga[:nx], Gb[:nx], Gm[:nx]
-
-            def hs_rows(Xa_, Xb_, Xm_, Fa_, Fb_, Fm_, ra, rm, rb, h_):
-                return (Xb_ - Xa_ - h_ / 6 * (Fa_ + 4 * Fm_ + Fb_),
-                        ca.vertcat(ca.sqrt(h_ / 6) * ra, ca.sqrt(2 * h_ / 3) * rm, ca.sqrt(h_ / 6) * rb),
-                        hs_points(Xa_, Xb_, Fa_, Fb_, Fm_, h_, sp, bnd, rate_rows, hull))
-
-            val = hs_rows(Xa, Xb, Xm, Fa, Fb, Fm, Ga[nx:], Gm[nx:], Gb[nx:], h)
-            iv_val = ca.Function("ocp_hs_interval", [Xa, Xb, Xm, Ga, Gb, Gm] + ipars, list(val))
-            # chain rule: local variables z = (Xa, Xb, sa, sb, sm, tau)
-            JGa, JGb, JGm = (ca.SX.sym(k, nG, nz_pt) for k in ("JGa", "JGb", "JGm"))
-            Gta, Gtb, Gtm = (ca.SX.sym(k, nG) for k in ("Gta", "Gtb", "Gtm"))
-            dXa, dXb = ca.SX.sym("dXa", nx), ca.SX.sym("dXb", nx)
-            dsa, dsb, dsm = (ca.SX.sym(k, m) if self.relaxed else ca.SX(0, 1) for k in ("dsa", "dsb", "dsm"))
-            dt = ca.SX.sym("dt") if tau is not None else ca.SX(0)
-            dGa = lin(JGa, Gta, ca.vertcat(dXa, dsa), dt)
-            dGb = lin(JGb, Gtb, ca.vertcat(dXb, dsb), dt)
-            dXm = 0.5 * (dXa + dXb) + h / 8 * (dGa[:nx] - dGb[:nx]) + dh * dt / 8 * (Fa - Fb)
-            dGm = lin(JGm, Gtm, ca.vertcat(dXm, dsm), dt)
-            ddef = dXb - dXa - h / 6 * (dGa[:nx] + 4 * dGm[:nx] + dGb[:nx]) - dh * dt / 6 * (Fa + 4 * Fm + Fb)
-            sq = [ca.sqrt(h / 6), ca.sqrt(2 * h / 3), ca.sqrt(h / 6)]
-            dsq = [dh * dt / (2 * q) * k for q, k in zip(sq, (1 / 6, 2 / 3, 1 / 6))]
-            dR = ca.vertcat(*[sq[i] * dG[nx:] + dsq[i] * G_[nx:]
-                              for i, (dG, G_) in enumerate(((dGa, Ga), (dGm, Gm), (dGb, Gb)))])
-            Z = ca.SX.zeros(nx)
-            dpath = (hs_points(dXa, dXb, dGa[:nx], dGb[:nx], dGm[:nx], h, sp, bnd, rate_rows, hull)
-                     + dh * dt * (hs_points(Z, Z, Fa, Fb, Fm, 1, sp, bnd, rate_rows, hull)
-                                  - hs_points(Z, Z, Fa, Fb, Fm, 0, sp, bnd, rate_rows, hull)))
-            z = ca.vertcat(dXa, dXb, dsa, dsb, dsm, *([dt] if tau is not None else []))
-            jins = [Ga, Gb, Gm, JGa, JGb, JGm] + ([Gta, Gtb, Gtm] if tau is not None else []) + ipars
-            iv_jac = ca.Function("ocp_hs_interval_jac", jins,
-                                 [ca.densify(ca.jacobian(q, z)) for q in (ddef, dR, dpath)])
-            ks = np.arange(N)
-            iv_index = np.stack([np.concatenate([cols("X", k), cols("X", k + 1)]
-                                                + ([cols("S", k), cols("S", k + 1), cols("S", N + 1 + k)]
-                                                   if self.relaxed else [])
-                                                + ([[self.i_tau]] if tau is not None else [])) for k in ks])
-        else:
-            Xk, Xk1, Xc, Gc = ca.SX.sym("Xk", nx), ca.SX.sym("Xk1", nx), ca.SX.sym("Xc", nx, d), ca.SX.sym("Gc", nG, d)
-            wq = quadrature_weights(scheme)
-            Cm, Dm = ca.DM(scheme.C), ca.DM(scheme.D)
-            basis = lagrange_basis(scheme) if interior else lagrange_basis(scheme)[:1]
-            bern = bernstein_interior(scheme) if hull else None
-
-            def coll_rows(Xk_, Xk1_, Xc_, Fc_, rc, h_):
-                Xall = ca.horzcat(Xk_, Xc_)
-                return (ca.vertcat(ca.vec(ca.mtimes(Xall, Cm) - h_ * Fc_), Xk1_ - ca.mtimes(Xall, Dm)),
-                        ca.vertcat(*[ca.sqrt(h_ * float(wq[q])) * rc[:, q] for q in range(d)]),
-                        ca.vertcat(*[Fc_[rate_rows, q] for q in range(d)], coll_points(Xall, sp, bnd, basis, bern)))
-
-            val = coll_rows(Xk, Xk1, Xc, Gc[:nx, :], Gc[nx:, :], h)
-            iv_val = ca.Function("ocp_coll_interval", [Xk, Xk1, Xc, Gc] + ipars, list(val))
-            JGc, Gtc = ca.SX.sym("JGc", nG, nz_pt * d), ca.SX.sym("Gtc", nG, d)
-            dXk, dXk1, dXc = ca.SX.sym("dXk", nx), ca.SX.sym("dXk1", nx), ca.SX.sym("dXc", nx, d)
-            dSc = ca.SX.sym("dSc", m, d) if self.relaxed else ca.SX(0, d)
-            dt = ca.SX.sym("dt") if tau is not None else ca.SX(0)
-            dGc = ca.horzcat(*[lin(JGc[:, q * nz_pt:(q + 1) * nz_pt], Gtc[:, q], ca.vertcat(dXc[:, q], dSc[:, q]), dt)
-                               for q in range(d)])
-            dall = ca.horzcat(dXk, dXc)
-            ddef = ca.vertcat(ca.vec(ca.mtimes(dall, Cm) - h * dGc[:nx, :] - dh * dt * Gc[:nx, :]),
-                              dXk1 - ca.mtimes(dall, Dm))
-            sq = [ca.sqrt(h * float(wq[q])) for q in range(d)]
-            dR = ca.vertcat(*[sq[q] * dGc[nx:, q] + dh * dt * float(wq[q]) / (2 * sq[q]) * Gc[nx:, q]
-                              for q in range(d)])
-            dpath = ca.vertcat(*[dGc[rate_rows, q] for q in range(d)], coll_points(dall, sp, bnd, basis, bern))
-            z = ca.vertcat(dXk, dXk1, ca.vec(dXc), ca.vec(dSc), *([dt] if tau is not None else []))
-            jins = [Gc, JGc] + ([Gtc] if tau is not None else []) + ipars
-            iv_jac = ca.Function("ocp_coll_interval_jac", jins,
-                                 [ca.densify(ca.jacobian(q, z)) for q in (ddef, dR, dpath)])
-            ks = np.arange(N)
-            iv_index = np.stack([np.concatenate([cols("X", k), cols("X", k + 1)]
-                                                + [cols("C", k * d + q) for q in range(d)]
-                                                + ([cols("S", k * d + q) for q in range(d)] if self.relaxed else [])
-                                                + ([[self.i_tau]] if tau is not None else [])) for k in ks])
+        ctx = SimpleNamespace(nx=nx, m=m, nG=nG, nz_pt=nz_pt, N=N, h=h, dh=dh, tau=tau, sp=sp, ipars=ipars, bnd=bnd,
+                            rate_rows=rate_rows, rated=self.rated, hull=hull, interior=interior, relaxed=self.relaxed,
+                            lin=lin, cols=cols, point_cols=point_cols, i_tau=self.i_tau, block_triplets=_block_triplets)
+        val, iv_val, iv_jac, iv_index, ctx.local = scheme.ocp_interval(ctx)
         n_def, n_res, n_ip = (int(v.numel()) for v in val)
         self._functions = {"point": pt_val, "point_jac": pt_jac, "interval": iv_val, "interval_jac": iv_jac}
         # compiled derivative functions (never differentiated themselves: they feed the custom
@@ -420,28 +302,10 @@ class OCPTranscription:
         def zeta_of(Xs, a, b):
             return ca.vertcat(Xs, S[:, a:b]) if self.relaxed else Xs
 
-        def graph(jac: bool):
-            """(defect, R, interval path, node path) values, or their Jacobian blocks."""
-            pt = (pt_jac if jac else pt_val)
-            if hs:
-                out_n = pt.map(N + 1)(zeta_of(Xmesh, 0, N + 1), Ymat[:, :N + 1], *common)
-                Gn = out_n[0] if jac else out_n
-                Xm = mid_state.map(N)(Xmesh[:, :N], Xmesh[:, 1:], Gn[:, :N], Gn[:, 1:], *ip)
-                out_m = pt.map(N)(zeta_of(Xm, N + 1, 2 * N + 1), Ymat[:, N + 1:], *common)
-                if not jac:
-                    return iv_val.map(N)(Xmesh[:, :N], Xmesh[:, 1:], Xm, Gn[:, :N], Gn[:, 1:], out_m, *ip), Gn
-                JGn, Gm, JGm = out_n[1], out_m[0], out_m[1]
-                tin = [out_n[2][:, :N], out_n[2][:, 1:], out_m[2]] if tau is not None else []
-                blocks = iv_jac.map(N)(Gn[:, :N], Gn[:, 1:], Gm, JGn[:, :nz_pt * N], JGn[:, nz_pt:], JGm, *tin, *ip)
-                return blocks, {"node": out_n, "mid": out_m, "Xm": Xm}
-            out_c = pt.map(N * d)(zeta_of(Xcol, 0, N * d), Ymat, *common)
-            if not jac:
-                return iv_val.map(N)(Xmesh[:, :N], Xmesh[:, 1:], Xcol, out_c, *ip), None
-            tin = [out_c[2]] if tau is not None else []
-            return iv_jac.map(N)(out_c[0], out_c[1], *tin, *ip), {"col": out_c}
-
-        (defect, resid, ipath), Gn = graph(False)
-        (Jdef, JR_blk, Jip), pts = graph(True)
+        ctx.__dict__.update(pt_val=pt_val, pt_jac=pt_jac, iv_val=iv_val, iv_jac=iv_jac, iv_index=iv_index, Xmesh=Xmesh,
+                          Xcol=Xcol, Ymat=Ymat, common=common, ip=ip, zeta_of=zeta_of)
+        (defect, resid, ipath), Gn = scheme.ocp_graph(ctx, False)
+        (Jdef, JR_blk, Jip), pts = scheme.ocp_graph(ctx, True)
         s0, sf = list(selection.start), list(selection.end)
         bc = ca.vertcat(Xmesh[s0, 0] - P["E0"][s0], Xmesh[sf, N] - P["Ef"][sf])
         trip = []  # (rows, cols, values) of the Jacobian of g
@@ -465,23 +329,14 @@ class OCPTranscription:
             base = n_el = len(ccols)
         if n_ip:
             parts.append(ca.vec(ipath))
-            for k in range(N):  # in the order of the interval rows (hs_points, coll_points)
-                if not hs:
-                    rows += [PathRow("rate", j, "col", k * d + q) for q in range(d) for j in self.rated]
-                rows += [PathRow("X", i, "ext", k) for _q in range((2 if hs else d - 1) if interior else 0)
-                         for i in bnd]
-                if hs:
-                    rows += [PathRow("rate", j, "ext", k) for j in self.rated]
+            for k in range(N):  # in the order of the interval rows (Scheme.path_points)
+                rows += [PathRow(*r) for r in scheme.ocp_interval_rows(k, bnd, self.rated, interior)]
             pj.append((*_block_triplets(n_ip, iv_index, base), ca.vec(Jip)))
             base += N * n_ip
-        if hs and self.rated:  # rates at the mesh points
-            parts.append(ca.vec(Gn[rate_rows, :]))
-            rows += [PathRow("rate", j, "mesh", k) for k in range(N + 1) for j in self.rated]
-            nidx = np.stack([point_cols(k, k) for k in range(N + 1)])
-            pj.append((*_block_triplets(len(rate_rows), nidx, base), ca.vec(pts["node"][1][rate_rows, :])))
-            if tau is not None:
-                pj.append((base + np.arange((N + 1) * len(rate_rows)), np.full((N + 1) * len(rate_rows), self.i_tau),
-                           ca.vec(pts["node"][2][rate_rows, :])))
+        mparts, mrows, mpj = scheme.ocp_mesh_rates(ctx, Gn, pts, base)  # rates at the mesh points (Hermite-Simpson)
+        parts += mparts
+        rows += [PathRow(*r) for r in mrows]
+        pj += mpj
         self.path_rows = tuple(rows)
         npr = len(rows)
         path = ca.vertcat(*parts) if parts else ca.MX(0, 1)
@@ -527,20 +382,11 @@ class OCPTranscription:
         self._residual_fn = ca.Function("ocp_residual", [x, p], [R])
 
         # the point outputs the exact Hessian needs, as expressions of (x, p)
-        if hs:
-            on, om = pts["node"], pts["mid"]
-            pts_map = {"Gn": on[0], "JGn": on[1], "Gm": om[0], "JGm": om[1], "zn": zeta_of(Xmesh, 0, N + 1),
-                       "Yn": Ymat[:, :N + 1], "zm": zeta_of(pts["Xm"], N + 1, 2 * N + 1), "Ym": Ymat[:, N + 1:]}
-            if tau is not None:
-                pts_map.update({"Gtn": on[2], "Gtm": om[2]})
-        else:
-            oc = pts["col"]
-            pts_map = {"Gc": oc[0], "JGc": oc[1], "zc": zeta_of(Xcol, 0, N * d), "Yc": Ymat}
-            if tau is not None:
-                pts_map["Gtc"] = oc[2]
+        pts_map = pts
         pts_keys, flat_pts = list(pts_map), list(pts_map.values())
-        self._hx = SimpleNamespace(**{k: v for k, v in locals().items() if k in _HESSIAN_CONTEXT})
-        self._build_exact_hessian = lambda: _structured_hessian(self)
+        ctx.__dict__.update({k: v for k, v in locals().items() if k in _HESSIAN_CONTEXT})
+        self._hx = ctx
+        self._build_exact_hessian = lambda: structured_hessian(self)
         self.g = self._gfun(x, p)
         self.f = f
         self._plain = (f, g)  # the same NLP without custom derivatives (hessian="exact")
@@ -558,17 +404,12 @@ class OCPTranscription:
 
     # ------------------------------------------------------------------ layout
     def sample_times(self, t_mesh) -> np.ndarray:
-        """Times of the reference samples (order of ``Y`` and of the slacks): the mesh points,
-        then the midpoints (Hermite-Simpson), or the collocation points."""
-        t_mesh = np.asarray(t_mesh, float)
-        h = np.diff(t_mesh)
-        if self.scheme.is_hs:
-            return np.concatenate([t_mesh, t_mesh[:-1] + 0.5 * h])
-        return (t_mesh[:-1, None] + h[:, None] * self.scheme.tau[None, :]).ravel()
+        """Times of the reference samples (order of ``Y`` and of the slacks): the scheme's."""
+        return self.scheme.sample_times(t_mesh)
 
     def collocation_times(self, t_mesh) -> np.ndarray:
         """Times of ``X_col`` (empty for Hermite-Simpson)."""
-        return np.zeros(0) if self.scheme.is_hs else self.sample_times(t_mesh)
+        return self.scheme.collocation_times(t_mesh)
 
     def row_times(self, t_mesh) -> np.ndarray:
         """Time of every bounded quantity (:attr:`path_rows`; interior points: the midpoint)."""
@@ -606,13 +447,8 @@ class OCPTranscription:
 
     def default_points(self) -> np.ndarray:
         """Interior points spread over every interval: ``(n_points, N)`` fractions."""
-        nb, nr, d = len(self.bounded), len(self.rated), self.scheme.degree
-        if self.interior != "points":
-            col = []
-        elif self.scheme.is_hs:
-            col = [1 / 3] * nb + [2 / 3] * nb + [0.5] * nr
-        else:
-            col = [q / d for q in range(1, d) for _ in range(nb)]
+        nb, nr = len(self.bounded), len(self.rated)
+        col = self.scheme.default_fractions(nb, nr) if self.interior == "points" else []
         return np.zeros((len(col), self.N)) + np.array(col, float)[:, None]
 
     def extremum_points(self, inv) -> np.ndarray:
@@ -624,30 +460,12 @@ class OCPTranscription:
             return pts
         nb, N = len(self.bounded), self.N
         h = np.diff(inv.t_mesh)
-        slots = 2 if self.scheme.is_hs else self.scheme.degree - 1
-        deriv: list[Any] = []
-        if self.scheme.is_hs:
-            # coefficients of d/ds of the cubic, per entry: (3 c3, 2 c2, c1) x N
-            for i in self.bounded:
-                y0, y1 = inv.X_mesh[i, :-1], inv.X_mesh[i, 1:]
-                d0, d1 = h * inv.dX_mesh[i, :-1], h * inv.dX_mesh[i, 1:]
-                deriv.append(np.array([3 * (2 * y0 + d0 - 2 * y1 + d1), 2 * (-3 * y0 - 2 * d0 + 3 * y1 - d1), d0]))
-            ub = self.servo.layout.blocks["u"].start
-            for r, j in enumerate(self.rated):
-                fa, fb = inv.dX_mesh[ub + j, :-1], inv.dX_mesh[ub + j, 1:]
-                b1 = 3 * (inv.X_mesh[ub + j, 1:] - inv.X_mesh[ub + j, :-1]) / h - fa - fb
-                den = fa - 2 * b1 + fb
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    s = np.where(np.abs(den) > 1e-300, (fa - b1) / den, 0.5)
-                pts[2 * nb + r] = np.where((s > 0) & (s < 1), s, 0.5)
-        else:
-            basis = [np.polyder(np.poly1d(c)) for c in lagrange_basis(self.scheme)]
-            d = self.scheme.degree
-            for i in self.bounded:
-                vals = np.vstack([inv.X_mesh[i, :-1]] + [inv.X_col[i, q::d] for q in range(d)])  # (d+1) x N
-                coeffs = np.sum([np.outer(np.pad(b.coeffs, (d - 1 - b.order, 0)), vals[j]) for j, b in enumerate(basis)],
-                                axis=0)
-                deriv.append(coeffs)
+        slots, sch = self.scheme.point_slots(), self.scheme
+        deriv = []  # coefficients in s of d/ds of the polynomial of every bounded entry, (degree x N)
+        for i in self.bounded:
+            C = sch.coefficients(inv.X_mesh, inv.dX_mesh, inv.X_col, i, h)
+            deriv.append(C[:-1] * np.arange(C.shape[0] - 1, 0, -1)[:, None])
+        sch.rate_extrema(inv, self.servo.layout.blocks["u"].start, self.rated, pts, nb)
         for e, D in enumerate(deriv):
             for k in range(N):
                 roots = [float(z.real) for z in np.roots(D[:, k]) if abs(z.imag) < 1e-12 and 0 < z.real < 1]
@@ -723,3 +541,63 @@ class OCPTranscription:
         tau = tau_ref if tau is None else tau  # samples given for the actual duration: no retiming
         args = [zeta, Ysamples] + ([tau] if self.free_time else []) + [theta, c, np.ones(self.m), np.ones(3), tau_ref]
         return np.array(self._functions["point"].map(k)(*args))
+
+
+# ---------------------------------------------------------------- the exact Hessian, structured
+def structured_hessian(tr) -> ca.Function:
+    """``(x, p, lam_f, lam_g) -> triu(Hessian of the Lagrangian)`` of ``tr`` (``hessian="exact"``).
+
+    Every point (mesh point, midpoint, collocation point) contributes ``G = (F, r)``; per interval the
+    constraint rows and residuals are low-degree formulas in the point outputs, the local states and
+    ``h(tau)``.  The Hessian is the sum of, per point, the Hessian of ``w . G`` in ``(zeta, tau)`` with ``w``
+    the *total* adjoint weight of the point's outputs (through the Hermite-Simpson midpoint state too), and,
+    per interval, the exact second-order expansion of the interval formulas with the point outputs replaced
+    by their first-order models (``G + J dzeta + G_tau dtau``) plus the midpoint's point Hessian pulled back
+    through ``dzeta_m / dz`` (:meth:`~invctl.inversion.schemes.Scheme.hessian_interval`).  Checked against
+    CasADi's AD of the whole graph in ``tests/test_ocp.py`` (relative 1e-12)."""
+    c = tr._hx
+    nG, zeta, tau, G, n_def, n_ip, h, dh, N = c.nG, c.zeta, c.tau, c.G, c.n_def, c.n_ip, c.h, c.dh, c.N
+    npr, n_el, x, p, ip, common, scheme = c.npr, c.n_el, c.x, c.p, c.ip, c.common, tr.scheme
+    wv = ca.SX.sym("w", nG)
+    pvars = ca.vertcat(zeta, tau) if tau is not None else zeta
+    npv = int(pvars.numel())
+    pt_hess = ca.Function("ocp_point_hess", c.pin + [wv], [ca.densify(ca.hessian(ca.dot(wv, G), pvars)[0])])
+    lam_s, mu_s, fs = ca.SX.sym("lam", n_def), ca.SX.sym("mu", n_ip), ca.SX.sym("fs")
+    hd_sym = ca.SX.sym("dt") if tau is not None else ca.SX(0)
+    h_d = h + (dh * hd_sym if tau is not None else 0)
+    iv_w, iv_h = scheme.hessian_interval(c, lam_s, mu_s, fs, hd_sym, h_d, npv)
+    hfuns = [pt_hess, iv_w, iv_h]
+    if tr._compile_request is True or (tr._compile_request == "auto" and _all_cached(hfuns)):
+        pt_hess, iv_w, iv_h = (_compile(fn) for fn in hfuns)
+    # ---- MX assembly
+    xs2, ps2 = ca.MX.sym("x", tr.nX), ca.MX.sym("p", tr.np)
+    lf, lg = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", tr.ng)
+    Pm = {k: ps2[sl] for k, sl in tr._p_slices.items()}
+    fsv = lf * (Pm["eps"] if tr.elastic else Pm["fscale"])
+    base_p = tr.n_defect + tr.n_bc
+    lam_def = ca.reshape(lg[:N * n_def], n_def, N)
+
+    def path_mult(a, n_):  # multipliers of path rows a..a+n_ (both copies when elastic)
+        out = lg[base_p + a:base_p + a + n_]
+        return out + lg[base_p + npr + a:base_p + npr + a + n_] if tr.elastic else out
+
+    mu_ip = ca.reshape(path_mult(n_el, N * n_ip), n_ip, N) if n_ip else ca.MX(0, N)
+    outs = dict(zip(c.pts_keys, ca.substitute(c.flat_pts, [x, p], [xs2, ps2])))
+    ip2 = ca.substitute(ip, [p, x], [ps2, xs2]) if ip else []
+    com2 = ca.substitute(common, [p, x], [ps2, xs2])
+    trip_h = scheme.hessian_blocks(c, outs, iv_w, iv_h, pt_hess, lam_def, mu_ip, fsv, ip2, com2, path_mult, tr.i_tau)
+    rr, cc, vv = [], [], []
+    for index, blk in trip_h:
+        count, nzl = index.shape
+        r_, c_ = _block_triplets(nzl, index, 0)  # rows here are local: recompute global rows
+        k = np.repeat(np.arange(count), nzl * nzl)
+        i_loc = np.tile(np.arange(nzl), count * nzl)
+        grow = index[k, i_loc]
+        keep = grow <= c_
+        rr.append(grow[keep])
+        cc.append(c_[keep])
+        vv.append(ca.vec(blk)[np.flatnonzero(keep).tolist()])
+    sp_h, S_h = _assembly(np.concatenate(rr), np.concatenate(cc), (tr.nX, tr.nX), summed=True)
+    H = ca.MX(sp_h, ca.mtimes(S_h, ca.vertcat(*vv)))
+    return ca.Function("structured_hess_lag", [xs2, ps2, lf, lg], [H], ["x", "p", "lam_f", "lam_g"],
+                       ["triu_hess_gamma_x_x"])

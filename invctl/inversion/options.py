@@ -79,7 +79,7 @@ class Discretization:
     forward_options: Mapping | None = None
 
     def __post_init__(self):
-        from .collocation import get_scheme
+        from .schemes import get_scheme
         from .servo import FORMULATIONS
 
         w = "Discretization: "
@@ -406,20 +406,6 @@ class ResolvedBounds:
     @property
     def rated(self) -> tuple[int, ...]:
         return tuple(int(i) for i in np.flatnonzero(np.isfinite(self.rate_lo) | np.isfinite(self.rate_hi)))
-
-    def violations(self, X, rates=None) -> dict:
-        """Largest violation per bound label of states ``X`` (columns) and rates (``m`` x k)."""
-        out = {}
-        for i in self.bounded:
-            v = max(float(np.max(X[i] - self.hi[i], initial=-math.inf)),
-                    float(np.max(self.lo[i] - X[i], initial=-math.inf)))
-            out[self.labels[i]] = v
-        if rates is not None:
-            for j in self.rated:
-                v = max(float(np.max(rates[j] - self.rate_hi[j], initial=-math.inf)),
-                        float(np.max(self.rate_lo[j] - rates[j], initial=-math.inf)))
-                out[self.rate_labels[j]] = v
-        return out
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -4,7 +4,7 @@ dichotomy check of the selection."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -13,7 +13,7 @@ from ..errors import BoundaryConditionError, NoDichotomyError, OptionError, Refe
 from .boundary import (BLOCKS, Selection, _resolve, dichotomy, explain_dichotomy, explain_no_dichotomy,
                        resolve_selection)
 from .cache import _QS_LAST, equilibrium_solver, servo_model
-from .collocation import Scheme, get_scheme
+from .schemes import Scheme, get_scheme
 from .guess import default_mesh, quasi_static_guess
 
 
@@ -45,9 +45,6 @@ class Setup:
         if self.guess is None:
             raise ValueError("this setup has no quasi-static path (prepared with ends=...)")
         return np.vstack([np.interp(times, self.guess_times, row) for row in self.guess])
-
-    def describe_selection(self) -> str:
-        return self.selection.describe()
 
 
 def resolve_plan(model, reference, discretization, horizon):
@@ -164,8 +161,3 @@ def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest
     return Setup(model, reference, servo, sch, sel, float(T0), float(Tf), t_mesh, kind, E[0], E[1], G, qs_times,
                  plan, dich, under, (bool(rest_start), bool(rest_end)),
                  {"build_s": build_s, "guess_s": time.perf_counter() - t_guess})
-
-
-def with_mesh(setup: Setup, t_mesh) -> Setup:
-    """The same setup on another mesh of the same horizon."""
-    return replace(setup, t_mesh=np.asarray(t_mesh, float), mesh_kind="given")

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import INTERRUPT_LIKE, InversionFailed, RunInterrupted, is_interrupt
-from .collocation import get_scheme
+from .schemes import get_scheme
 from .guess import _split
 from .servo import mapped
 

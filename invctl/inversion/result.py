@@ -9,7 +9,7 @@ import numpy as np
 from ..io import file_loader
 from ..results import Curve, Status, Trajectory
 from ..scenes import jsonable
-from .collocation import get_scheme
+from .schemes import get_scheme
 
 _BLOCKS = ("q", "v", "lam", "mu", "u")
 
@@ -59,17 +59,6 @@ class Inverse(Trajectory):
         self.dX_mesh = np.asarray(self.dX_mesh, float)
         self.X_col = np.asarray(self.X_col, float)
         self._scheme = get_scheme(self.scheme)
-        if not self._scheme.is_hs:
-            d = self._scheme.degree
-            allt = np.concatenate([[0.0], self._scheme.tau])
-            basis = []
-            for j in range(d + 1):
-                c = np.poly1d([1.0])
-                for r in range(d + 1):
-                    if r != j:
-                        c *= np.poly1d([1.0, -allt[r]]) / (allt[j] - allt[r])
-                basis.append(c)
-            self._basis = basis
 
     # ------------------------------------------------------------ sizes
     @property
@@ -106,45 +95,20 @@ class Inverse(Trajectory):
     def X(self, t) -> np.ndarray:
         """All unknowns at times ``t``: shape ``(nx, len(t))``."""
         k, h, s = self._locate(t)
-        if self._scheme.is_hs:
-            s2, s3 = s * s, s * s * s
-            h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
-            return (self.X_mesh[:, k] * h00 + self.dX_mesh[:, k] * (h10 * h)
-                    + self.X_mesh[:, k + 1] * h01 + self.dX_mesh[:, k + 1] * (h11 * h))
-        d = self._scheme.degree
-        out = self.X_mesh[:, k] * self._basis[0](s)
-        for j in range(1, d + 1):
-            out = out + self.X_col[:, k * d + j - 1] * self._basis[j](s)
-        return out
+        return self._scheme.evaluate(self.X_mesh, self.dX_mesh, self.X_col, k, h, s)
 
     def dX(self, t) -> np.ndarray:
         """Time derivative of :meth:`X` (of the same polynomials; zero outside ``[T0, Tf]``)."""
         t = np.atleast_1d(np.asarray(t, float))
         k, h, s = self._locate(t)
-        if self._scheme.is_hs:
-            s2 = s * s
-            out = ((self.X_mesh[:, k + 1] - self.X_mesh[:, k]) * (6 * s - 6 * s2) / h
-                   + self.dX_mesh[:, k] * (3 * s2 - 4 * s + 1) + self.dX_mesh[:, k + 1] * (3 * s2 - 2 * s))
-        else:
-            d = self._scheme.degree
-            out = self.X_mesh[:, k] * np.polyder(self._basis[0])(s)
-            for j in range(1, d + 1):
-                out = out + self.X_col[:, k * d + j - 1] * np.polyder(self._basis[j])(s)
-            out = out / h
+        out = self._scheme.evaluate(self.X_mesh, self.dX_mesh, self.X_col, k, h, s, derivative=True)
         return np.where((t < self.T0) | (t > self.Tf), 0.0, out)
 
     def extrema(self, row: int, derivative: bool = False) -> np.ndarray:
         """Times of the interior extrema of ``X[row]`` (of its time derivative with ``derivative``)
         on every mesh interval: where a bound on it can be exceeded between the nodes."""
         h = np.diff(self.t_mesh)
-        if self._scheme.is_hs:  # the cubic in s = (t - t_k) / h
-            y0, y1 = self.X_mesh[row, :-1], self.X_mesh[row, 1:]
-            d0, d1 = h * self.dX_mesh[row, :-1], h * self.dX_mesh[row, 1:]
-            C = np.array([2 * y0 + d0 - 2 * y1 + d1, -3 * y0 - 2 * d0 + 3 * y1 - d1, d0, y0])
-        else:
-            d = self._scheme.degree
-            vals = np.vstack([self.X_mesh[row, :-1]] + [self.X_col[row, q::d] for q in range(d)])
-            C = np.sum([np.outer(b.coeffs, vals[j]) for j, b in enumerate(self._basis)], axis=0)
+        C = self._scheme.coefficients(self.X_mesh, self.dX_mesh, self.X_col, row, h)
         out = []
         for k in range(self.N):
             p = np.polyder(np.poly1d(C[:, k]), 2 if derivative else 1)
@@ -154,33 +118,16 @@ class Inverse(Trajectory):
                     if abs(z.imag) < 1e-9 and 0 < z.real < 1]
         return np.array(out, float)
 
-    def _block(self, block, t):
-        return self.X(t)[self._slice(block)]
+    def _curve(self, block: str) -> Curve:
+        return Curve(self.X_mesh[self._slice(block)], lambda t: self.X(t)[self._slice(block)])
 
-    @property
-    def q(self) -> Curve:
-        """Coordinates ``q(t)``: shape ``(n, len(t))`` (the mesh values; call it at any times)."""
-        return Curve(self.X_mesh[self._slice("q")], lambda t: self._block("q", t))
-
-    @property
-    def v(self) -> Curve:
-        """Velocities ``v(t)``: shape ``(n, len(t))`` (the mesh values; call it at any times)."""
-        return Curve(self.X_mesh[self._slice("v")], lambda t: self._block("v", t))
-
-    @property
-    def lam(self) -> Curve:
-        """Holonomic multipliers ``lam(t)``: shape ``(l, len(t))`` (the mesh values; call it at any times)."""
-        return Curve(self.X_mesh[self._slice("lam")], lambda t: self._block("lam", t))
-
-    @property
-    def mu(self) -> Curve:
-        """Non-holonomic multipliers ``mu(t)``: shape ``(p, len(t))`` (the mesh values; call it at any times)."""
-        return Curve(self.X_mesh[self._slice("mu")], lambda t: self._block("mu", t))
-
-    @property
-    def u(self) -> Curve:
-        """The non-causal feedforward ``u_ff(t)`` (with pre-/post-actuation): ``(m, len(t))`` (the mesh values; call it at any times)."""
-        return Curve(self.X_mesh[self._slice("u")], lambda t: self._block("u", t))
+    q = property(lambda self: self._curve("q"), doc="Coordinates ``q(t)``: shape ``(n, len(t))`` (the mesh values; "
+                 "call it at any times).")
+    v = property(lambda self: self._curve("v"), doc="Velocities ``v(t)``: shape ``(n, len(t))``.")
+    lam = property(lambda self: self._curve("lam"), doc="Holonomic multipliers ``lam(t)``: shape ``(l, len(t))``.")
+    mu = property(lambda self: self._curve("mu"), doc="Non-holonomic multipliers ``mu(t)``: shape ``(p, len(t))``.")
+    u = property(lambda self: self._curve("u"), doc="The non-causal feedforward ``u_ff(t)`` (with pre-/post-actuation): "
+                 "``(m, len(t))``.")
 
     def u_causal(self, t) -> np.ndarray:
         """The causal feedforward of 003 Sect. 6: zero before ``t0``, ``u_bvp(t)`` after."""
@@ -329,7 +276,7 @@ class Inverse(Trajectory):
             raise ResultFileError(f"{path}: sizes {sizes} (nx = {nx}) do not match the stored mesh data "
                                   f"{z['X_mesh'].shape}; the file is inconsistent")
         sch = get_scheme(str(meta["scheme"]))
-        ncol = 0 if sch.is_hs else sch.degree * (z["t_mesh"].size - 1)
+        ncol = sch.n_col(z["t_mesh"].size - 1)
         if (z["t_mesh"].ndim != 1 or z["t_mesh"].size < 2 or np.any(np.diff(z["t_mesh"]) <= 0)
                 or z["dX_mesh"].shape != z["X_mesh"].shape or (ncol and z["X_col"].shape != (nx, ncol))):
             raise ResultFileError(f"{path}: inconsistent collocation data (a mesh that is not increasing, or slopes "

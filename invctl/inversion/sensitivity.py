@@ -31,25 +31,17 @@ import numpy as np
 import scipy.sparse.linalg as spl
 
 from ..errors import BoundaryConditionError, InversionFailed, ParameterError
-from .boundary import EquilibriumSolver, Selection, dichotomy, explain_dichotomy
-from .collocation import get_scheme
+from .boundary import Selection, dichotomy, explain_dichotomy
+from .schemes import get_scheme
 from .result import Inverse
-from .cache import model_key, servo_model, transcription
+from .backends import _newton
+from .cache import equilibrium_solver, model_key, servo_model, transcription
 from .guess import quasi_static_guess
+from .square import make_inverse
 
 __all__ = ["ParametricInverse", "Sensitivities", "mapped_mesh", "parameter_chain"]
 
-_EQ: dict = {}
 _FUN: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
-def _equilibria(model) -> EquilibriumSolver:
-    key = model_key(model)
-    if key not in _EQ:
-        if len(_EQ) >= 16:
-            _EQ.pop(next(iter(_EQ)))
-        _EQ[key] = EquilibriumSolver(model)
-    return _EQ[key]
 
 
 def _selection(servo, text: str) -> Selection:
@@ -179,52 +171,6 @@ def _factor(tr, J):
     return spl.splu(J.tocsc(), permc_spec="COLAMD")
 
 
-def _newton(tr, x0, p, *, lu=None, tol: float, max_iter: int):
-    """Newton's method on ``g(x, p) = 0`` with Jacobian reuse: a kept factorization (e.g. of a
-    neighbouring problem) is used while it contracts the residual by 4 per step, refreshed
-    otherwise; a refreshed step that does not decrease the residual is halved."""
-    residual, residual_and_jacobian = tr.evaluators()
-    x = np.array(x0, float)
-    g = residual(x, p)
-    nrm = np.linalg.norm(g)
-    fresh, n_fact, status, it = False, 0, "Maximum_Iterations_Exceeded", 0
-    for it in range(max_iter + 1):
-        if np.max(np.abs(g)) < tol:
-            status = "Solve_Succeeded"
-            break
-        if it == max_iter or not np.isfinite(nrm):
-            status = status if np.isfinite(nrm) else "Invalid_Number_Detected"
-            break
-        if lu is not None and not fresh:
-            dx = -lu.solve(g)
-            g2 = residual(x + dx, p)
-            n2 = np.linalg.norm(g2)
-            if np.isfinite(n2) and (n2 <= 0.25 * nrm or np.max(np.abs(g2)) < tol):
-                x, g, nrm = x + dx, g2, n2
-                continue
-        try:
-            lu = _factor(tr, residual_and_jacobian(x, p)[1])
-        except RuntimeError:
-            status = "Singular_Jacobian"
-            break
-        n_fact += 1
-        dx = -lu.solve(g)
-        s = 1.0
-        while s >= 1e-6:
-            g2 = residual(x + s * dx, p)
-            n2 = np.linalg.norm(g2)
-            if np.isfinite(n2) and (n2 <= (1 - 1e-4 * s) * nrm or np.max(np.abs(g2)) < tol):
-                break
-            s *= 0.5
-        if s < 1e-6:
-            status = "Line_Search_Failed"
-            break
-        x, g, nrm = x + s * dx, g2, n2
-        fresh = s < 1.0
-    return x, {"status": status, "success": status == "Solve_Succeeded", "iterations": it,
-               "factorizations": n_fact, "max_constraint_violation": float(np.max(np.abs(g)))}, lu
-
-
 class ParametricInverse:
     """A solved stable inverse with its collocation system (see the module doc).
 
@@ -257,7 +203,7 @@ class ParametricInverse:
     @classmethod
     def solve(cls, model, reference, **invert_options) -> "ParametricInverse":
         """:func:`~invctl.inversion.invert` with ``invert_options``, kept with its collocation system."""
-        from .solve import invert
+        from .solver import invert
 
         return cls.from_inverse(model, reference, invert(model, reference, **invert_options))
 
@@ -286,10 +232,10 @@ class ParametricInverse:
                   p=np.zeros(0), E0=inverse.X(inverse.T0)[:, 0], Ef=inverse.X(inverse.Tf)[:, 0])
         tr = obj.transcription()
         Y, yends = obj._samples(reference, obj.t_mesh)
-        eq, th = _equilibria(model), model.theta_values
+        eq, th = equilibrium_solver(model), model.theta_values
         obj.E0 = eq.solve(yends[:, 0], guess_w=obj._w(obj.E0), theta=th, where=f" at T0 = {inverse.T0}")[0]
         obj.Ef = eq.solve(yends[:, 1], guess_w=obj._w(obj.Ef), theta=th, where=f" at Tf = {inverse.Tf}")[0]
-        obj.x = tr.pack(inverse.X_mesh, None if obj.scheme.is_hs else inverse.X_col)
+        obj.x = tr.pack(inverse.X_mesh, inverse.X_col)
         obj.p = tr.parameters(obj.t_mesh, Y, th, obj.E0, obj.Ef)
         obj._base_modes = obj._mode_counts(obj.servo, obj.E0, obj.Ef, yends, th)[0]
         res = float(np.max(np.abs(tr.evaluators()[0](obj.x, obj.p))))
@@ -360,7 +306,7 @@ class ParametricInverse:
         tr = self.transcription()
         t_mesh = self.mesh_for(reference)
         Y, yends = self._samples(reference, t_mesh)
-        eq, th, n = _equilibria(model), model.theta_values, model.n
+        eq, th, n = equilibrium_solver(model), model.theta_values, model.n
         g0, gf = guess if guess is not None else (self.E0, self.Ef)
         how = "given" if x0 is not None else ("continuation" if warm else "quasi-static")
         if not warm and x0 is None:
@@ -379,8 +325,9 @@ class ParametricInverse:
         Ef = eq.solve(yends[:, 1], guess_w=self._w(np.asarray(gf, float)), theta=th, where=f" at Tf = {t_mesh[-1]}")[0]
         modes = self._check_modes(servo, E0, Ef, yends, th) if check_modes else None
         p = tr.parameters(t_mesh, Y, th, E0, Ef)
-        x, info, self._lu = _newton(tr, self.x if x0 is None else x0, p, lu=self._lu,
-                                    tol=self.newton_tol if tol is None else tol, max_iter=max_iter)
+        x, info = _newton(tr, self.x if x0 is None else x0, p, lu=self._lu,
+                          tol=self.newton_tol if tol is None else tol, max_iter=max_iter)
+        self._lu = getattr(tr, "_lu", self._lu) if info["success"] else self._lu
         inv = self._make_inverse(servo, reference, tr, t_mesh, x, Y, th)
         res = self._position_residual(servo, tr, inv, Y, th)
         inv.diagnostics.update(info)
@@ -432,23 +379,17 @@ class ParametricInverse:
 
     def _make_inverse(self, servo, reference, tr, t_mesh, x, Y, th) -> Inverse:
         Xmesh, Xcol = tr.unpack(x)
-        N = t_mesh.size - 1
-        if self.scheme.is_hs:  # the transcription's (possibly compiled) right-hand side at the mesh
-            rhs = tr._rhs_map(N + 1) if hasattr(tr, "_rhs_map") else servo.rhs.map(N + 1)
-            dX = np.array(rhs(Xmesh, Y[:, :N + 1], th))
-        else:
-            dX = np.zeros_like(Xmesh)
-        L = servo.layout
-        return Inverse(self.scheme.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
-                       reference.t0, reference.tf, servo.names, {}, y_ref_fn=reference)
+        N = t_mesh.size - 1  # slopes: the transcription's (possibly compiled) right-hand side at the mesh
+        dX = self.scheme.mesh_slopes(Xmesh, lambda: tr._rhs_map(N + 1)(Xmesh, Y[:, :N + 1], th))
+        return make_inverse(self.model, reference, servo, self.scheme, t_mesh, Xmesh, Xcol, th, dX=dX)
 
     def _position_residual(self, servo, tr, inv, Y, th) -> float:
         """Largest position-level residual of (35) (``g = 0``, ``h = y_ref``) between the mesh points
         (Hermite-Simpson midpoints, where the interpolant is least accurate; collocation points)."""
         ts = tr.sample_times(inv.t_mesh)
         N = inv.t_mesh.size - 1
-        if self.scheme.is_hs:
-            ts, Y = ts[N + 1:], Y[:, N + 1:]
+        inner = self.scheme.interior_samples(N)
+        ts, Y = ts[inner], Y[:, inner]
         pos = np.array(servo.residuals.map(ts.size)(inv.X(ts), Y, th)[0])
         return float(np.max(np.abs(pos))) if pos.size else 0.0
 
@@ -473,7 +414,7 @@ class ParametricInverse:
         th = md.theta_values
         names = list(md.params.names) if names is None else [names] if isinstance(names, str) else list(names)
         chain = parameter_chain(md, names, derived=derived)
-        nth, nx, n = th.size, servo.layout.nx, md.n
+        nth, n = th.size, md.n
         dF, dR = _functions(servo)
         # equilibria: R(w, y, theta) = 0  ->  dw/dtheta = -R_w^-1 R_theta
         dE = []
@@ -488,14 +429,7 @@ class ParametricInverse:
         Y = np.asarray(self.p[N:o]).reshape(trs.m4, trs.nY, order="F")
         Xm, Xc = trs.unpack(self.x)
         fn = _interval_theta(trs)
-        if self.scheme.is_hs:
-            F = np.array(servo.rhs.map(N + 1)(Xm, Y[:, :N + 1], th))
-            Ft = np.array(dF.map(N + 1)(Xm, Y[:, :N + 1], th))
-            D = fn.map(N)(Xm[:, :N], Xm[:, 1:], F[:, :N], F[:, 1:], Ft[:, :nth * N], Ft[:, nth:], h[None, :],
-                          Y[:, N + 1:], th)
-        else:
-            D = fn.map(N)(Xm[:, :N], Xc, Xm[:, 1:], h[None, :], Y, th)
-        D = np.array(D)
+        D, Ft = self.scheme.bvp_theta_jacobian(fn, servo.rhs, dF, Xm, Xc, h, Y, th)
         r = D.shape[0]
         sel = self.selection
         gp = np.vstack([D.reshape(r, N, nth).transpose(1, 0, 2).reshape(N * r, nth),
@@ -508,11 +442,7 @@ class ParametricInverse:
         tr = self.transcription()
         dXm = np.stack([tr.unpack(dx[:, j])[0] for j in range(nth)])
         dXc = np.stack([tr.unpack(dx[:, j])[1] for j in range(nth)])
-        ddX = np.zeros_like(dXm)
-        if self.scheme.is_hs:  # slopes of the Hermite pieces: dF = F_X dX + F_theta (y_ref fixed)
-            _F, JF = servo.rhs_jac.map(N + 1)(Xm, Y[:, :N + 1], th)
-            JF = np.array(JF).reshape(nx, N + 1, nx).transpose(1, 0, 2)
-            ddX = np.einsum("kij,pjk->pik", JF, dXm) + Ft.reshape(nx, N + 1, nth).transpose(2, 0, 1)
+        ddX = self.scheme.slope_sensitivities(servo.rhs_jac, Xm, Y, th, dXm, Ft)
         return Sensitivities(self, names, np.array([md.values[k] for k in names]), chain, dXm, ddX, dXc,
                              dE[0], dE[1], time.perf_counter() - t_start)
 
@@ -526,12 +456,7 @@ def _interval_theta(trs) -> ca.Function:
         ins = [ca.SX.sym(iv.name_in(i), iv.sparsity_in(i)) for i in range(iv.n_in())]
         defect = iv(*ins)[0]
         th = ins[-1]
-        D = ca.jacobian(defect, th)
-        if trs.scheme.is_hs:  # inputs Xa, Xb, Fa, Fb, h, Ym, theta
-            Fta, Ftb = ca.SX.sym("Fta", nx, nth), ca.SX.sym("Ftb", nx, nth)
-            D = D + ca.mtimes(ca.jacobian(defect, ins[2]), Fta) + ca.mtimes(ca.jacobian(defect, ins[3]), Ftb)
-            ins = ins[:4] + [Fta, Ftb] + ins[4:]
-        fn = _FUN[trs] = ca.Function("interval_dtheta", ins, [ca.densify(D)])
+        fn = _FUN[trs] = trs.scheme.bvp_theta_function(iv, ins, defect, ca.jacobian(defect, th), nx, nth)
     return fn
 
 

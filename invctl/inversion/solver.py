@@ -7,7 +7,9 @@ boundary selection from the previous quasi-static path (one batched Newton solve
 end equilibria from the previous ones and warm-starts the collocation from the last solution.
 When the new parameters move the automatic horizon the same transcription runs on the new mesh
 (``info["remapped"]``); a new boundary selection or ``N`` builds another one
-(``info["rebuilt"]``), never an error.  ``invert`` is a one-shot solver.
+(``info["rebuilt"]``), never an error.
+
+:func:`invert` is a one-shot solver (its docstring lists the options).
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import InvctlError, ParameterError
 from .options import from_keywords
 from .problem import prepare, resolve_plan
 from .result import Inverse
@@ -52,44 +54,62 @@ class InversionSolver:
         """The held transcription (``None`` before the first square solve)."""
         return self._tr
 
-    def model_with(self, params: dict):
-        """The solver's model with ``params`` overriding its parameter values."""
+    def model_with(self, params: dict, model=None):
+        """The solver's model (or ``model``) with ``params`` overriding its parameter values."""
+        model = self.model if model is None else model
         if not params:
-            return self.model
-        known = set(self.model.params.names)
-        bad = sorted(set(params) - known)
+            return model
+        bad = sorted(set(params) - set(model.params.names))
         if bad:
-            raise ParameterError(f"InversionSolver.solve: {bad} are not parameters of model {self.model.name!r}; "
-                                 f"its parameters are {sorted(self.model.params.names)}")
-        return self.model.with_params(**{k: float(v) for k, v in params.items()})
+            raise ParameterError(f"InversionSolver.solve: {bad} are not parameters of model {model.name!r}; "
+                                 f"its parameters are {sorted(model.params.names)}")
+        return model.with_params(**{k: float(v) for k, v in params.items()})
 
-    def solve(self, *, warm: bool = True, warm_start: Inverse | None = None, reference=None, **params) -> Inverse:
+    def solve(self, *, warm: bool = True, warm_start: Any = None, reference=None, model=None, mesh=None,
+              throw: bool = True, **params) -> Inverse:
         """The inverse with the parameter values ``params`` (and ``reference`` if given).
+
+        ``model``: solve this model instead (one of the same structure reuses the transcription);
+        ``mesh``: the mesh of this solve, ``T0`` and ``Tf`` follow it (as many intervals reuses the
+        transcription); ``throw=False``: a failed solve returns its last iterate (``status`` FAILED,
+        the error in ``diagnostics["error"]``) instead of raising, when there is one.
 
         Raises what :func:`~invctl.inversion.invert` raises; the solver keeps its last solution
         when a solve fails (``exc.partial`` is the failed iterate)."""
         t_all = time.perf_counter()
-        model = self.model_with(params)
-        ref = self.reference if reference is None else reference
-        ws = warm_start if warm_start is not None else (self.last if warm else None)
         opts = self.opts
-        if opts.bounds is not None or opts.discretization.tol is not None:
-            inv = self._solve_once(model, ref, ws)
-        else:
-            inv = self._solve_square(model, ref, ws, reference is not None)
+        if mesh is not None:
+            mesh = tuple(float(t) for t in np.ravel(mesh))
+            opts = replace(opts, discretization=replace(opts.discretization, mesh=mesh),
+                           horizon=replace(opts.horizon, T0=mesh[0], Tf=mesh[-1]))
+        try:
+            model = self.model_with(params, model)
+            ref = self.reference if reference is None else reference
+            ws = warm_start if warm_start is not None else (self.last if warm else None)
+            if opts.bounds is not None or opts.discretization.tol is not None:
+                inv = self._solve_once(opts, model, ref, ws)
+            else:
+                inv = self._solve_square(opts, model, ref, ws, reference is not None)
+        except InvctlError as exc:
+            partial = getattr(exc, "partial", None)
+            if throw or partial is None:
+                raise
+            partial.diagnostics.update(success=False, error=f"{type(exc).__name__}: {exc}")
+            return partial
         inv.diagnostics["wall_s"] = time.perf_counter() - t_all
         self.last = inv
         return inv
 
     # ------------------------------------------------------------ paths
-    def _solve_once(self, model, ref, ws) -> Inverse:
-        """Bounded problems and mesh refinement: the one-shot routes, warm-started."""
+    def _solve_once(self, opts, model, ref, ws) -> Inverse:
+        """Bounded problems and mesh refinement: the one-shot routes, warm-started (a bounded problem's
+        transcription depends on which bounds the exact inverse violates, a refinement's on the mesh it
+        reaches: each solve builds or fetches its own)."""
         from .bounded import invert_bounded
         from .refine import refine
-        from .solve import servo_model
+        from .cache import servo_model
         from .square import solve_square
 
-        opts = self.opts
         self.info = {"held": False, "route": "bounded" if opts.bounds is not None else "refine"}
         if opts.bounds is not None:
             return invert_bounded(model, ref, opts, warm_start=ws)
@@ -99,10 +119,10 @@ class InversionSolver:
         servo = servo_model(model, o.discretization.formulation, o.discretization.omega)
         return refine(model, ref, o, ws, lambda oo, w: solve_square(model, ref, oo, w), servo)
 
-    def _plan(self, model, ref, new_reference: bool):
+    def _plan(self, opts, model, ref, new_reference: bool):
         """``resolve_plan`` for ``model``, started from the last quasi-static path when only the
         parameters changed."""
-        disc, hz = self.opts.discretization, self.opts.horizon
+        disc, hz = opts.discretization, opts.horizon
         if hz.plan is None and (hz.plan_options is not None or not hz.complete) and self._path is not None \
                 and not new_reference:
             from .plan import plan_inversion
@@ -113,15 +133,14 @@ class InversionSolver:
             return resolve_plan(model, ref, disc, replace(hz, plan=plan, plan_options=None))
         return resolve_plan(model, ref, disc, hz)
 
-    def _solve_square(self, model, ref, ws, new_reference: bool) -> Inverse:
+    def _solve_square(self, opts, model, ref, ws, new_reference: bool) -> Inverse:
         from .cache import transcription
         from .square import solve_square
 
-        opts = self.opts
         disc = opts.discretization
         t0 = time.perf_counter()
         first = self._setup is None
-        plan_result = self._plan(model, ref, new_reference)
+        plan_result = self._plan(opts, model, ref, new_reference)
         ends = None if first or ws is None or new_reference else (self._setup.E0, self._setup.Ef)
         plan = plan_result[4]
         if ends is not None and plan is not None and plan.E0:  # the plan's equilibria: y_ref rests before t0, after tf
@@ -135,9 +154,12 @@ class InversionSolver:
         old = self._setup
         N = setup.t_mesh.size - 1
         tr = self._tr
-        if tr is None or tr.upgradable() or (tr.selection.start, tr.selection.end, tr.N, tr.objective) != (
+        if tr is None or tr.upgradable() or tr.servo is not setup.servo or (
+                tr.selection.start, tr.selection.end, tr.N, tr.objective) != (
                 setup.selection.start, setup.selection.end, N, float(weight)):
-            if tr is not None and tr.selection != setup.selection:
+            if tr is not None and tr.servo is not setup.servo:
+                info["rebuilt"] = f"model structure ({tr.servo.model.name} -> {model.name})"
+            elif tr is not None and tr.selection != setup.selection:
                 info["rebuilt"] = f"boundary selection {old.selection.describe()} -> {setup.selection.describe()}"
             elif tr is not None and tr.N != N:
                 info["rebuilt"] = f"N {tr.N} -> {N}"
@@ -172,3 +194,57 @@ class InversionSolver:
         inv.diagnostics["solver"] = info
         self.info = info
         return inv
+
+
+def invert(model, reference, *, discretization=None, solver=None, horizon=None, bounds=None, objective=None,
+           warm_start: Inverse | None = None, **keywords) -> Inverse:
+    """Stable inversion by servo constraints (003 (35)) with boundary conditions (36), optionally
+    under bounds.
+
+    Parameters
+    ----------
+    model : Model
+        The reference model (003 (1)); ``h`` must depend on ``q`` only.
+    reference : Reference
+        ``y_ref``; needs three continuous derivatives (jerk-level index reduction).
+    discretization : Discretization, optional
+        Scheme (``hermite-simpson``, ``legendre<d>``, ``radau<d>``), ``N`` or ``mesh``, index
+        reduction, mesh refinement to a forward-check ``tol``.  The default mesh has ``t0`` and
+        ``tf`` as mesh points; piecewise uniform for a given horizon, graded outside
+        ``[t0, tf]`` by the decay of the tails when the horizon is derived.
+    solver : SolverOptions, optional
+        ``backend`` (IPOPT with an exact zero Hessian, or Newton with banded LU), limits,
+        ``ipopt_options`` passed verbatim, ``residual_tol``, ``progress``, ``continuation``.
+    horizon : Horizon, optional
+        ``T0``, ``Tf``, ``start``, ``end`` (:mod:`invctl.inversion.boundary`); what is ``None``
+        is derived by :func:`invctl.inversion.plan.plan_inversion` (reported in
+        ``diagnostics["plan"]``).  ``q_guess`` starts the equilibrium search.
+    bounds : Bounds, optional
+        Bounds on ``u``, ``u'``, ``q``, ``v`` and the pre-/post-actuation
+        (:func:`invctl.inversion.bounded.invert_bounded`): exact tracking when the exact
+        inverse satisfies them (then the result *is* the square solution), least-squares
+        tracking with the servo constraint relaxed otherwise; ``diagnostics["bounds"]`` says
+        which bounds are active, where, and the output error they cost.
+    objective : Objective or float, optional
+        Weights of the least-squares tracking (bounded problems).  A number is the weight of
+        the input energy that selects among non-unique inverses (``allow_underdetermined``).
+    warm_start : Inverse, optional
+        An earlier solution (any mesh) used as initial guess.
+    **keywords
+        The fields of the option objects as flat keywords (``N=``, ``scheme=``, ``backend=``,
+        ``T0=``, ``start=``, ``tol=``, ``max_iter=``, ...); a keyword overrides the same field
+        of a given object.
+
+    Raises
+    ------
+    OptionError, BoundsError
+        Malformed options (``TypeError`` for unknown keywords).
+    BoundaryConditionError, ReferenceSignalError, InversionFailed
+        ``InversionFailed.partial`` is the last iterate as an :class:`Inverse`; subclasses name
+        the cause: ``InfeasibleBoundsError`` (with the closest feasible relaxation),
+        ``NoDichotomyError``, ``HorizonTooLongError``, ``ReferenceSmoothnessError``,
+        ``SingularDecouplingError`` (a ``RelativeDegreeError``), ``PositionOutputError``
+        (a ``ModelError``).
+    """
+    return InversionSolver(model, reference, discretization=discretization, solver=solver, horizon=horizon,
+                           bounds=bounds, objective=objective, **keywords).solve(warm_start=warm_start)

@@ -182,10 +182,8 @@ def make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta, dX=No
     """The :class:`Inverse` of a solution on ``t_mesh`` (slopes ``dX`` at the mesh for
     Hermite-Simpson: ``F`` of the servo model unless given)."""
     if dX is None:
-        dX = np.zeros_like(Xmesh)
-        if sch.is_hs:
-            Yn = servo.reference_samples(reference, t_mesh)
-            dX = np.array(mapped(servo.rhs, t_mesh.size)(Xmesh, Yn, theta))
+        dX = sch.mesh_slopes(Xmesh, lambda: mapped(servo.rhs, t_mesh.size)(
+            Xmesh, servo.reference_samples(reference, t_mesh), theta))
     L = servo.layout
     return Inverse(sch.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
                    reference.t0, reference.tf, servo.names, {}, y_ref_fn=reference)

@@ -90,7 +90,7 @@ def _poly_degree(inverse) -> int | None:
     sch = getattr(inverse, "_scheme", None)
     if sch is None or getattr(inverse, "t_mesh", None) is None:
         return None
-    return 3 if sch.is_hs else max(1, int(sch.degree))
+    return max(1, int(sch.poly_degree))
 
 
 def _piecewise_controls(inverse, grid: np.ndarray, degree: int) -> np.ndarray:

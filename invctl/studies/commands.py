@@ -60,7 +60,7 @@ def _at_least(k):
 
 
 def _scheme(v):
-    from ..inversion.collocation import get_scheme
+    from ..inversion.schemes import get_scheme
 
     try:
         get_scheme(v)

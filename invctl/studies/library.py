@@ -121,22 +121,24 @@ def solve_point(ctx: _Context, index: int, values: tuple, warm: dict | None, ver
         st = _state(ctx)
         model, ref = point_setup(st["scene"], st["model"], dict(ctx.params), dict(ctx.ref_kwargs), ctx.axes, values)
         inv, how = _solve(ctx, st, model, ref, warm)
-        if verify:
-            from ..inversion.verify import forward_check
-
-            rec["error"] = float(forward_check(model, inv, ref)["error"])
         d = inv.diagnostics
-        rec.update({"status": "solved", "initial_guess": how, "t_mesh": inv.t_mesh, "X_mesh": inv.X_mesh,
-                    "dX_mesh": inv.dX_mesh, "X_col": inv.X_col, "t0": inv.t0, "tf": inv.tf,
-                    "iterations": int(d.get("iterations", -1)), "factorizations": int(d.get("factorizations", -1)),
-                    "residual": float(d.get("residuals", {}).get("position", math.nan))})
-        if ctx.tol is not None and verify and not rec["error"] <= ctx.tol:
-            rec["status"] = "inaccurate"
-            rec["message"] = (f"forward-check error {rec['error']:.3g} > tol {ctx.tol:.3g}: refine the mesh "
-                              "(--N larger or a higher-order --scheme)")
-    except InvctlError as exc:
-        rec["message"] = f"{type(exc).__name__}: {exc}"
-    except Exception as exc:  # a failed point is data, not a crash of the library
+        if not inv.success:  # a failed solve comes back as data: its error (the record stays "failed")
+            rec.update({"message": str(d.get("error", inv.solver_status)), "initial_guess": how})
+        else:
+            if verify:
+                from ..inversion.verify import forward_check
+
+                rec["error"] = float(forward_check(model, inv, ref)["error"])
+            rec.update({"status": "solved", "initial_guess": how, "t_mesh": inv.t_mesh, "X_mesh": inv.X_mesh,
+                        "dX_mesh": inv.dX_mesh, "X_col": inv.X_col, "t0": inv.t0, "tf": inv.tf,
+                        "iterations": int(d.get("iterations", -1)),
+                        "factorizations": int(d.get("factorizations", -1)),
+                        "residual": float(d.get("residuals", {}).get("position", math.nan))})
+            if ctx.tol is not None and verify and not rec["error"] <= ctx.tol:
+                rec["status"] = "inaccurate"
+                rec["message"] = (f"forward-check error {rec['error']:.3g} > tol {ctx.tol:.3g}: refine the mesh "
+                                  "(--N larger or a higher-order --scheme)")
+    except InvctlError as exc:  # a point the Newton continuation or the setup could not solve
         rec["message"] = f"{type(exc).__name__}: {exc}"
     rec["wall_s"], rec["cpu_s"] = time.perf_counter() - t_start, time.process_time() - c_start
     return rec
@@ -166,14 +168,15 @@ def _solve(ctx, st, model, ref, warm):
 
 
 def _same_structure(a, b) -> bool:
-    from ..inversion.solve import model_key
+    from ..inversion.cache import model_key
 
     return a is b or model_key(a) == model_key(b)
 
 
 def _solve_invert(ctx, st, model, ref, warm):
-    """A point through :func:`invctl.inversion.invert` (IPOPT, or a model of another structure)."""
-    from ..inversion import Inverse, invert
+    """A point through the process's held :class:`~invctl.inversion.InversionSolver` (IPOPT, or a model of
+    another structure: the solver builds its transcription then); a failed solve is the point's data."""
+    from ..inversion import Inverse, InversionSolver
     from ..inversion.sensitivity import mapped_mesh
 
     b, base = ctx.base, st["inverse"]
@@ -184,9 +187,12 @@ def _solve_invert(ctx, st, model, ref, warm):
         wt = mapped_mesh(warm["t_mesh"], [warm["t_mesh"][0], warm["t0"], warm["tf"], warm["t_mesh"][-1]],
                          [mesh[0], ref.t0, ref.tf, mesh[-1]])
         ws = Inverse(b["scheme"], wt, warm["X_mesh"], warm["dX_mesh"], warm["X_col"], b["sizes"], ref.t0, ref.tf)
-    inv = invert(model, ref, T0=float(mesh[0]), Tf=float(mesh[-1]), start=b["start"], end=b["end"], mesh=mesh,
-                 scheme=b["scheme"], formulation=b["diagnostics"]["formulation"], omega=b["diagnostics"]["omega"],
-                 backend=ctx.backend, warm_start=ws, q_guess=base.X_mesh[:model.n, 0])
+    if st.get("solver") is None:
+        st["solver"] = InversionSolver(model, ref, T0=float(mesh[0]), Tf=float(mesh[-1]), start=b["start"],
+                                       end=b["end"], mesh=mesh, scheme=b["scheme"],
+                                       formulation=b["diagnostics"]["formulation"], omega=b["diagnostics"]["omega"],
+                                       backend=ctx.backend, q_guess=base.X_mesh[:model.n, 0])
+    inv = st["solver"].solve(model=model, reference=ref, mesh=mesh, warm=False, warm_start=ws, throw=False)
     return inv, "continuation" if ws is not None else "quasi-static"
 
 
@@ -575,7 +581,7 @@ def check_library_size(scene, params, counts, N, scheme, slots: int = 1, *, nc: 
     ResourceLimitError
         Naming ``--grid`` (and the number of points that fit) or ``--N``.
     """
-    from ..inversion.collocation import get_scheme
+    from ..inversion.schemes import get_scheme
     from .commands import _check_inversion, check_budget
 
     counts = [int(c) for c in counts]
@@ -591,7 +597,7 @@ def check_library_size(scene, params, counts, N, scheme, slots: int = 1, *, nc: 
     nx = 2 * sizes["n"] + sizes["l"] + sizes["p"] + sizes["m"]
     if nc is None:
         sch = get_scheme(scheme or "hermite-simpson")
-        nc = 0 if sch.is_hs else n_int * sch.degree
+        nc = sch.n_col(n_int)
     per_b = 16.0 * ((2 * nx + 1) * (n_int + 1) + nx * nc) + _POINT_BYTES
     per_s = _POINT_SECONDS_PER_INTERVAL * n_int / max(1, slots)
     shown = " x ".join(str(c) for c in counts) + f" = {P}" if len(counts) > 1 else str(P)

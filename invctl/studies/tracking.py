@@ -102,7 +102,7 @@ def tracking_model(scene, params=None, *, model=None):
 def equilibrium_configuration(scene, model, y, guess=None) -> np.ndarray:
     """The configuration ``q`` of the static equilibrium with ``h(q) = y`` (servo constraints at rest),
     continued from the scene's ``initial_configuration`` (or ``guess``)."""
-    from ..inversion.boundary import EquilibriumSolver
+    from ..analysis.equilibrium import EquilibriumSolver
 
     if guess is None and scene.tracking.initial_configuration is not None:
         guess = scene.tracking.initial_configuration(model)

@@ -348,10 +348,10 @@ def check_inversion(bound: BoundScene, o: dict, command: str = "invert") -> None
     N = o.get("N")
     if N is None or N <= 2000:
         return
-    from ..inversion.collocation import get_scheme
+    from ..inversion.schemes import get_scheme
 
     sch = get_scheme(o.get("scheme") or "hermite-simpson")
-    stages = 2 if sch.is_hs else sch.degree + 1
+    stages = sch.stages
     model = bound.model
     nx = 2 * model.n + model.ell + model.p + model.m
     per = _INVERSION_BYTES[0] * (stages * nx) ** _INVERSION_BYTES[1]
