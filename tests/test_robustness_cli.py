@@ -412,6 +412,12 @@ _MARKED_CONTACT = textwrap.dedent("""
         print("CONTACT RUN STARTED", file=sys.stderr, flush=True)
         return run(self, *a, **k)
     timestepping.MoreauJean.run = marked_run
+    loop = timestepping.MoreauJean._loop
+    def marked_loop(self, *a, **k):  # the compiled loop is built (or compiled): stepping starts next
+        out = loop(self, *a, **k)
+        print("CONTACT LOOP READY", file=sys.stderr, flush=True)
+        return out
+    timestepping.MoreauJean._loop = marked_loop
     from invctl.cli import main
     sys.exit(main(sys.argv[1:]))
     """)
@@ -432,7 +438,8 @@ def test_sigint_during_a_contact_run_keeps_the_simulated_prefix(tmp_path):
     # 3e8 steps, recorded decimated by default: the signal lands inside the compiled loop
     p = _child(["simulate", "bouncing_ball", "--set", "h=1e-7", "--set", "t_end=30", "--out", "b.npz", "--quiet",
                 "--json"], code=_MARKED_CONTACT, cwd=tmp_path)
-    rc, out, err = _interrupt_when(p, "CONTACT RUN STARTED", delay=1.0)
+    # after the loop is built: a loaded machine may spend longer than any fixed delay compiling it
+    rc, out, err = _interrupt_when(p, "CONTACT LOOP READY", delay=1.0)
     assert rc == 130, err[-2000:]
     d = _last_json(out)
     assert d["error"] == "RunInterrupted" and d["partial"] == ["b.partial.npz"], d
@@ -486,13 +493,14 @@ def test_sigint_during_a_switched_run_keeps_the_simulated_prefix(tmp_path):
 def test_sigint_during_a_contact_pipeline_keeps_the_runs_and_the_prefix(tmp_path):
     from invctl.simulate.contact_record import ContactTrajectory
 
-    # h = 2e-7: 1e7 steps per controller; the signal lands inside the second run (preload)
+    # h = 2e-7: 1e7 steps per controller; the signal lands inside the second run (preload), after its loop
+    # is built (a loaded machine may spend longer than any fixed delay compiling it)
     p = _child(["pipeline", "prismatic_clearance", "--set", "h=2e-7", "--no-animation", "--out-dir", "out", "--json"],
                code=_MARKED_CONTACT, cwd=tmp_path)
     lines, seen = [], 0
     for line in p.stderr:
         lines.append(line)
-        seen += "CONTACT RUN STARTED" in line
+        seen += "CONTACT LOOP READY" in line
         if seen == 2:
             time.sleep(0.5)
             p.send_signal(signal.SIGINT)
