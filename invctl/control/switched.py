@@ -163,9 +163,6 @@ class ClosedLoop:
     def ctrl_on(self, bits) -> bool:
         return any(b for b, s in zip(bits, self.surfaces) if s[4])
 
-    def bits_of(self, S) -> tuple:
-        return tuple(bool(S[s[1]] > 0) for s in self.surfaces)
-
     # -- rows on the augmented state -------------------------------------------------------
     def ref_rows(self, phase: bool) -> dict[str, np.ndarray]:
         """Reference outputs as rows on ``S``."""

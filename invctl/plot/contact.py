@@ -82,22 +82,3 @@ def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = N
     if path:
         fig.savefig(path, dpi=120)
     return fig
-
-
-def plot_convergence(hs, errors: dict, slopes: dict | None = None, path=None, title="time-step convergence"):
-    """Log-log errors versus h with fitted slopes."""
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4.5))
-    for name, err in errors.items():
-        lab = name if not slopes else f"{name} (slope {slopes[name]:.2f})"
-        ax.loglog(hs, err, "o-", label=lab)
-    ax.set_xlabel("h [s]")
-    ax.set_ylabel("error")
-    ax.set_title(title)
-    ax.legend(fontsize=8)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    if path:
-        fig.savefig(path, dpi=120)
-    return fig

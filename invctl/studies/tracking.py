@@ -133,11 +133,6 @@ def output_structure(model, q):
     return relative_degree(model, samples=0, points=[np.asarray(q, float).ravel()])
 
 
-def has_internal_dynamics(model, q) -> bool:
-    """False when ``r_bar = 2n``: a flat output, the inverse is algebraic."""
-    return output_structure(model, q).r_bar < 2 * model.n
-
-
 def tracking_linearization(scene, model, reference, *, samples: int = 200, internal=None):
     """The linearized internal dynamics (37)-(39) the scene's controllers use: internal coordinates
     of the scene (or the default ones of 003 Sect. 3), linearized at the equilibria of ``y_ref(t0)``
