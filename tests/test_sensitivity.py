@@ -76,16 +76,21 @@ def test_sensitivities_legendre_scheme(model, ref):
     assert np.max(np.abs(fd - an)) <= 1e-6 * np.max(np.abs(an))
 
 
-def test_sensitivities_of_a_mass_in_closed_form():
-    # m q'' + c q' = u, y = q: u_ff = m y_ref'' + c y_ref', so du/dm = y_ref'' and du/dc = y_ref' exactly;
-    # the discrete inverse differs by the Hermite-Simpson error, O(h^4): measured 7.7e-7 (N = 100) and
-    # 4.7e-8 (N = 200, ratio 16) relative; 1e-6 at N = 200
+def _damped_mass():
+    """m q'' + c q' = u, y = q (m = 2, c = 0.5), and a rest-to-rest reference on [0, 1]."""
     P = ParamSet(["m", "c"])
     q, v = ca.SX.sym("q", 1), ca.SX.sym("v", 1)
     md = Model.from_lagrangian("mass", q, v, P, {"m": 2.0, "c": 0.5}, T=0.5 * P["m"] * v[0] ** 2, Q=-P["c"] * v,
                                B=ca.DM([[1.0]]), h=q)
     t = ca.SX.sym("t")
-    yr = Reference(t, poly9_timing_law(t, 0.0, 1.0), 0.0, 1.0, 4)
+    return md, Reference(t, poly9_timing_law(t, 0.0, 1.0), 0.0, 1.0, 4)
+
+
+def test_sensitivities_of_a_mass_in_closed_form():
+    # m q'' + c q' = u, y = q: u_ff = m y_ref'' + c y_ref', so du/dm = y_ref'' and du/dc = y_ref' exactly;
+    # the discrete inverse differs by the Hermite-Simpson error, O(h^4): measured 7.7e-7 (N = 100) and
+    # 4.7e-8 (N = 200, ratio 16) relative; 1e-6 at N = 200
+    md, yr = _damped_mass()
     s = ParametricInverse.solve(md, yr, N=200, backend="newton").sensitivities()
     tt = np.linspace(0.0, 1.0, 1001)
     for name, order in (("m", 2), ("c", 1)):
@@ -207,12 +212,7 @@ def test_resolve_reports_the_largest_position_residual_between_mesh_points():
     """m q'' + c q' = u, y = q, coarse mesh (N = 16): after a re-solve for m = 3 the reported
     position-level residual is max |q(t) - y_ref(t)| over the Hermite-Simpson midpoints, computed
     here from the interpolant and the reference (the largest deviation is negative there)."""
-    P = ParamSet(["m", "c"])
-    q, v = ca.SX.sym("q", 1), ca.SX.sym("v", 1)
-    md = Model.from_lagrangian("mass", q, v, P, {"m": 2.0, "c": 0.5}, T=0.5 * P["m"] * v[0] ** 2, Q=-P["c"] * v,
-                               B=ca.DM([[1.0]]), h=q)
-    t = ca.SX.sym("t")
-    yr = Reference(t, poly9_timing_law(t, 0.0, 1.0), 0.0, 1.0, 4)
+    md, yr = _damped_mass()
     inv = ParametricInverse.solve(md, yr, N=16, backend="newton").resolve(md.with_params(m=3.0)).inverse
     mid = 0.5 * (inv.t_mesh[1:] + inv.t_mesh[:-1])
     dev = inv.q(mid)[0] - yr(mid)[0]
