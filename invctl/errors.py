@@ -284,7 +284,7 @@ def is_interrupt(exc: BaseException) -> bool:
     Ctrl-C remembered by :class:`remember_sigint`, the ``NotImplementedError`` CasADi's argument
     conversion reports when a ``KeyboardInterrupt`` cut it short (see :data:`INTERRUPT_LIKE`)."""
     seen = set()
-    e = exc
+    e: BaseException | None = exc
     while e is not None and id(e) not in seen:
         if isinstance(e, KeyboardInterrupt):
             return True

@@ -511,7 +511,7 @@ class Scene:
     def _commands(self) -> tuple[str, ...]:
         kind = self.kind
         if kind == "tracking":
-            if self.tracking.reference is None:
+            if self.tracking is None or self.tracking.reference is None:
                 return ("analyze", "study")
             return ("analyze", "invert", "design", "simulate", "pipeline", "study")
         if kind == "contact":
@@ -666,7 +666,8 @@ class Scene:
             if not isinstance(obj, Model):
                 raise SceneError(f"scene {self.name!r}: build() returned {type(obj).__name__}; a {kind} scene "
                                  f"must return an invctl.model.Model{at}")
-            if kind == "tracking" and self.tracking.reference is not None and obj.ny == 0:
+            if kind == "tracking" and self.tracking is not None and self.tracking.reference is not None \
+                    and obj.ny == 0:
                 raise SceneError(f"scene {self.name!r}: the model has no output h, but the scene declares a "
                                  f"reference; give Model(..., h=...){at}")
             if kind == "contact" and not obj.gaps:
@@ -677,10 +678,11 @@ class Scene:
                              f"must return an invctl.studies.switched.SwitchedProblem{at}")
         elif kind == "switched":
             wrist_params = [k for k in SWITCHED_PLANTS["compliant_wrist"] if k in obj.params]
-            if self.switched.wrist and len(wrist_params) < len(SWITCHED_PLANTS["compliant_wrist"]):
+            wrist = self.switched is not None and self.switched.wrist
+            if wrist and len(wrist_params) < len(SWITCHED_PLANTS["compliant_wrist"]):
                 raise SceneError(f"scene {self.name!r} declares plant='compliant_wrist', but its parameters lack "
                                  f"{sorted(set(SWITCHED_PLANTS['compliant_wrist']) - set(wrist_params))}{at}")
-            if not self.switched.wrist and wrist_params:
+            if not wrist and wrist_params:
                 raise SceneError(f"scene {self.name!r} declares plant='rigid_wall', but its parameters include "
                                  f"the wrist's {wrist_params}; declare Switched(plant='compliant_wrist'){at}")
 
@@ -796,11 +798,12 @@ def _shipped() -> ModuleType:
     if mod is None and (here / "__init__.py").is_file():
         spec = importlib.util.spec_from_file_location("invctl_scenes", here / "__init__.py",
                                                       submodule_search_locations=[str(here)])
+        assert spec is not None and spec.loader is not None  # a file location always has a spec and a loader
         mod = importlib.util.module_from_spec(spec)
         sys.modules["invctl_scenes"] = mod
         spec.loader.exec_module(mod)
     elif mod is None:
-        import invctl_scenes as mod
+        mod = importlib.import_module("invctl_scenes")
     paths = [Path(p).resolve() for p in getattr(mod, "__path__", [])]
     if here.is_dir() and here not in paths:
         raise SceneError(f"a package 'invctl_scenes' in {', '.join(map(str, paths))} hides the shipped scenes in {here}; "
@@ -911,7 +914,8 @@ def bind_scene(scene, command: str, values: Mapping | None = None, *, preset: st
 def scene_reference(scene: Scene) -> str:
     """How to load ``scene`` again: its name when it is shipped in ``invctl_scenes/``, else its file path."""
     src = Path(scene.source) if scene.source else None
-    if src is None or src.resolve().parent == Path(_shipped().__file__).resolve().parent:
+    shipped = _shipped().__file__
+    if src is None or shipped is None or src.resolve().parent == Path(shipped).resolve().parent:
         return scene.name
     return str(src.resolve())
 

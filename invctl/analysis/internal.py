@@ -243,8 +243,6 @@ def _momentum_tail(model, phi1, T2, qsol, y1, e2, TH):
 
 
 def _as_expr(model, phi) -> ca.SX:
-    if phi is None:
-        return None
     expr = phi(model) if callable(phi) else phi
     expr = ca.SX(expr)
     if expr.shape[1] != 1:

@@ -323,11 +323,12 @@ def lemke_sx(A, b, *, max_pivots: int | None = None, piv_tol: float = 1e-12, lex
         # lexicographic minimum of the rows (beta_i, Binv_i) / d_i over d_i > 0, column by column
         cand = valid
         cols = [beta * inv] + [Binv[:, j] * inv for j in range(m)]
-        first = None
+        mins = []
         for c in cols:
             mn = ca.mmin(ca.if_else(cand, c, ca.inf))
-            first = mn if first is None else first
+            mins.append(mn)
             cand = cand * (c <= mn + lex_tol)
+        first = mins[0]
         any_valid = ca.mmax(valid)
         r = _last_index(cand)
         # z0 leaves whenever it ties for the minimum ratio: termination, solution found

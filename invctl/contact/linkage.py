@@ -433,7 +433,9 @@ class Linkage:
         for j, par, child, k in self._tree:
             x, y, phi = poses[child]
             if j is None:
-                i = self.subsystems[self.subsystem_of(child)].coordinates[:3]
+                k_sub = self.subsystem_of(child)
+                assert k_sub is not None  # a tree's root body belongs to a subsystem
+                i = self.subsystems[k_sub].coordinates[:3]
                 q[i] = [*(np.array([x, y]) + R(phi) @ val[("pt", child, "__com__")]), phi]
             elif j.kind == "revolute":
                 q[k] = phi - (0.0 if par == GROUND else poses[par][2])

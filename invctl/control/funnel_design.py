@@ -350,6 +350,9 @@ def design_funnel_feedback(model, lin, reference, *, q0=None, v0=None, expected_
     # -- relative degrees, gains, final widths
     q = len(new.k_i)
     r_hat = lin.r_hat if lin is not None else relative_degree(model, samples=0, points=[w0]).r_hat
+    if r_hat is None:
+        raise FeedbackDesignError(f"{model.name}: the outputs have different relative degrees at the design point; "
+                                  "the funnel design needs one r_hat for all outputs (003 Sect. 5)")
     r = [r_hat + new.k_i[i] if i < q else r_hat for i in range(m)]
     sources = {name: ("override" if name in overrides else "designed") for name in OVERRIDABLE}
     kappa = overrides.get("kappa", [[rules.kappa_rate / T] * (ri - 1) for ri in r])

@@ -87,7 +87,7 @@ def between_nodes(inv, rb, reference=None, samples: int = CHECK_SAMPLES) -> dict
             if getattr(rb, name) is not None:
                 margins[name] = float(getattr(rb, name) - need)
                 when[name] = inv.T0 if name == "max_pre_actuation" else inv.Tf
-    worst = min(margins, key=margins.get, default=None)
+    worst = min(margins, key=margins.__getitem__, default=None)
     bad = worst is not None and margins[worst] < 0
     return {"max_violation_between_nodes": float(-margins[worst]) if bad else 0.0,
             "max_violation_bound": worst if bad else None, "t_max_violation": when[worst] if bad else None,
@@ -343,6 +343,8 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
     objective = opts.objective or Objective()
     if not isinstance(objective, Objective):
         raise OptionError("invert: bounded inversions need an Objective, not a number")
+    if opts.bounds is None:
+        raise OptionError("invert_bounded: no bounds given; pass bounds=Bounds(...) (or call invert without bounds)")
     servo = servo_model(model, disc.formulation, disc.omega)
     rb = opts.bounds.resolve(servo)
     plan_result = resolve_plan(model, reference, disc, hz)

@@ -215,7 +215,7 @@ class OCPTranscription:
         # ---------------------------------------------------------------- global layout
         self.nXs = nx * (N + 1) + nx * self.n_col
         self.nSv = m * self.nS if self.relaxed else 0
-        self.i_tau = self.nXs + self.nSv if self.free_time else None
+        self.i_tau = self.nXs + self.nSv  # where tau is in x (free_time only)
         self.i_r = self.nXs + self.nSv + (1 if self.free_time else 0)
         self.relax_labels = ([("X", i, side) for i in self.bounded for side in ("lower", "upper")]
                              + [("rate", j, side) for j in self.rated for side in ("lower", "upper")]
@@ -248,7 +248,7 @@ class OCPTranscription:
         tau_ref, hr, mk = ca.SX.sym("tau_ref"), ca.SX.sym("h"), ca.SX.sym("mask")
         tau = ca.SX.sym("tau") if self.free_time else None
         T = [tau] if tau is not None else []
-        ratio = tau / tau_ref if tau is not None else None
+        ratio = tau / tau_ref if tau is not None else 1  # used only with tau
 
         # one point: G = (F, r) and its Jacobian in zeta = (X, s)
         zeta, Yraw = ca.SX.sym("zeta", nz_pt), ca.SX.sym("Y", m4)
@@ -293,8 +293,8 @@ class OCPTranscription:
         P = {k: p[sl] for k, sl in self._p_slices.items()}
         Ymat = ca.reshape(P["Y"], m4, self.nY)
         Xmesh = ca.reshape(x[:nx * (N + 1)], nx, N + 1)
-        Xcol = ca.reshape(x[nx * (N + 1):self.nXs], nx, self.n_col) if self.n_col else None
-        S = ca.reshape(x[self.nXs:self.nXs + self.nSv], m, self.nS) if self.relaxed else None
+        Xcol = ca.reshape(x[nx * (N + 1):self.nXs], nx, self.n_col)  # nx x 0 for Hermite-Simpson
+        S = ca.reshape(x[self.nXs:self.nXs + self.nSv], m, self.nS) if self.relaxed else ca.MX(m, 0)
         tau_x = [x[self.i_tau]] if self.free_time else []
         common = tau_x + [P["theta"], P["c"], P["W"], P["w"], P["tau_ref"]]
         ip = [P["h"].T, P["mask"].T] + tau_x + [P["tau_ref"], ca.reshape(P["points"], self.n_points, N)]

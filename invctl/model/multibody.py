@@ -120,10 +120,10 @@ class Model:
         self.params = params
         self.theta = params.sym
         self.derived = dict(derived or {})
-        self.defaults = {k: float(values[k]) for k in params.names} if set(values) >= set(params.names) else None
-        if self.defaults is None:
-            missing = sorted(set(params.names) - set(values))
+        missing = sorted(set(params.names) - set(values))
+        if missing:
             raise ParameterError(f"model {name!r}: no value given for parameter(s) {missing}")
+        self.defaults = {k: float(values[k]) for k in params.names}
         self.overrides = dict(overrides or {})
         self.values = resolve_params(self.defaults, self.derived, self.overrides)
         self.M = ca.SX(M)

@@ -181,13 +181,14 @@ def read_urdf(path) -> Description:
     if root.tag != "robot":
         raise URDFError(f"{path}: the root element is <{root.tag}>, a URDF's is <robot>")
     where = str(path)
-    links = {}
+    links: dict[str, Link] = {}
     for el in root.findall("link"):
-        if not el.get("name"):
+        name = el.get("name")
+        if not name:
             raise URDFError(f"{where}: a <link> has no name")
-        if el.get("name") in links:
-            raise URDFError(f"{where}: link {el.get('name')!r} is declared twice")
-        links[el.get("name")] = _link(el, where)
+        if name in links:
+            raise URDFError(f"{where}: link {name!r} is declared twice")
+        links[name] = _link(el, where)
     if not links:
         raise URDFError(f"{where}: no <link> elements")
     for tag in ("loop_joint", "loop"):
@@ -229,7 +230,7 @@ def read_urdf(path) -> Description:
     if len(ordered) != len(joints):
         loop = sorted(j.name for j in joints if j not in ordered)
         raise UnsupportedURDFError(f"{where}: joints {loop} form a closed kinematic loop, which is not supported")
-    return Description(root.get("name", path.stem), str(path), links, tuple(ordered), roots[0])
+    return Description(root.get("name") or path.stem, str(path), links, tuple(ordered), roots[0])
 
 
 # ------------------------------------------------------------------ kinematics

@@ -440,10 +440,8 @@ class ChunkRecorder:
             if self.regular:
                 first = (-base) % self.every
                 parts.append(np.arange(first, use, self.every))
-            ev = None
-            if self.events or self.impacts:
-                ev = np.flatnonzero(Y[L.sl("event").start, :use] > 0.5)
-            if self.events:
+            ev = np.flatnonzero(Y[L.sl("event").start, :use] > 0.5) if self.events or self.impacts else None
+            if ev is not None and self.events:
                 parts.append(ev)
                 if base == 0:
                     parts.append(np.zeros(1, np.intp))

@@ -38,7 +38,7 @@ from .reports import run_reports
 if TYPE_CHECKING:
     from ..control.pdplus import FeedbackLaw
     from ..model import Model
-    from ..scenes import Scene
+    from ..scenes import Contact, Scene
     from ..simulate.contact_record import ContactTrajectory
 
 __all__ = ["ContactRun", "contact_setup", "run_contact", "simulate", "Session", "analyze", "law_report",
@@ -59,7 +59,7 @@ class ContactRun:
     model: Model
     plant: Model
     controller: str
-    law: FeedbackLaw | None
+    law: FeedbackLaw
     q0: np.ndarray
     v0: np.ndarray
     settings: dict
@@ -67,11 +67,31 @@ class ContactRun:
     trajectory: ContactTrajectory | None = None
     stats: dict = field(default_factory=dict)
 
+    @property
+    def result(self) -> ContactTrajectory:
+        """The trajectory of :func:`run_contact` (an error before it ran)."""
+        if self.trajectory is None:
+            raise SimulationFailed(f"scene {self.scene.name!r}, controller {self.controller!r}: not simulated yet; "
+                                   "call run_contact(run) first")
+        return self.trajectory
+
+    @property
+    def contact(self) -> Contact:
+        """The scene's contact declaration."""
+        return _contact(self.scene)
+
     def meta(self) -> dict:
         from ..scenes import scene_reference
 
         return {"scene": scene_reference(self.scene), "params": dict(self.params),
                 "settings": dict(self.settings), "controller": self.controller}
+
+
+def _contact(scene) -> Contact:
+    if scene.contact is None:
+        raise SceneError(f"scene {scene.name!r} declares no contact (Scene(contact=Contact(...))): "
+                         "it is not a contact scene")
+    return scene.contact
 
 
 def _setting(settings, name):
@@ -104,13 +124,14 @@ def contact_setup(scene, params=None, settings=None, *, controller=None, plant_p
         from .tracking import validate_plant
 
         validate_plant(plant, plant_params)
-    c = scene.contact
+    c = _contact(scene)
     name = c.controller_for(model, settings, controller)
     why = c.unmet(name, _values(scene, params, settings))
     if why:
         raise SceneError(f"scene {scene.name!r}: {why}")
     potential = c.potential(model) if c.potential is not None else None
     law = zero_input(potential) if name == "none" else c.controllers[name](model, settings)
+    assert c.initial_state is not None  # required: Contact checks it when the scene is declared
     q0, v0 = c.initial_state(model, settings, name)
     q0, v0 = np.asarray(q0, float).ravel(), np.asarray(v0, float).ravel()
     if q0.size != model.n or v0.size != model.n:
@@ -134,7 +155,7 @@ def run_contact(run: ContactRun, *, t_end=None, progress=None, record_every: int
     if record_every is None:
         steps = math.ceil(t_end / h - 1e-9)
         record_every = 1 if record == "events" else max(1, math.ceil(steps / DEFAULT_SAMPLES))
-    potential = run.scene.contact.potential(run.model) if run.scene.contact.potential is not None else None
+    potential = run.contact.potential(run.model) if run.contact.potential is not None else None
     mj = MoreauJean(run.model, run.law, potential=potential, projection=bool(_setting(s, "projection")))
     tic = time.perf_counter()
     run.trajectory = mj.run(run.q0, run.v0, t_end, h, theta=_setting(s, "theta"), params=run.plant.theta_values,
@@ -156,7 +177,7 @@ def law_report(run: ContactRun) -> tuple[list, dict]:
     """The report lines and data that follow from the law of a contact run (module docstring)."""
     from ..stability.lyapunov import lyapunov_report
 
-    tr, law = run.trajectory, run.law
+    tr, law = run.result, run.law
     info = dict(law.info)
     kap = dict(zip(law.kappa_names, law.kappa_values))
     h = tr.h
@@ -236,7 +257,7 @@ def _equilibrium_report(run: ContactRun) -> tuple[list, dict]:
     from ..contact.equilibria import static_equilibrium, static_force
     from ..errors import ContactError
 
-    tr, law, model = run.trajectory, run.law, run.model
+    tr, law, model = run.result, run.law, run.model
     t = ca.SX.sym("t")
     u, _, kappa = law.symbolic(model, t)
     if ca.depends_on(u, t):
@@ -271,7 +292,7 @@ def _prop3_conditions(run: ContactRun, idx, q_d) -> dict:
     and (54) along persistent contact, with the V jumps."""
     from ..contact.mechanics import ContactSystem
 
-    tr, model = run.trajectory, run.model
+    tr, model = run.result, run.model
     imp = tr.impact_mask()  # (contacts, steps)
     k, i = np.nonzero(imp.T)  # ordered by step, then contact
     out = {"impacts_checked": int(k.size), "impacts_violating_52": 0, "max_V_jump_where_52_holds": 0.0,
@@ -307,7 +328,7 @@ def _prop3_conditions(run: ContactRun, idx, q_d) -> dict:
 
 
 def _summary(run: ContactRun) -> tuple[list, dict]:
-    tr = run.trajectory
+    tr = run.result
     ti = tr.impact_times
     lines = [f"{run.scene.name}: controller {run.controller}, h = {tr.h:g} s, t_end = {tr.t[-1]:.6g} s",
              f"impacts {ti.size}" + (f" (first: {np.round(ti[:5], 6).tolist()})" if ti.size else "")
@@ -315,8 +336,8 @@ def _summary(run: ContactRun) -> tuple[list, dict]:
              f"({tr.stats['backend']})"]
     data = {"controller": run.controller, "h": tr.h, "n_impacts": int(ti.size), "impact_times": ti[:200].tolist(),
             "max_gap_violation": tr.max_gap_violation, "initial_gaps": tr.gaps[:, 0].tolist(),
-            "clearance": (float(run.scene.contact.clearance(run.model, run.settings))
-                          if run.scene.contact.clearance is not None else None),
+            "clearance": (float(run.contact.clearance(run.model, run.settings))
+                          if run.contact.clearance is not None else None),
             "steps_per_s": tr.stats["steps_per_s"],
             "backend": tr.stats["backend"], "steps": tr.stats["steps"], "q_final": tr.q[:, -1].tolist(),
             "v_final": tr.v[:, -1].tolist(), "settings": dict(run.settings),
@@ -344,12 +365,12 @@ def simulate(bound, *, controller=None, plant_params=None, t_end=None, out=None,
         lines.append(rtext)
         data["reports"] = rdata
     if out:
-        data["out"] = str(run.trajectory.to_npz(out, meta=run.meta()))
+        data["out"] = str(run.result.to_npz(out, meta=run.meta()))
         lines.append(f"trajectory written to {data['out']}")
     if plot:
         from ..plot import close
 
-        close(run.trajectory.plot(plot, title=f"{scene.name} ({run.controller})"))
+        close(run.result.plot(plot, title=f"{scene.name} ({run.controller})"))
         data["plot"] = str(plot)
         lines.append(f"figure written to {plot}")
     return CommandResult("\n".join(lines), data, run.trajectory)
@@ -366,9 +387,10 @@ class Session(pipeline.Session):
         scene = self.scene
         self.options = {"t_end": t_end, "record_every": record_every, "record": record}
         self.plant_params = plant_params
-        names = list(scene.contact.controllers) or ["none"]
+        contact = _contact(scene)
+        names = list(contact.controllers) or ["none"]
         values = _values(scene, self.params, self.settings)
-        self.skipped = {k: why for k in names if (why := scene.contact.unmet(k, values))}
+        self.skipped = {k: why for k in names if (why := contact.unmet(k, values))}
         self.controllers = [k for k in names if k not in self.skipped]
         if not self.controllers:
             raise SceneError(f"scene {scene.name!r}: no controller fits these values: "

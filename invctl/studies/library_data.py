@@ -529,10 +529,11 @@ class LibraryStore:
         os.ftruncate(fd, 0)
         os.pwrite(fd, json.dumps({"key": self.key, "pid": os.getpid(), "host": socket.gethostname(),
                                   "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}).encode(), 0)
-        self._lock = fd
+        self._lock: int | None = fd
 
     def release(self) -> None:
-        fd, self._lock = getattr(self, "_lock", None), None
+        fd: int | None = getattr(self, "_lock", None)
+        self._lock = None
         if fd is not None:
             os.close(fd)  # drops the flock; the file stays (removing it would race with a run opening it)
 

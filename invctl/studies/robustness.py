@@ -163,7 +163,7 @@ def contact_point(*, scene: str, controller=None, t_end=None, base=(), **values)
     run = run_contact(contact_setup(sc, params, settings, controller=controller), t_end=t_end, progress=False)
     from ..stability.lyapunov import lyapunov_report
 
-    tr = run.trajectory
+    tr = run.result
     jumps = lyapunov_report(tr).impact_jumps
     _, law = law_report(run)
     out = {"n_impacts": float(tr.impact_times.size), "max_gap_violation": tr.max_gap_violation,
