@@ -11,14 +11,20 @@ Two problems, each solved twice:
 2. the cart-pole with |F| <= 1 N: the minimum duration of the reference's shape (exact tracking,
    free transition time, the intervals of [t0, tf] scaled with tau).
 
-The Opti versions are what a user writes with CasADi's Opti stack: decision variables for the
-mesh states (and slacks, and tau), a Python loop over the intervals stating the same
-Hermite-Simpson equations with the same right-hand side (``invctl.inversion.ocp.relaxed_rhs``),
-the same Simpson objective, bounds at the mesh points and midpoints, the same boundary
-conditions, equilibria and initial guess, IPOPT with the same options (and the same objective
-scaling invctl ended with).  Opti differentiates its graph by AD (exact Hessian); ``expand=True``
-(SX) is the usual speed-up and is timed as well.  Reported: the optimum (objective, duration),
-the largest state difference, iterations, build and solve time, and the time ratios.
+The peers are what a competent user writes with CasADi's Opti stack: decision variables for the
+mesh states (and slacks, and tau), the same Hermite-Simpson equations with the same right-hand side
+(``invctl.inversion.ocp.relaxed_rhs``) mapped over all mesh points and midpoints at once
+(``Function.map``, one matrix defect, no Python loop over intervals), the same Simpson objective,
+bounds at the mesh points and midpoints, the same boundary conditions, equilibria and initial
+guess, the model parameters as an Opti parameter, IPOPT with the same options (and the same
+objective scaling invctl ended with).  Opti differentiates its graph by AD (exact Hessian);
+``expand=True`` (SX) is the usual speed-up; the MX graph is timed as well.  A peer's build
+(``Opti`` + ``solver``) is timed apart from its first solve; its re-solve calls ``opti.solve()`` again
+on the built solver (nothing rebuilt).  invctl's first call clears its caches; its re-solve is the
+same ``invert``/``minimum_time`` call again.  Re-solves run in interleaved rounds (min and median).
+invctl's bounded least squares uses the Gauss-Newton Hessian by default; the row
+``hessian='exact'`` is the same call with the exact Hessian, Opti's choice.  Reported: the optimum
+(objective, duration), the largest state difference, iterations, and the time ratios.
 
     python benchmarks/bench_ocp.py [--smoke]        (output: benchmarks/bench_ocp_output.txt)
 
@@ -29,12 +35,14 @@ from __future__ import annotations
 
 import sys
 import time
+from types import SimpleNamespace
 
 import casadi as ca
 import numpy as np
 
 import invctl_scenes.cartpole as cp
 import invctl_scenes.manipulator as mn
+from invctl.errors import InversionFailed
 from invctl.inversion import Bounds, invert, servo_model
 from invctl.inversion import cache as _cache
 from invctl.inversion.backends import IPOPT_DEFAULTS
@@ -64,19 +72,60 @@ def ipopt_opts(scale):
     return o
 
 
+# ----------------------------------------------------------------------------- timing
+ROUNDS = 2 if SMOKE else 5
+
+
+def interleaved(calls: dict) -> dict:
+    """Wall times of each zero-argument call over ``ROUNDS`` interleaved rounds: name -> (min, median, last result)."""
+    times: dict = {k: [] for k in calls}
+    last: dict = {}
+    for _ in range(ROUNDS):
+        for k, call in calls.items():
+            t0 = time.perf_counter()
+            last[k] = call()
+            times[k].append(time.perf_counter() - t0)
+    return {k: (min(v), float(np.median(v)), last[k]) for k, v in times.items()}
+
+
+def hs_opti(sv, t_mesh, Yn, Ym, *, relaxed: bool, tau_ref=None, mask=None):
+    """The Hermite-Simpson transcription in Opti, vectorised: the right-hand side mapped over the mesh
+    points and the midpoints (``Function.map``), one matrix defect; ``tau`` (free time) scales the
+    intervals inside [t0, tf] (``mask``) and the reference's derivatives, as in invctl."""
+    N, nx, m = t_mesh.size - 1, sv.layout.nx, sv.model.m
+    f = relaxed_rhs(sv)
+    opti = ca.Opti()
+    X = opti.variable(nx, N + 1)
+    th = opti.parameter(sv.model.theta.shape[0])
+    H = ca.DM(np.diff(t_mesh)).T
+    S = opti.variable(m, N + 1) if relaxed else ca.DM.zeros(m, N + 1)
+    Sm = opti.variable(m, N) if relaxed else ca.DM.zeros(m, N)
+    tau = None
+    if tau_ref is not None:
+        tau = opti.variable()
+        r = tau / tau_ref
+        sc = ca.vertcat(*[ca.repmat(r ** (-k), m, 1) for k in range(4)])
+        Yn, Ym = Yn * ca.repmat(sc, 1, N + 1), Ym * ca.repmat(sc, 1, N)
+        H = H * (1 + ca.DM(mask).T * (r - 1))
+    c = 1.0 if tau_ref is not None else slack_scale(sv, float(t_mesh[-1] - t_mesh[0]))
+    F = f.map(N + 1)(X, Yn, th, S, c)
+    Xm = 0.5 * (X[:, :N] + X[:, 1:]) + ca.repmat(H / 8, nx, 1) * (F[:, :N] - F[:, 1:])
+    Fm = f.map(N)(Xm, Ym, th, Sm, c)
+    opti.subject_to(ca.vec(X[:, 1:] - X[:, :N] - ca.repmat(H / 6, nx, 1) * (F[:, :N] + 4 * Fm + F[:, 1:])) == 0)
+    return SimpleNamespace(opti=opti, X=X, S=S, Sm=Sm, Xm=Xm, H=H, th=th, tau=tau, N=N, Yn=Yn, Ym=Ym)
+
+
 # ----------------------------------------------------------------------------- problem 1
 def opti_bounded(md, ref, inv, exact, *, expand: bool):
-    """The bounded least-squares inversion written in Opti (module doc)."""
+    """The bounded least-squares inversion written in Opti (module doc); returns its first solve and a
+    call that re-solves with the same solver (nothing rebuilt)."""
     sv = servo_model(md)
     d = inv.diagnostics
     t_mesh = inv.t_mesh
-    N, nx, m = t_mesh.size - 1, sv.layout.nx, md.m
     h = np.diff(t_mesh)
+    m = md.m
     tm = t_mesh[:-1] + 0.5 * h
     Yn, Ym = sv.reference_samples(ref, t_mesh), sv.reference_samples(ref, tm)
-    th = md.theta_values
-    f = relaxed_rhs(sv)
-    c = slack_scale(sv, ref.tf - ref.t0)
     rho = 1e-2  # Objective() default slack weight; output weights 1
     iu2 = sv.layout.blocks["u"].start + 1
     plan = d["plan"]
@@ -85,37 +134,57 @@ def opti_bounded(md, ref, inv, exact, *, expand: bool):
     sel = resolve_selection(sv, plan["start"], plan["end"])
     E0, Ef = exact.X(exact.T0)[:, 0], exact.X(exact.Tf)[:, 0]
     t_build = time.perf_counter()
-    opti = ca.Opti()
-    X = opti.variable(nx, N + 1)
-    S = opti.variable(m, N + 1)
-    Sm = opti.variable(m, N)
-
-    def L(Xk, Yk, sk):
-        e = sv.output(Xk, Yk, th) - Yk[:m]
-        return ca.sumsqr(e) + rho * ca.sumsqr(sk)
-
-    J = 0
-    F = [f(X[:, k], Yn[:, k], th, S[:, k], c) for k in range(N + 1)]
-    for k in range(N):
-        Xm = 0.5 * (X[:, k] + X[:, k + 1]) + h[k] / 8 * (F[k] - F[k + 1])
-        Fm = f(Xm, Ym[:, k], th, Sm[:, k], c)
-        opti.subject_to(X[:, k + 1] - X[:, k] - h[k] / 6 * (F[k] + 4 * Fm + F[k + 1]) == 0)
-        J += h[k] / 6 * (L(X[:, k], Yn[:, k], S[:, k]) + 4 * L(Xm, Ym[:, k], Sm[:, k])
-                         + L(X[:, k + 1], Yn[:, k + 1], S[:, k + 1]))
-        opti.subject_to(opti.bounded(-8.0, Xm[iu2], 8.0))
+    p = hs_opti(sv, t_mesh, Yn, Ym, relaxed=True)
+    opti, X, N = p.opti, p.X, p.N
+    Xs, Ys, ths, ss = (ca.SX.sym(n, k) for n, k in (("X", sv.layout.nx), ("Y", 4 * m), ("th", md.theta.shape[0]),
+                                                     ("s", m)))
+    L = ca.Function("L", [Xs, Ys, ths, ss], [ca.sumsqr(sv.output(Xs, Ys, ths) - Ys[:m]) + rho * ca.sumsqr(ss)])
+    Ln, Lm = L.map(N + 1)(X, Yn, p.th, p.S), L.map(N)(p.Xm, Ym, p.th, p.Sm)
+    J = ca.sum2(p.H / 6 * (Ln[:, :N] + 4 * Lm + Ln[:, 1:]))
+    opti.subject_to(opti.bounded(-8.0, p.Xm[iu2, :], 8.0))
     opti.subject_to(opti.bounded(-8.0, X[iu2, :], 8.0))
     opti.subject_to(X[list(sel.start), 0] == E0[list(sel.start)])
     opti.subject_to(X[list(sel.end), N] == Ef[list(sel.end)])
     opti.minimize(J)
+    opti.set_value(p.th, md.theta_values)
     opti.set_initial(X, exact.X(t_mesh))
     opti.solver("ipopt", {**ipopt_opts(d["objective_scale"]), "expand": expand})
     build = time.perf_counter() - t_build
+
+    def solve():
+        sol = opti.solve()
+        st = sol.stats()
+        return {"objective": float(sol.value(J)), "X": np.array(sol.value(X)), "iterations": st["iter_count"],
+                "status": st["return_status"]}
+
     t0 = time.perf_counter()
-    sol = opti.solve()
-    solve = time.perf_counter() - t0
-    st = sol.stats()
-    return {"objective": float(sol.value(J)), "X": np.array(sol.value(X)), "iterations": st["iter_count"],
-            "build_s": build, "solve_s": solve, "status": st["return_status"]}
+    first = solve()
+    return {**first, "build_s": build, "first_solve_s": time.perf_counter() - t0}, solve
+
+
+def _rows_and_lines(lines, ours: dict, peers: dict, label, inv_value, X_ref, fmt):
+    """Print each peer's agreement with invctl, then the timing table: first calls, and re-solves over
+    interleaved rounds (``ours``: name -> (first call s, call, iterations); ``peers``: name -> (first solve
+    record, re-solve call))."""
+    timed = interleaved({**{name: call for name, (_f, call, _it) in ours.items()},
+                         **{name: call for name, (_r, call) in peers.items()}})
+    for name, (r, _call) in peers.items():
+        dx = float(np.max(np.abs(timed[name][2]["X"] - X_ref)))
+        lines.append(f"   {name}: {r['status']}, {r['iterations']} iterations, {label} {fmt(r)} (rel. diff "
+                     f"{abs(r[label] / inv_value - 1):.1e}), max |X - X_invctl| {dx:.1e}; build {r['build_s']:.2f} s, "
+                     f"first solve {r['first_solve_s']:.2f} s")
+    lines.append(f"   times: first call (invctl: caches cleared, everything; a peer: its build + first solve); re-solve "
+                 f"= the same call again, {ROUNDS} interleaved rounds (a peer re-solves with its built solver)")
+    lines.append("   formulation               first_s  re-solve min_s  median_s  iter   first/invctl  "
+                 "re-solve min/invctl")
+    base = next(iter(ours))
+    rows = [(name, first, it) for name, (first, _c, it) in ours.items()]
+    rows += [(name, r["build_s"] + r["first_solve_s"], r["iterations"]) for name, (r, _call) in peers.items()]
+    for name, first, it in rows:
+        mn, med = timed[name][0], timed[name][1]
+        lines.append(f"   {name:24s} {first:8.2f} {mn:15.3f} {med:9.3f} {it:5d} {first / ours[base][0]:13.2f}x "
+                     f"{mn / timed[base][0]:19.2f}x")
+    return rows
 
 
 def bench_bounded(lines):
@@ -126,32 +195,35 @@ def bench_bounded(lines):
     t0 = time.perf_counter()
     inv = invert(md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(u={"u2": 8.0}))
     cold = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    inv = invert(md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(u={"u2": 8.0}))
-    warm = time.perf_counter() - t0
     exact = invert(md, ref, q_guess=q0, N=N_MANIP)
     d = inv.diagnostics
     lines.append(f"1. manipulator, |u2| <= 8 N, least-squares tracking, HS N = {N_MANIP} "
                  f"({d['unknowns']} unknowns, {d['equations']} constraints)")
     lines.append(f"   invctl: {d['status']}, {d['iterations']} iterations (Gauss-Newton Hessian), objective "
-                 f"{d['objective']:.9e}, max output error {d['tracking']['max_output_error']:.4e}")
-    lines.append(f"           first call {cold:.2f} s (setup, exact inverse, NLP build, solve), repeated call "
-                 f"{warm:.2f} s (solve {d['solve_s']:.2f} s)")
-    rows = [("invctl", cold, warm, d["iterations"], d["objective"], 0.0)]
-    for expand in (False, True):
-        r = opti_bounded(md, ref, inv, exact, expand=expand)
-        dx = float(np.max(np.abs(r["X"] - inv.X_mesh)))
-        name = "Opti expand=True" if expand else "Opti (MX, AD Hessian)"
-        lines.append(f"   {name}: {r['status']}, {r['iterations']} iterations, objective {r['objective']:.9e} "
-                     f"(rel. diff {abs(r['objective'] / d['objective'] - 1):.1e}), max |X - X_invctl| {dx:.1e}; "
-                     f"build {r['build_s']:.2f} s, solve {r['solve_s']:.2f} s")
-        rows.append((name, r["build_s"] + r["solve_s"], r["solve_s"], r["iterations"], r["objective"], dx))
-    return rows
+                 f"{d['objective']:.9e}, max output error {d['tracking']['max_output_error']:.4e}; first call "
+                 f"{cold:.2f} s (setup, exact inverse, NLP build, solve)")
+    peers = {("Opti expand=True" if e else "Opti (MX, AD Hessian)"): opti_bounded(md, ref, inv, exact, expand=e)
+             for e in (True, False)}
+    ours = {"invctl": (cold, lambda: invert(md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(u={"u2": 8.0})),
+                       d["iterations"])}
+    t0 = time.perf_counter()
+    try:  # the exact Hessian, as Opti's
+        inv_x = invert(md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(u={"u2": 8.0}), hessian="exact")
+    except InversionFailed as exc:
+        lines.append(f"   invctl hessian='exact': failed ({str(exc)[:100]}...)")
+    else:
+        dx = inv_x.diagnostics
+        lines.append(f"   invctl hessian='exact': {dx['status']}, {dx['iterations']} iterations, objective "
+                     f"{dx['objective']:.9e} (rel. diff {abs(dx['objective'] / d['objective'] - 1):.1e})")
+        ours["invctl hessian='exact'"] = (time.perf_counter() - t0, lambda: invert(
+            md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(u={"u2": 8.0}), hessian="exact"), dx["iterations"])
+    return _rows_and_lines(lines, ours, peers, "objective", d["objective"], inv.X_mesh,
+                           lambda r: f"{r['objective']:.9e}")
 
 
 # ----------------------------------------------------------------------------- problem 2
 def opti_min_time(md, ref, inv, *, expand: bool):
-    """The cart-pole minimum-time problem written in Opti (module doc)."""
+    """The cart-pole minimum-time problem written in Opti (module doc); first solve and a re-solve call."""
     sv = servo_model(md)
     plan = inv.diagnostics["plan"]
     from invctl.inversion import resolve_selection
@@ -160,46 +232,38 @@ def opti_min_time(md, ref, inv, *, expand: bool):
 
     setup = prepare(md, ref, Discretization(N=inv.N), Horizon())
     t_mesh = setup.t_mesh
-    N, nx = t_mesh.size - 1, sv.layout.nx
     h = np.diff(t_mesh)
     mask = ((t_mesh[:-1] >= ref.t0 - 1e-12) & (t_mesh[1:] <= ref.tf + 1e-12)).astype(float)
     tau_ref = ref.tf - ref.t0
     tm = t_mesh[:-1] + 0.5 * h
     Yn, Ym = sv.reference_samples(ref, t_mesh), sv.reference_samples(ref, tm)
-    th = md.theta_values
-    f = relaxed_rhs(sv)
     sel = resolve_selection(sv, plan["start"], plan["end"])
     exact = invert(md, ref, N=inv.N)
     t_build = time.perf_counter()
-    opti = ca.Opti()
-    X = opti.variable(nx, N + 1)
-    tau = opti.variable()
-    r = tau / tau_ref
-    sc = ca.vertcat(*[ca.repmat(r ** (-k), md.m, 1) for k in range(4)])
-    zero = ca.DM.zeros(md.m)
-    F = [f(X[:, k], Yn[:, k] * sc, th, zero, 1.0) for k in range(N + 1)]
+    p = hs_opti(sv, t_mesh, Yn, Ym, relaxed=False, tau_ref=tau_ref, mask=mask)
+    opti, X, tau, N = p.opti, p.X, p.tau, p.N
     iu = sv.layout.blocks["u"].start
-    for k in range(N):
-        hk = h[k] * (1 + mask[k] * (r - 1))
-        Xm = 0.5 * (X[:, k] + X[:, k + 1]) + hk / 8 * (F[k] - F[k + 1])
-        Fm = f(Xm, Ym[:, k] * sc, th, zero, 1.0)
-        opti.subject_to(X[:, k + 1] - X[:, k] - hk / 6 * (F[k] + 4 * Fm + F[k + 1]) == 0)
-        opti.subject_to(opti.bounded(-1.0, Xm[iu], 1.0))
+    opti.subject_to(opti.bounded(-1.0, p.Xm[iu, :], 1.0))
     opti.subject_to(opti.bounded(-1.0, X[iu, :], 1.0))
     opti.subject_to(X[list(sel.start), 0] == setup.E0[list(sel.start)])
     opti.subject_to(X[list(sel.end), N] == setup.Ef[list(sel.end)])
     opti.subject_to(opti.bounded(0.02 * tau_ref, tau, 50 * tau_ref))
     opti.minimize(tau)
+    opti.set_value(p.th, md.theta_values)
     opti.set_initial(X, exact.X(t_mesh))
     opti.set_initial(tau, tau_ref)
     opti.solver("ipopt", {**ipopt_opts(1.0), "expand": expand})
     build = time.perf_counter() - t_build
+
+    def solve():
+        sol = opti.solve()
+        st = sol.stats()
+        return {"tau": float(sol.value(tau)), "X": np.array(sol.value(X)), "iterations": st["iter_count"],
+                "status": st["return_status"]}
+
     t0 = time.perf_counter()
-    sol = opti.solve()
-    solve = time.perf_counter() - t0
-    st = sol.stats()
-    return {"tau": float(sol.value(tau)), "X": np.array(sol.value(X)), "iterations": st["iter_count"],
-            "build_s": build, "solve_s": solve, "status": st["return_status"]}
+    first = solve()
+    return {**first, "build_s": build, "first_solve_s": time.perf_counter() - t0}, solve
 
 
 def bench_min_time(lines):
@@ -209,25 +273,15 @@ def bench_min_time(lines):
     t0 = time.perf_counter()
     inv = minimum_time(md, ref, bounds=Bounds(u=1.0), N=N_CART)
     cold = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    inv = minimum_time(md, ref, bounds=Bounds(u=1.0), N=N_CART)
-    warm = time.perf_counter() - t0
     d, ft = inv.diagnostics, inv.diagnostics["free_time"]
     lines.append("2. cart-pole, |F| <= 1 N, minimum duration of the reference's shape (exact tracking), "
                  f"HS N = {N_CART}")
     lines.append(f"   invctl: {d['status']}, {d['iterations']} iterations (structured exact Hessian), duration "
-                 f"{ft['duration']:.10f} s; first call {cold:.2f} s, repeated call {warm:.2f} s (solve "
-                 f"{d['solve_s']:.2f} s)")
-    rows = [("invctl", cold, warm, d["iterations"], ft["duration"], 0.0)]
-    for expand in (False, True):
-        r = opti_min_time(md, ref, inv, expand=expand)
-        dx = float(np.max(np.abs(r["X"] - inv.X_mesh)))
-        name = "Opti expand=True" if expand else "Opti (MX, AD Hessian)"
-        lines.append(f"   {name}: {r['status']}, {r['iterations']} iterations, duration {r['tau']:.10f} s (rel. diff "
-                     f"{abs(r['tau'] / ft['duration'] - 1):.1e}), max |X - X_invctl| {dx:.1e}; build "
-                     f"{r['build_s']:.2f} s, solve {r['solve_s']:.2f} s")
-        rows.append((name, r["build_s"] + r["solve_s"], r["solve_s"], r["iterations"], r["tau"], dx))
-    return rows
+                 f"{ft['duration']:.10f} s; first call {cold:.2f} s")
+    peers = {("Opti expand=True" if e else "Opti (MX, AD Hessian)"): opti_min_time(md, ref, inv, expand=e)
+             for e in (True, False)}
+    ours = {"invctl": (cold, lambda: minimum_time(md, ref, bounds=Bounds(u=1.0), N=N_CART), d["iterations"])}
+    return _rows_and_lines(lines, ours, peers, "tau", ft["duration"], inv.X_mesh, lambda r: f"{r['tau']:.10f} s")
 
 
 def tradeoffs(lines):
@@ -272,23 +326,12 @@ def tradeoffs(lines):
                      f"{inv.diagnostics['iterations']:4d}  {time.perf_counter() - t0:6.2f}")
 
 
-def table(lines, title, rows):
-    base_cold, base_warm = rows[0][1], rows[0][2]
-    lines.append(f"   {title}")
-    lines.append("   formulation               total_s  solve_s   iter   total/invctl_first  solve/invctl_repeat")
-    for name, total, solve, it, _opt, _dx in rows:
-        lines.append(f"   {name:24s} {total:8.2f} {solve:8.2f} {it:6d} {total / base_cold:16.2f}x "
-                     f"{solve / base_warm:17.2f}x")
-
-
 def main():
     lines = [f"bench_ocp: invctl bounded inversion / minimum time vs the same problems in CasADi Opti "
              f"(casadi {ca.__version__}; {'smoke' if SMOKE else 'full'} run)", ""]
-    rows = bench_bounded(lines)
-    table(lines, "times (invctl first call includes setup and the exact inverse; Opti total = build + solve)", rows)
+    bench_bounded(lines)
     lines.append("")
-    rows = bench_min_time(lines)
-    table(lines, "times", rows)
+    bench_min_time(lines)
     lines.append("")
     tradeoffs(lines)
     text = "\n".join(lines)
