@@ -33,6 +33,7 @@ not written (checks that the benchmark runs; its numbers are not the benchmark's
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 from types import SimpleNamespace
@@ -327,7 +328,10 @@ def tradeoffs(lines):
 
 
 def main():
-    lines = [f"bench_ocp: invctl bounded inversion / minimum time vs the same problems in CasADi Opti "
+    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    lines = [f"# {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, load average before: {load}, "
+             f"{os.cpu_count()} cores: python benchmarks/bench_ocp.py",
+             f"bench_ocp: invctl bounded inversion / minimum time vs the same problems in CasADi Opti "
              f"(casadi {ca.__version__}; {'smoke' if SMOKE else 'full'} run)", ""]
     bench_bounded(lines)
     lines.append("")
