@@ -93,9 +93,15 @@ def analyze(bound, *, samples: int = 200) -> CommandResult:
         f"{rd.det_range[1]:.4g}]",
         f"internal dynamics: dimension 2n - r_bar = {internal.dim} ({internal.method}, {internal.coordinates})",
         f"  checks: max |L_K phi| = {checks['L_K_phi_max']:.2g}, min sigma(Phi') = "
-        f"{checks['Phi_prime_sigma_min']:.3g}"
+        f"{checks['Phi_prime_sigma_min']:.3g} at the design point"
         + (f", Sect. 2 vs Sect. 3 rhs differ by {checks['sect2_vs_sect3_max_diff']:.2g} (relative, near the "
            "linearization points)" if checks["sect2_vs_sect3_max_diff"] is not None else ""),
+    ]
+    if checks.get("Phi_prime_singular_sample") is not None:
+        lines.append(f"  Phi' singular at {checks['Phi_prime_singular_count']} of {rd.samples} region samples "
+                     "(the coordinates are local; a sample of the singular set: q = "
+                     f"{np.round(checks['Phi_prime_singular_sample'], 5).tolist()})")
+    lines += [
         f"linearization (37) at {len(lin.points)} point(s)"
         + (f" (configurations in the region: {lin.diagnostics['points_in_region']})"
            if "points_in_region" in lin.diagnostics else "")
