@@ -33,8 +33,6 @@ import numpy as np
 from ..errors import ModelError
 from ..model import Gap, Model
 
-__all__ = ["GROUND", "Body", "Joint", "Linkage", "bar"]
-
 #: name of the ground (body 0)
 GROUND = "ground"
 

@@ -28,8 +28,6 @@ import numpy as np
 
 from ..errors import ModelError
 
-__all__ = ["SubsystemInfo", "Structure", "open_structure", "contact_blocks", "subsystem_report"]
-
 
 @dataclass(frozen=True)
 class SubsystemInfo:

@@ -28,8 +28,6 @@ from ..errors import (FunnelViolation, OptionError, ParameterError, RunInterrupt
 from ..io import file_loader
 from ..results import Status, Trajectory
 
-__all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acceleration", "sampled_signal"]
-
 #: a level counts as outside the funnel at this ratio (the law clips 1 - phi^2 e^2 at 1e-6)
 VIOLATION_RATIO = 1.0 - 5e-7
 #: an integrator failure with a level this close to its boundary counts as leaving the funnel
@@ -529,7 +527,7 @@ class ClosedLoop:
             return f"; the integrator reached its limits: {settings}"
         a1 = ""
         try:  # (A1) along the last output steps: where it fails the feedback pushes the error the wrong way
-            from ..control.funnel_design import a1_margin_along
+            from ..control.new_output import a1_margin_along
 
             sl = slice(max(0, k - 30), k + 1)
             m = a1_margin_along(self.controller, self.controller.model, res.q[:, sl], res.v[:, sl], t=res.t[sl])

@@ -21,9 +21,6 @@ from ..errors import ParameterError, RecordingError, ResourceLimitError, ResultF
 from ..io import file_loader, load_npz_versioned, require_finite, save_npz
 from ..results import Status, Trajectory
 
-__all__ = ["ContactTrajectory", "ChunkRecorder", "available_memory", "resolve_memory_budget",
-           "DEFAULT_MEMORY_FRACTION", "CONTACT_FORMAT_VERSION"]
-
 #: format version of the ContactTrajectory files written now (3: time along the last axis); files
 #: of version 2 (time along the first axis) are read and transposed
 CONTACT_FORMAT_VERSION = 3
