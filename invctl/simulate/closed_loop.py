@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import (FunnelViolation, OptionError, ParameterError, RunInterrupted, SimulationFailed, check_interrupt,
                       INTERRUPT_LIKE, is_interrupt, watch_sigint)
 from ..io import file_loader
-from ..results import Status, Trajectory
+from ..results import Animated, Status
 
 #: a level counts as outside the funnel at this ratio (the law clips 1 - phi^2 e^2 at 1e-6)
 VIOLATION_RATIO = 1.0 - 5e-7
@@ -37,7 +37,7 @@ MONITOR_BLOCK = 2000
 
 
 @dataclass
-class ClosedLoopResult(Trajectory):
+class ClosedLoopResult(Animated):
     """Trajectory of a closed-loop run (all arrays with time along the last axis).
 
     ``ratios`` holds ``phi_i,j |e_i,j|`` for every level and ``phi ||e_bar||`` last (``< 1`` inside the
@@ -215,13 +215,6 @@ class ClosedLoopResult(Trajectory):
         from ..plot.tracking import plot_run
 
         return plot_run(self, path)
-
-    def animate(self, path, **options):
-        """Draw the mechanism along the run (GIF/MP4) from the scene's drawing; see
-        :func:`invctl.plot.animate.animate_result` (the scene defaults to ``meta["scene"]``)."""
-        from ..plot.animate import animate_result
-
-        return animate_result(self, path, **options)
 
 
 def _left_region_message(exit_: dict) -> str:
