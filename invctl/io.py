@@ -17,9 +17,6 @@ import numpy as np
 
 from .errors import InvctlError, OutputPathError, ResultFileError
 
-__all__ = ["FORMAT_VERSION", "save_npz", "load_npz", "load_npz_versioned", "check_output_path", "check_output_dir", "read_meta",
-           "require_finite", "file_loader", "read_json"]
-
 #: version of the files written by this invctl (raise when the layout changes incompatibly); a result
 #: type whose layout changed on its own writes its own version (``save_npz(..., version=...)``) and
 #: reads the older ones it can convert (``load_npz_versioned(..., older=...)``)

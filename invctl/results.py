@@ -190,6 +190,18 @@ class Trajectory:
         raise NotImplementedError
 
 
+class Animated(Trajectory):
+    """A run of a scene's mechanism (an inverse, a closed-loop or a contact run), drawn by :meth:`animate`."""
+
+    def animate(self, path, **options):
+        """Draw the mechanism along the run (GIF/MP4) from the scene's drawing (an inverse: along its state
+        trajectory, pre-actuation included); see :func:`invctl.plot.animate.animate_result` (the scene defaults
+        to ``meta["scene"]``)."""
+        from .plot.animate import animate_result
+
+        return animate_result(self, path, **options)
+
+
 def plot_target(ax, path):
     """``(ax, path)`` of a ``plot(ax=None, *, path=None)`` call; a path given in place of the axes (the older
     ``result.plot("fig.png")``) is taken as the path."""

@@ -44,9 +44,6 @@ if TYPE_CHECKING:
     from .reference import Reference
     from .studies.switched import SwitchedProblem
 
-__all__ = ["Scene", "BoundScene", "bind_scene", "Tracking", "Contact", "Switched", "Report", "ReportContext",
-           "CommandResult", "jsonable", "available_scenes", "load_scene", "scene_reference", "SCENE_COMMANDS"]
-
 # ---------------------------------------------------------------- the hooks a scene declares
 #: ``build(**overrides) -> Model`` (a switched scene: ``-> SwitchedProblem``)
 BuildHook = Callable[..., Union["Model", "SwitchedProblem"]]

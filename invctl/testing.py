@@ -12,8 +12,6 @@ from __future__ import annotations
 
 from .inversion.verify import forward_check
 
-__all__ = ["assert_inverts", "forward_check"]
-
 
 def assert_inverts(model, inverse, reference, tol: float = 1e-6, **options) -> dict:
     """Assert that ``inverse.u`` reproduces ``reference`` on ``model``.

@@ -21,7 +21,7 @@ import casadi as ca
 import numpy as np
 
 from invctl.model.urdf import check_values, robot_from_urdf
-from invctl.reference import Reference, poly9_timing_law
+from invctl.reference import Reference, rest_to_rest
 from invctl.scenes import Scene, Tracking
 
 URDF = Path(__file__).with_name("robots") / "double_pendulum.urdf"
@@ -51,8 +51,7 @@ def build(**overrides: float):
 
 def reference(model, *, y0: float = 0.0, yf: float = 0.02, t0: float = 0.0, tf: float = 1.0) -> Reference:
     """The tip moved sideways from y0 to yf (m) with the C^4 timing law of 003 Sect. 6."""
-    t = ca.SX.sym("t")
-    return Reference(t, y0 + (yf - y0) * poly9_timing_law(t, t0, tf), t0, tf, smoothness=4, name="tip_y_ref")
+    return rest_to_rest(y0, yf, t0, tf, smoothness=4, name="tip_y_ref")
 
 
 def initial_configuration(model) -> np.ndarray:

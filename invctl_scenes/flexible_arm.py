@@ -61,7 +61,7 @@ import casadi as ca
 import numpy as np
 
 from invctl.model import Model, ParamSet
-from invctl.reference import Reference, poly9_timing_law
+from invctl.reference import Reference, rest_to_rest
 from invctl.scenes import Scene, Tracking
 
 PARAMS = {"l": 0.25, "m": 0.25, "k": 5.0, "d": 0.05, "alpha": 2.0, "g": 9.81, "w": 1.0}
@@ -203,8 +203,7 @@ def reference(model: Model, *, y0: float = 0.0, yf: float = 0.05, t0: float = 0.
     The elbow carries the weight of the arm below it, so its static deflection grows with n
     (0.23 rad at n = 32 for the default 0.05 rad move); larger moves make the inverse of a long
     arm strongly nonlinear (docs/gallery.md)."""
-    t = ca.SX.sym("t")
-    return Reference(t, y0 + (yf - y0) * poly9_timing_law(t, t0, tf), t0, tf, smoothness=4, name="y_ref")
+    return rest_to_rest(y0, yf, t0, tf, smoothness=4, name="y_ref")
 
 
 def initial_configuration(model: Model) -> np.ndarray:

@@ -36,7 +36,7 @@ import casadi as ca
 import numpy as np
 
 from invctl.model import Model, ParamSet
-from invctl.reference import Reference, poly9_timing_law
+from invctl.reference import Reference, rest_to_rest
 from invctl.scenes import Scene, Tracking
 
 #: physical parameters (n is structural: it fixes the number of coordinates)
@@ -73,8 +73,7 @@ def build(n: float = DEFAULT_N, **overrides: float) -> Model:
 
 def reference(model: Model, *, y0: float = 0.0, yf: float = 0.1, t0: float = 0.0, tf: float = 1.0) -> Reference:
     """y moved from y0 to yf (metres) with the C^4 timing law of 003 Sect. 6."""
-    t = ca.SX.sym("t")
-    return Reference(t, y0 + (yf - y0) * poly9_timing_law(t, t0, tf), t0, tf, smoothness=4, name="y_ref")
+    return rest_to_rest(y0, yf, t0, tf, smoothness=4, name="y_ref")
 
 
 def polynomials(n: int, values: dict) -> tuple[np.poly1d, np.poly1d]:

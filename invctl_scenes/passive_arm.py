@@ -40,7 +40,7 @@ import numpy as np
 
 from invctl.model import Model, OperatingRegion, ParamSet
 from invctl.model.params import resolve_params
-from invctl.reference import Reference, poly9_timing_law
+from invctl.reference import Reference, rest_to_rest
 from invctl.scenes import Scene, Tracking
 
 PARAMS = {
@@ -129,8 +129,7 @@ def zeros(model: Model, y: float = 0.0) -> np.ndarray:
 
 def reference(model: Model, *, y0: float = 0.0, yf: float = 0.3, t0: float = 0.0, tf: float = 1.0) -> Reference:
     """The tip angle moved from y0 to yf (rad) with the C^4 timing law of 003 Sect. 6."""
-    t = ca.SX.sym("t")
-    return Reference(t, y0 + (yf - y0) * poly9_timing_law(t, t0, tf), t0, tf, smoothness=4, name="tip_angle_ref")
+    return rest_to_rest(y0, yf, t0, tf, smoothness=4, name="tip_angle_ref")
 
 
 def initial_configuration(model: Model) -> np.ndarray:

@@ -25,7 +25,7 @@ import casadi as ca
 import numpy as np
 
 from invctl.model import Model, OperatingRegion, ParamSet
-from invctl.reference import Reference, poly9_timing_law
+from invctl.reference import Reference, rest_to_rest
 from invctl.scenes import Scene, Tracking
 
 PARAMS = {
@@ -143,8 +143,7 @@ def zero_dynamics_eigenvalues(model: Model, q1: float = 0.0):
 
 def reference(model: Model, *, y0: float = 0.0, yf: float = 0.5, t0: float = 0.0, tf: float = 1.0) -> Reference:
     """Joint 1 moved from y0 to yf with the C^4 timing law of 003 Sect. 6."""
-    t = ca.SX.sym("t")
-    return Reference(t, y0 + (yf - y0) * poly9_timing_law(t, t0, tf), t0, tf, smoothness=4, name="q1_ref")
+    return rest_to_rest(y0, yf, t0, tf, smoothness=4, name="q1_ref")
 
 
 def initial_configuration(model: Model) -> np.ndarray:

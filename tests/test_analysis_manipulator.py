@@ -7,7 +7,10 @@ the eigenvalues mu_1,2 of (51)-(52).  Tolerances: all quantities are exact
 formulas evaluated in double precision; the only error is round-off (and the
 Newton tolerance 1e-12 of the coordinate inversion), hence 1e-9 relative.
 """
+import copy
+import dataclasses
 import json
+import math
 
 import casadi as ca
 import numpy as np
@@ -505,3 +508,24 @@ def test_scene_presets_apply_before_set_and_are_checked():
         Scene("s", scene.build, params=scene.PARAMS, presets={"p": {"m3": float("nan")}})
     with pytest.raises(SceneError, match="identifier-like"):
         Scene("s", scene.build, params=scene.PARAMS, presets={"a b": {"m3": 1.0}})
+
+
+def test_phi_prime_singular_set_in_the_region_is_data(manipulator):
+    """The paper's coordinates (gamma, [0 0 0 0 1] M v): the q-block of Phi' = d(g, h, gamma)/dq has determinant
+    L1 sin(alpha) (expand along s2, beta, gamma), the v-block the same, so Phi' is singular on alpha = 0, the edge
+    of U_q = ... x (0, pi/2) x ...  Region samples with alpha in (0, 1e-6] (sigma_min ~ alpha^2) are counted and one is named, not an
+    error (this stopped `invctl analyze manipulator --samples 100000`); samples with alpha >= 0.1 are regular."""
+    q0 = scene.initial_configuration(manipulator)
+
+    def with_alpha(lo, hi):
+        model = copy.copy(manipulator)
+        model.region = dataclasses.replace(manipulator.region, sample_bounds=(
+            [-1.0, -1.0, lo, 0.0, -0.8], [1.0, 1.0, hi, math.pi / 2, 0.8]))
+        return internal_dynamics(model, "sect3", scene.paper_internal_coordinates, point=q0, samples=40).checks
+
+    near = with_alpha(0.0, 1e-6)
+    assert near["Phi_singular_count"] == 40 and near["Phi_invertible_fraction_region"] == 0.0
+    assert 0.0 <= near["Phi_singular_sample"][2] <= 1e-6 and near["Phi_sigma_min_region"] < 1e-10
+    assert near["Phi_sigma_min"] > 1e-3           # the design point (alpha0 = 0.6435) is regular
+    away = with_alpha(0.1, 1.5)
+    assert away["Phi_singular_count"] == 0 and away["Phi_singular_sample"] is None

@@ -10,7 +10,8 @@ import invctl_scenes.manipulator as scene
 from invctl.cli import main
 from invctl.errors import LibraryError, OutputPathError, ParameterError
 from invctl.inversion import Inverse, invert
-from invctl.studies.library import Library, generate, parse_grid, reference_arguments, resolve_axes
+from invctl.studies.library import Library, generate, reference_arguments, resolve_axes
+from invctl.studies.library_data import parse_grid
 
 def _plan():
     from invctl.inversion import plan_inversion
@@ -325,13 +326,12 @@ def test_sizes_are_refused_before_any_work(capsys, monkeypatch):
 
 def test_ordinary_sizes_pass_the_checks(monkeypatch):
     from invctl.scenes import bind_scene, load_scene
-    from invctl.studies import commands
     from invctl.studies.library import check_library_size
-    from invctl.studies.workflow import workflow
+    from invctl.studies.workflow import check_inversion, workflow
 
     sc = load_scene("cartpole")
     workflow(sc)._check_samples(bind_scene(sc, "analyze"), 100000)  # ~6 s
-    commands._check_inversion(sc, {}, {"N": 20000})  # measured 12 s
+    check_inversion(bind_scene(sc, "invert"), {"N": 20000})  # measured 12 s
     check_library_size(sc, {}, [100, 100], 200, None, 1)  # 10^4 points: 100 s, 350 MB at the least
 
 

@@ -60,11 +60,14 @@ class EquilibriumSolver:
             if guess_q is not None:
                 w[:n] = np.asarray(guess_q, float).ravel()
         y = np.asarray(y, float).ravel()
-        res = np.inf
-        for _ in range(max_iter):
+
+        def evaluate(w):
             r, Jm = self._F(w, y, th)
-            r, Jm = np.array(r).ravel(), np.array(Jm)
-            res = float(np.max(np.abs(r))) if r.size else 0.0
+            r = np.array(r).ravel()
+            return r, np.array(Jm), float(np.max(np.abs(r))) if r.size else 0.0
+
+        r, Jm, res = evaluate(w)
+        for _ in range(max_iter):
             if res < tol:
                 break
             dw = np.linalg.lstsq(Jm, -r, rcond=None)[0]
@@ -75,6 +78,7 @@ class EquilibriumSolver:
                     break
                 step *= 0.5
             w = w + step * dw
+            r, Jm, res = evaluate(w)    # the residual reported is the one of the last iterate
         if not np.isfinite(res) or res > max(1e3 * tol, 1e-9):
             raise ReferenceSignalError(
                 f"no equilibrium with h(q) = y_ref = {np.round(y, 6).tolist()}{where}: the servo and loop "

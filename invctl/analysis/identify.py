@@ -33,9 +33,6 @@ import numpy as np
 from ..errors import InvctlError, ParameterError
 from .linearize import EIG_NORMALIZATIONS, eigenvector_columns
 
-__all__ = ["Target", "Identification", "printed", "eigen_split", "linearization_features",
-           "linearization_evaluator", "identify", "FEATURES"]
-
 #: the features :func:`linearization_features` computes
 FEATURES = ("eigenvalues", "TinvQT", "TinvP", "Q", "P", "zeros")
 _PENALTY_FACTOR = 10.0  # residual where the model cannot be evaluated: this times the largest one seen

@@ -286,9 +286,10 @@ def internal_dynamics(model, method: str = "sect3", phi=None, *, point=None, sam
     point : array, optional
         Design configuration ``q0`` (Newton start; where ``E`` is taken).
     samples : int
-        Region points at which ``L_K phi = 0`` and ``Phi'`` invertible are checked.
-        With default coordinates (only local by Lemma 3.1) the check is made on
-        ``check_points`` (default: the design point) instead of the whole region.
+        Region points at which ``L_K phi = 0`` is checked (a given ``phi``) and where ``Phi'`` stays
+        invertible is reported (``checks``: the fraction, the smallest singular value, a singular sample).
+        ``Phi'`` must be invertible at ``check_points`` and the design point only: internal coordinates
+        may be local (Lemma 3.1), so a singular set elsewhere in the region is data, not an error.
     form : {"auto", "lemma32", "momentum"}
         Which default coordinates (ignored when ``phi`` is given).
 
@@ -305,7 +306,7 @@ def internal_dynamics(model, method: str = "sect3", phi=None, *, point=None, sam
     key = None
     if phi is None or callable(phi):
         key = ("internal", method, phi, form, None if point is None else tuple(np.asarray(point, float).ravel()),
-               samples, repr(rng), tuple(model.theta_values),
+               samples, repr(rng), repr(model.region), tuple(model.theta_values),
                None if check_points is None else repr([np.asarray(c).tolist() for c in check_points]))
         cache = cache_of(model)
         if key in cache:
@@ -356,24 +357,27 @@ def _internal_dynamics(model, method, phi, point, samples, rng, check_points, fo
     LK = aux.lie_K(phi_expr)
     dPhi = ca.jacobian(Phi_expr, x)
     chk = ca.Function("chk", [model.q, model.v, model.theta], [LK, dPhi])
-    if phi is None:
-        cps = [(q0, np.zeros(n))] + list(check_points or [])
-        qs, vs = region_samples(model, 0, rng, cps)
-    else:
-        qs, vs = region_samples(model, samples, rng, [(q0, np.zeros(n))] + list(check_points or []))
+    cps = [(q0, np.zeros(n))] + list(check_points or [])
+    qs, vs = region_samples(model, samples, rng, cps)        # the region samples, then the given points
     LKv, dP = eval_batch(chk, qs, vs, theta=model.theta_values)
     lk = np.max(np.abs(LKv), axis=(1, 2)) if LKv.size else np.zeros(qs.shape[0])
     sv = np.linalg.svd(dP, compute_uv=False)
     smin = sv[:, -1] / np.maximum(sv[:, 0], 1.0)
-    checks = {"LK_max": float(lk.max()), "Phi_sigma_min": float(sv[:, -1].min()), "points_checked": qs.shape[0]}
-    if phi is None and samples:
-        # Lemma 3.1 coordinates are local: report (not require) where on the region Phi' stays invertible
-        qr, vr = region_samples(model, samples, rng)
-        dPr = eval_batch(chk, qr, vr, theta=model.theta_values)[1]
-        svr = np.linalg.svd(dPr, compute_uv=False)
-        checks["Phi_invertible_fraction_region"] = float(np.mean(svr[:, -1] > _PHI_SINGULAR_TOL * np.maximum(svr[:, 0], 1.0)))
-        checks["Phi_sigma_min_region"] = float(svr[:, -1].min())
-    scale = max(1.0, float(np.max(np.abs(dP))))
+    used = np.arange(qs.shape[0]) >= qs.shape[0] - len(cps)
+    # L_K phi = 0: on the region for a given phi, where used for Lemma 3.1's (built at the design point)
+    checked = used if phi is None else np.ones_like(used)
+    lk = np.where(checked, lk, 0.0)
+    checks = {"LK_max": float(lk.max()), "Phi_sigma_min": float(sv[used, -1].min()), "points_checked": qs.shape[0]}
+    if samples:
+        # coordinates may be local: where on the region Phi' stays invertible is reported (a singular set is
+        # data), required only where the coordinates are used (the design point and check_points)
+        region = ~used
+        k = int(np.argmin(np.where(region, smin, np.inf)))
+        checks["Phi_invertible_fraction_region"] = float(np.mean(smin[region] > _PHI_SINGULAR_TOL))
+        checks["Phi_sigma_min_region"] = float(sv[region, -1].min())
+        checks["Phi_singular_count"] = int(np.sum(smin[region] <= _PHI_SINGULAR_TOL))
+        checks["Phi_singular_sample"] = qs[k].tolist() if smin[k] <= _PHI_SINGULAR_TOL else None
+    scale = max(1.0, float(np.max(np.abs(dP[checked]))))
     if lk.max() > _LK_TOL * scale:
         k = int(np.argmax(lk))
         raise CoordinateError(
@@ -382,8 +386,8 @@ def _internal_dynamics(model, method, phi, point, samples, rng, check_points, fo
             "phi_2(q) M(q)^-1 [J^T G^T B] = 0 (003 (25)) or use the default coordinates",
             diagnostics={"q": qs[k], "v": vs[k], "LK": float(lk[k])},
         )
-    if np.any(smin <= _PHI_SINGULAR_TOL):
-        k = int(np.argmin(smin))
+    if np.any(smin[used] <= _PHI_SINGULAR_TOL):
+        k = int(np.argmin(np.where(used, smin, np.inf)))
         raise CoordinateError(
             f"{model.name}: Phi' is singular at q = {np.round(qs[k], 5).tolist()}, v = {np.round(vs[k], 5).tolist()} "
             f"(smallest singular value {sv[k, -1]:.3g}); these coordinates are not a diffeomorphism there. "

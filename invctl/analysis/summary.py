@@ -76,6 +76,8 @@ def analyze(model, setup: dict | None = None, samples: int = 200) -> dict:
         "gamma_min_singular_value": rd.min_singular_value,
         "L_K_phi_max": internal.checks["LK_max"],
         "Phi_prime_sigma_min": internal.checks["Phi_sigma_min"],
+        "Phi_prime_singular_count": internal.checks.get("Phi_singular_count"),
+        "Phi_prime_singular_sample": internal.checks.get("Phi_singular_sample"),
         "sect2_vs_sect3_max_diff": cross,
         "linearization_points_in_region": lin.diagnostics.get("points_in_region"),
     }

@@ -24,8 +24,6 @@ import numpy as np
 
 from ..errors import ContactError, DimensionError
 
-__all__ = ["Equilibrium", "static_equilibrium", "equilibrium_points", "static_force"]
-
 
 @dataclass(frozen=True)
 class Equilibrium:

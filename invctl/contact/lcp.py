@@ -24,9 +24,6 @@ import numpy as np
 
 from ..errors import ContactError, DimensionError
 
-__all__ = ["LCPSolution", "solve_lcp", "is_p_matrix", "lcp_sx", "lemke_sx", "pivot_sx", "default_max_pivots",
-           "default_pivot_iters", "lcp_residual"]
-
 
 @dataclass(frozen=True)
 class LCPSolution:
@@ -248,6 +245,21 @@ def _residual_ok(A, b, z, tol):
     return res <= tol * scale, res
 
 
+def _budget(given, default: int, what: str) -> int:
+    if given is None:
+        return default
+    if given < 1:
+        raise ContactError(f"{what} must be >= 1, got {given}")
+    return given
+
+
+def _scaled(A, b):
+    """``A / sa``, ``b / sb`` of max-norm 1 (the straight-line solvers' tolerances are relative) and ``sa``, ``sb``."""
+    sa = ca.fmax(ca.mmax(ca.fabs(A)), 1e-300)
+    sb = ca.fmax(ca.mmax(ca.fabs(b)), 1e-300)
+    return A / sa, b / sb, sa, sb
+
+
 def lemke_sx(A, b, *, max_pivots: int | None = None, piv_tol: float = 1e-12, lex_tol: float = 1e-12,
              res_tol: float = 1e-9):
     """Lemke's complementary pivoting in CasADi SX, straight-line (no branches).
@@ -282,18 +294,11 @@ def lemke_sx(A, b, *, max_pivots: int | None = None, piv_tol: float = 1e-12, lex
     with the unique solution; the pivot budget (default
     :func:`default_max_pivots`) bounds the straight-line code.
     """
-    A = ca.SX(A)
-    b = ca.SX(b)
-    m = b.shape[0]
+    A, b, m = ca.SX(A), ca.SX(b), ca.SX(b).shape[0]
     if m == 0:
         return ca.SX(0, 1), ca.SX(1), ca.SX(0)
-    if max_pivots is None:
-        max_pivots = default_max_pivots(m)
-    if max_pivots < 1:
-        raise ContactError(f"lemke_sx: max_pivots must be >= 1, got {max_pivots}")
-    sa = ca.fmax(ca.mmax(ca.fabs(A)), 1e-300)
-    sb = ca.fmax(ca.mmax(ca.fabs(b)), 1e-300)
-    As, bs = A / sa, b / sb
+    max_pivots = _budget(max_pivots, default_max_pivots(m), "lemke_sx: max_pivots")
+    As, bs, sa, sb = _scaled(A, b)
     Binv = ca.SX.eye(m)
     beta = ca.SX(bs)
     lab = ca.SX(ca.DM(list(range(m))))
@@ -443,18 +448,11 @@ def pivot_sx(A, b, *, start=None, max_iter: int | None = None, p_max: int = 3, t
     21 (1994); Murty, *Note on a Bard-type scheme for solving the
     complementarity problem*, Opsearch 11 (1974).
     """
-    A = ca.SX(A)
-    b = ca.SX(b)
-    m = b.shape[0]
+    A, b, m = ca.SX(A), ca.SX(b), ca.SX(b).shape[0]
     if m == 0:
         return ca.SX(0, 1), ca.SX(1), ca.SX(0)
-    if max_iter is None:
-        max_iter = default_pivot_iters(m)
-    if max_iter < 1:
-        raise ContactError(f"pivot_sx: max_iter must be >= 1, got {max_iter}")
-    sa = ca.fmax(ca.mmax(ca.fabs(A)), 1e-300)
-    sb = ca.fmax(ca.mmax(ca.fabs(b)), 1e-300)
-    As, bs = A / sa, b / sb
+    max_iter = _budget(max_iter, default_pivot_iters(m), "pivot_sx: max_iter")
+    As, bs, sa, sb = _scaled(A, b)
     s = ca.SX(bs < 0) if start is None else ca.SX(start)
     best = ca.SX(m + 1)
     p = ca.SX(p_max)

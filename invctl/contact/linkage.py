@@ -32,8 +32,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..model import Gap, Model
-
-__all__ = ["GROUND", "Body", "Joint", "Linkage", "bar"]
+from .structure import components
 
 #: name of the ground (body 0)
 GROUND = "ground"
@@ -192,26 +191,13 @@ class Linkage:
     # ------------------------------------------------------------ structure
     def _plan(self):
         """Subsystems (components of ideal joints), their roots and tree coordinates."""
-        parent = {b: b for b in self.bodies}
-
-        def find(x):
-            while parent[x] != x:
-                parent[x] = parent[parent[x]]
-                x = parent[x]
-            return x
-
         ideal = [j for j in self.joints if not j.has_clearance]
-        for j in ideal:
-            if j.a != GROUND:
-                parent[find(j.a)] = find(j.b)
-        comps: dict[str, list] = {}
-        for b in self.bodies:
-            comps.setdefault(find(b), []).append(b)
+        comps = components(self.bodies, [(j.a, j.b) for j in ideal if j.a != GROUND])
         self.subsystems: list[Subsystem] = []
         self.coords: list[_Coordinate] = []
         self._tree: list[tuple] = []      # (joint, parent body or GROUND, child body, coordinate index or None)
         used = set()
-        for k, members in enumerate(comps.values()):
+        for k, members in enumerate(comps):
             sub = Subsystem(f"S{k + 1}", list(members))
             mset = set(members)
             ground_joints = [j for j in ideal if j.a == GROUND and j.b in mset]

@@ -25,8 +25,6 @@ import numpy as np
 from ..errors import ContactError, DimensionError, ModelError
 from .lcp import solve_lcp
 
-__all__ = ["ContactSystem", "ImpactResult", "ContactForces", "energy_loss_39"]
-
 
 def energy_loss_39(sigma, M, e: float) -> float:
     """Kinetic energy jump ``-1/2 (1-e)/(1+e) sigma^T M sigma`` of 000 (39)."""

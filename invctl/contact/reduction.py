@@ -24,8 +24,6 @@ import numpy as np
 
 from ..errors import ContactError, DimensionError, ModelError
 
-__all__ = ["ClearanceFree"]
-
 
 class ClearanceFree:
     """The clearance-free system (6) of ``model`` under the closure constraints ``closure``.

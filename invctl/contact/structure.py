@@ -28,8 +28,6 @@ import numpy as np
 
 from ..errors import ModelError
 
-__all__ = ["SubsystemInfo", "Structure", "open_structure", "contact_blocks", "subsystem_report"]
-
 
 @dataclass(frozen=True)
 class SubsystemInfo:
@@ -69,8 +67,10 @@ class Structure:
     juggling: tuple
 
 
-def _components(n, edges):
-    parent = list(range(n))
+def components(nodes, edges) -> list[list]:
+    """Connected components of the graph (``nodes``, ``edges``), each in the order of ``nodes``, ordered by
+    their first node (union-find with path halving)."""
+    parent = {x: x for x in nodes}
 
     def find(x):
         while parent[x] != x:
@@ -80,10 +80,10 @@ def _components(n, edges):
 
     for i, j in edges:
         parent[find(i)] = find(j)
-    groups: dict[int, list] = {}
-    for i in range(n):
-        groups.setdefault(find(i), []).append(i)
-    return sorted(groups.values(), key=lambda g: g[0])
+    groups: dict[Any, list] = {}
+    for x in nodes:
+        groups.setdefault(find(x), []).append(x)
+    return list(groups.values())
 
 
 def _samples(model, q, samples, rng):
@@ -133,7 +133,7 @@ def open_structure(model, q=None, *, samples: int = 3, tol: float = 1e-12, rng: 
     if link is not None:    # a floating body's x, y, phi are decoupled in M, C, g but belong together
         for sub in link.subsystems:
             edges += [(sub.coordinates[0], c) for c in sub.coordinates[1:]]
-    groups = _components(n, edges)
+    groups = components(range(n), edges)
     label = np.empty(n, int)
     for k, g in enumerate(groups):
         label[g] = k

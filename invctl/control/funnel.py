@@ -22,8 +22,6 @@ import numpy as np
 
 from ..errors import ParameterError
 
-__all__ = ["Funnel", "FunnelCheck", "exponential_funnel", "as_funnel"]
-
 
 @dataclass(frozen=True)
 class FunnelCheck:
@@ -209,11 +207,6 @@ class Funnel:
             p = self.params
             return f"Funnel.exponential(p={p['p']:g}, q={p['q']:g}, r={p['r']:g}, name={self.name!r})"
         return f"Funnel({self.expr}, name={self.name!r})"
-
-
-def exponential_funnel(p: float, q: float, r: float, name: str = "phi") -> Funnel:
-    """Shorthand for :meth:`Funnel.exponential`."""
-    return Funnel.exponential(p, q, r, name)
 
 
 def as_funnel(spec, name: str = "phi") -> Funnel:

@@ -41,10 +41,7 @@ from ..analysis.internal import design_point
 from ..errors import FeedbackDesignError, ParameterError
 from .funnel import Funnel
 from .funnel_nmp import NMPFunnelController, _nested, _number_leaf
-from .new_output import A1Margin, NewOutput, _S_batch, a1_margin_along, design_new_output
-
-__all__ = ["A1Margin", "DesignRules", "LEVEL_RULES", "FunnelDesign", "NewOutput", "a1_margin_along", "design_funnel_feedback",
-           "reference_time_scale"]
+from .new_output import NewOutput, _S_batch, design_new_output
 
 OVERRIDABLE = ("K", "k_i", "rho", "pairing", "funnels", "kappa", "kappa_bar", "phi_bar")
 #: how the funnels and gains of the levels are chosen: "per-output" (invctl's extension) or "shared" (003 Sect. 6)

@@ -45,8 +45,6 @@ from scipy.integrate import solve_ivp
 from ..errors import CoordinateError, ParameterError
 from .funnel import Funnel, as_funnel
 
-__all__ = ["NMPFunnelController", "lie_output_jets"]
-
 _CLIP = 1e-6
 
 
@@ -461,22 +459,6 @@ class NMPFunnelController:
         return (ca.Function("state", [t, q, v, z], [zdot], names, ["z_dot"]),
                 ca.Function("output", [t, q, v, z], [u], names, ["u_fb"]),
                 ca.Function("monitor", [t, q, v, z], [ratios, ebar], names, ["ratios", "e_bar"]))
-
-    def gain_derivative_check(self, t=0.3, e=0.05, de=0.2):
-        """``d/dt k_1,0`` by AD versus the exact quotient rule and versus the printed (62) form.
-
-        Returns ``(ad, exact, printed)`` for ``e_1,0 = e``, ``e_1,0' = de`` at time ``t``."""
-        f = self.levels.phi[0][0]
-        tt, ee, dd = ca.SX.sym("t"), ca.SX.sym("e"), ca.SX.sym("de")
-        kap = self.levels.kappa[0][0]
-        phi = f.of(tt)
-        kexpr = kap / (1 - phi**2 * ee**2)
-        ad = ca.jacobian(kexpr, tt) + ca.jacobian(kexpr, ee) * dd
-        fn = ca.Function("dk", [tt, ee, dd], [ad])
-        ph, dph = f(t)[0], f(t, 1)[0]
-        den = 1 - ph**2 * e**2
-        num = 2 * kap * (ph * dph * e**2 + ph**2 * e * de)
-        return float(fn(t, e, de)), num / den**2, num / den
 
 
 def _pairing(pairing, m) -> tuple:

@@ -27,8 +27,6 @@ from ..contact.mechanics import ContactSystem
 from ..errors import RelativeDegreeError
 from .pdplus import FeedbackLaw
 
-__all__ = ["io_terms", "io_decoupling_check", "juggling_law"]
-
 
 def io_terms(model, outputs: Sequence[int]):
     """Symbolic ``(Dcal, Mcal, Fcal, y, y_dot)`` of (24) for the gap indices ``outputs``."""

@@ -30,8 +30,6 @@ from scipy.optimize import minimize
 from ..analysis import schur_complement
 from ..errors import FeedbackDesignError, ParameterError
 
-__all__ = ["A1Margin", "NewOutput", "a1_margin_along", "controllability_indices", "design_new_output"]
-
 _RANK_TOL = 1e-9
 _MAX_PAIRINGS = 720      # try every output/input pairing up to m = 6
 

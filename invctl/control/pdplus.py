@@ -22,9 +22,6 @@ import numpy as np
 
 from ..errors import DimensionError, ModelError
 
-__all__ = ["FeedbackLaw", "zero_input", "pd_gravity", "pd_plus_tracking", "christoffel_C", "gravity_vector",
-           "selection_indices"]
-
 
 @dataclass(frozen=True)
 class FeedbackLaw:

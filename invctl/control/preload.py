@@ -27,8 +27,6 @@ from ..contact.mechanics import ContactSystem
 from ..errors import ModelError, PreloadInfeasible
 from .pdplus import FeedbackLaw
 
-__all__ = ["PreloadCheck", "preload_check", "preload_law", "preload_terms"]
-
 
 def preload_terms(model, active: Sequence[int]):
     """Symbolic ``(E_hat, w_hat, D, W)`` of (11) for the active gaps."""

@@ -31,8 +31,6 @@ from .plan import HORIZON_CAP, _invariant_subspace, _tail_span, graded_mesh
 #: order of solve_bvp's collocation (grading of the initial mesh)
 ORDER = 4
 
-__all__ = ["samples", "setup_bvp", "solve_internal"]
-
 
 def samples(reference, t, order: int) -> np.ndarray:
     """``(y, y', ..., y^(order))`` at ``t``: ``((order + 1) m, len(t))``."""

@@ -7,7 +7,7 @@ from typing import Callable
 import numpy as np
 
 from ..io import file_loader
-from ..results import Curve, Status, Trajectory
+from ..results import Animated, Curve, Status
 from ..scenes import jsonable
 from .schemes import get_scheme
 
@@ -15,7 +15,7 @@ _BLOCKS = ("q", "v", "lam", "mu", "u")
 
 
 @dataclass
-class Inverse(Trajectory):
+class Inverse(Animated):
     """Feedforward and state trajectories of a stable inversion (003 Sect. 4).
 
     A :class:`~invctl.results.Trajectory` on the mesh: ``t`` is ``t_mesh`` and ``q, v, lam, mu, u``
@@ -224,13 +224,6 @@ class Inverse(Trajectory):
         if path:
             fig.savefig(path, dpi=120)
         return fig
-
-    def animate(self, path, **options):
-        """Draw the mechanism along the inverse's state trajectory (pre-actuation included); see
-        :func:`invctl.plot.animate.animate_result` (the scene defaults to ``meta["scene"]``)."""
-        from ..plot.animate import animate_result
-
-        return animate_result(self, path, **options)
 
     def to_npz(self, path, dt: float | None = None, meta: dict | None = None):
         """Save ``t, q, v, lam, mu, u, y_ref`` on a uniform grid of step ``dt`` plus the

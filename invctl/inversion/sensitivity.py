@@ -39,8 +39,6 @@ from .cache import equilibrium_solver, model_key, servo_model, transcription
 from .guess import quasi_static_guess
 from .square import make_inverse
 
-__all__ = ["ParametricInverse", "Sensitivities", "mapped_mesh", "parameter_chain"]
-
 _FUN: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 

@@ -19,9 +19,6 @@ from __future__ import annotations
 
 import casadi as ca
 
-__all__ = ["SymmetricSolver", "ConstrainedSolver", "solve_derivative", "constrained_acceleration",
-           "acceleration_function"]
-
 
 def _is_zero(e) -> bool:
     return e is None or (isinstance(e, ca.SX) and e.is_zero())

@@ -19,8 +19,6 @@ import numpy as np
 
 from ..errors import AnimationError, DimensionError, DrawingError, ParameterError
 
-__all__ = ["Drawing", "animate", "animate_result", "frames", "positions", "snapshot"]
-
 LINK_STYLE = {"color": "tab:blue", "lw": 3.0, "solid_capstyle": "round"}
 POINT_STYLE = {"marker": "o", "ms": 5.0, "color": "k", "ls": "none"}
 SEGMENT_STYLE = {"color": "0.35", "lw": 2.0}

@@ -5,8 +5,6 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_run", "plot_study", "plot_funnels"]
-
 _COLORS = {"C1": "tab:blue", "C2": "tab:orange", "C3": "tab:green", "C1-inv": "tab:purple"}
 #: a curve larger than this many times every other curve of its axis does not set the axis (drawn clipped, marked)
 OFF_SCALE = 10.0

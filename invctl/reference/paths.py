@@ -10,8 +10,6 @@ from ..errors import ReferenceSignalError
 from .piecewise import check_continuity, ppoly_expr, select_rows, smoothstep
 from .signals import Reference
 
-__all__ = ["rest_to_rest", "waypoints"]
-
 #: beyond this the rest-to-rest polynomial (degree 2k + 1) is no longer a sensible reference
 MAX_SMOOTHNESS = 12
 

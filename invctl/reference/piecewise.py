@@ -27,9 +27,6 @@ import numpy as np
 
 from ..errors import ReferenceSignalError
 
-__all__ = ["select_rows", "ppoly_expr", "smoothstep", "smoothstep_coefficients", "continuity_jumps",
-           "check_continuity"]
-
 
 def select_rows(t: ca.SX, breaks, table) -> list[ca.SX]:
     """The row of ``table`` that belongs to the piece containing ``t``, one SX per column.

@@ -39,8 +39,6 @@ from ..errors import ReferenceSignalError
 from .piecewise import check_continuity, ppoly_expr
 from .signals import Reference
 
-__all__ = ["from_samples", "penalty_order"]
-
 #: GCV with inflated degrees of freedom (Kim and Gu 2004): 1.0 is plain GCV
 GCV_GAMMA = 1.4
 

@@ -26,9 +26,7 @@ import numpy as np
 from ..errors import (FunnelViolation, OptionError, ParameterError, RunInterrupted, SimulationFailed, check_interrupt,
                       INTERRUPT_LIKE, is_interrupt, watch_sigint)
 from ..io import file_loader
-from ..results import Status, Trajectory
-
-__all__ = ["ClosedLoop", "ClosedLoopResult", "simulate_closed_loop", "plant_acceleration", "sampled_signal"]
+from ..results import Animated, Status
 
 #: a level counts as outside the funnel at this ratio (the law clips 1 - phi^2 e^2 at 1e-6)
 VIOLATION_RATIO = 1.0 - 5e-7
@@ -39,7 +37,7 @@ MONITOR_BLOCK = 2000
 
 
 @dataclass
-class ClosedLoopResult(Trajectory):
+class ClosedLoopResult(Animated):
     """Trajectory of a closed-loop run (all arrays with time along the last axis).
 
     ``ratios`` holds ``phi_i,j |e_i,j|`` for every level and ``phi ||e_bar||`` last (``< 1`` inside the
@@ -217,13 +215,6 @@ class ClosedLoopResult(Trajectory):
         from ..plot.tracking import plot_run
 
         return plot_run(self, path)
-
-    def animate(self, path, **options):
-        """Draw the mechanism along the run (GIF/MP4) from the scene's drawing; see
-        :func:`invctl.plot.animate.animate_result` (the scene defaults to ``meta["scene"]``)."""
-        from ..plot.animate import animate_result
-
-        return animate_result(self, path, **options)
 
 
 def _left_region_message(exit_: dict) -> str:
@@ -529,7 +520,7 @@ class ClosedLoop:
             return f"; the integrator reached its limits: {settings}"
         a1 = ""
         try:  # (A1) along the last output steps: where it fails the feedback pushes the error the wrong way
-            from ..control.funnel_design import a1_margin_along
+            from ..control.new_output import a1_margin_along
 
             sl = slice(max(0, k - 30), k + 1)
             m = a1_margin_along(self.controller, self.controller.model, res.q[:, sl], res.v[:, sl], t=res.t[sl])

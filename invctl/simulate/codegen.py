@@ -12,8 +12,6 @@ from pathlib import Path
 
 import casadi as ca
 
-__all__ = ["c_compiler", "cache_dir", "compile_function", "small_solve", "cse", "Layout"]
-
 
 def c_compiler() -> str | None:
     """Path of a C compiler (``$CC``, gcc, cc, clang) or None."""

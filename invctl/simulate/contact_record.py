@@ -19,10 +19,7 @@ import numpy as np
 
 from ..errors import ParameterError, RecordingError, ResourceLimitError, ResultFileError, SimulationFailed
 from ..io import file_loader, load_npz_versioned, require_finite, save_npz
-from ..results import Status, Trajectory
-
-__all__ = ["ContactTrajectory", "ChunkRecorder", "available_memory", "resolve_memory_budget",
-           "DEFAULT_MEMORY_FRACTION", "CONTACT_FORMAT_VERSION"]
+from ..results import Animated, Status
 
 #: format version of the ContactTrajectory files written now (3: time along the last axis); files
 #: of version 2 (time along the first axis) are read and transposed
@@ -81,7 +78,7 @@ def _fmt_bytes(b: float) -> str:
 
 
 @dataclass
-class ContactTrajectory(Trajectory):
+class ContactTrajectory(Animated):
     """Result of a time-stepping (or event-driven) contact simulation.
 
     Arrays have time along the last axis, like :class:`~invctl.simulate.closed_loop.ClosedLoopResult`
@@ -310,13 +307,6 @@ class ContactTrajectory(Trajectory):
             if d[k].shape != (N,):
                 raise ResultFileError(f"{path}: malformed ContactTrajectory file ({k} has shape {d[k].shape}, "
                                       f"expected ({N},))")
-
-    def animate(self, path, **options):
-        """Draw the mechanism along the run (GIF/MP4) from the scene's drawing; see
-        :func:`invctl.plot.animate.animate_result` (the scene defaults to ``meta["scene"]``)."""
-        from ..plot.animate import animate_result
-
-        return animate_result(self, path, **options)
 
     def plot(self, ax=None, *, path=None, **options):
         """Phase portrait, gaps, impulses, energy and V (see :mod:`invctl.plot.contact`; with ``ax``, the

@@ -37,8 +37,6 @@ from ..errors import INTERRUPT_LIKE, RunInterrupted, SimulationFailed, is_interr
 from ..results import Status
 from .timestepping import ContactTrajectory
 
-__all__ = ["simulate_event_driven"]
-
 
 def simulate_event_driven(model, q0, v0, t_end: float, *, law: FeedbackLaw | None = None, t0: float = 0.0,
                           gains=None, params=None, rtol: float = 1e-12, atol: float = 1e-12,

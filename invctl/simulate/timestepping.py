@@ -53,8 +53,6 @@ from ..results import Status
 from .codegen import Layout, c_compiler, compile_function, cse, small_solve
 from .contact_record import ChunkRecorder, ContactTrajectory, RowLayout, check_budget
 
-__all__ = ["MoreauJean", "ContactTrajectory", "DEFAULT_ACTIVATION_TOL", "c_compiler"]
-
 #: default activation tolerance on the predicted gap (same units as the gaps)
 DEFAULT_ACTIVATION_TOL = 1e-12
 #: instruction count of one fused loop iteration above which fewer steps are fused and C is built at -O1

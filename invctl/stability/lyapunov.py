@@ -16,9 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LyapunovReport", "lyapunov_report", "impact_jump_51", "desired_velocity_condition", "EquilibriumCheck",
-           "equilibrium_check"]
-
 
 @dataclass(frozen=True)
 class LyapunovReport:

@@ -14,8 +14,6 @@ from ..errors import AnimationError, OptionError, ResultFileError, SceneError
 from ..io import check_output_path, read_meta
 from ..scenes import CommandResult, _is_path, load_scene
 
-__all__ = ["animate_run"]
-
 
 def _load(path):
     meta = read_meta(path)

@@ -28,12 +28,9 @@ from typing import Any, Callable
 
 from ..errors import InvctlError, NumericalError, OptionError, OutputPathError, RunInterrupted, SceneError, watch_sigint
 from ..io import check_output_dir, check_output_path
-from ..scenes import SCENE_COMMANDS, BoundScene, CommandResult, Scene, bind_scene
+from ..scenes import SCENE_COMMANDS, CommandResult, Scene, bind_scene
 from .pipeline import run_pipeline
-from .workflow import check_budget, check_inversion, workflow
-
-__all__ = ["OPTIONS", "Option", "run_command", "analyze", "invert", "design", "simulate", "pipeline", "study",
-           "check_budget"]
+from .workflow import workflow
 
 
 @dataclass(frozen=True)
@@ -182,11 +179,6 @@ def check_options(command: str, options: dict) -> dict:
                 raise OptionError(f"--{name.replace('_', '-')} {v!r}: {msg}")
         out[name] = v
     return out
-
-
-def _check_inversion(scene: Scene, params, o, command: str = "invert") -> None:
-    """:func:`.workflow.check_inversion` of ``scene`` with the parameter overrides ``params`` (``generate``)."""
-    check_inversion(BoundScene(scene, dict(params), {}, scene.name), o, command)
 
 
 def _figure_path(path, force):
@@ -437,9 +429,6 @@ def generate(scene, values=None, **options) -> CommandResult:
         if client is not None:
             client.close()
     return CommandResult(lib.table(), lib.to_dict())
-
-
-__all__ += ["generate"]
 
 _COMMANDS = {"analyze": analyze, "invert": invert, "design": design, "simulate": simulate, "pipeline": pipeline}
 

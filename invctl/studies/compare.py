@@ -12,8 +12,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Comparison", "compare_runs", "NEAR_BOUNDARY", "run_measures", "steady_offsets"]
-
 #: a funnel ratio above this counts as "near the boundary"
 NEAR_BOUNDARY = 0.9
 #: the law's clip of 1 - phi^2 e^2 (invctl.control.funnel_nmp)

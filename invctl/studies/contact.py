@@ -41,9 +41,6 @@ if TYPE_CHECKING:
     from ..scenes import Contact, Scene
     from ..simulate.contact_record import ContactTrajectory
 
-__all__ = ["ContactRun", "contact_setup", "run_contact", "simulate", "Session", "analyze", "law_report",
-           "DEFAULT_SETTINGS", "DEFAULT_SAMPLES"]
-
 #: settings of the time-stepping scheme a scene may leave out
 DEFAULT_SETTINGS = {"theta": 0.5, "projection": 0.0, "activation_tol": 1e-12}
 #: samples a contact command (simulate, pipeline) records per run by default: a longer run keeps every

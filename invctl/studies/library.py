@@ -42,9 +42,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import INTERRUPT_LIKE, InvctlError, ParameterError, RunInterrupted, check_interrupt, is_interrupt
-from .library_data import Axis, Library, LibraryStore, grid_counts, parse_grid, reference_arguments, resolve_axes
-
-__all__ = ["Axis", "Library", "generate", "parse_grid", "reference_arguments", "resolve_axes"]
+from .library_data import Axis, Library, LibraryStore, grid_counts, reference_arguments, resolve_axes
 
 
 # ------------------------------------------------------------------ the work of one point
@@ -571,7 +569,7 @@ _POINT_BYTES = 2048.0
 def check_library_size(scene, params, counts, N, scheme, slots: int = 1, *, nc: int | None = None,
                        sizes: dict | None = None) -> None:
     """Time and memory of a library of ``prod(counts)`` points before it is set up (budgets of
-    :func:`invctl.studies.commands.check_budget`): the base solve's ``N`` (``invert --N``'s estimate) and
+    :func:`invctl.studies.workflow.check_budget`): the base solve's ``N`` (``invert --N``'s estimate) and
     every point at the rates above, ``slots`` points at a time.  Without ``N`` (automatic, or ``--tol``
     from 50) the smallest mesh the base solve starts from, 50 intervals, is assumed; ``generate`` checks
     again with the base solve's mesh.
@@ -582,13 +580,14 @@ def check_library_size(scene, params, counts, N, scheme, slots: int = 1, *, nc: 
         Naming ``--grid`` (and the number of points that fit) or ``--N``.
     """
     from ..inversion.schemes import get_scheme
-    from .commands import _check_inversion, check_budget
+    from ..scenes import BoundScene
+    from .workflow import check_budget, check_inversion
 
     counts = [int(c) for c in counts]
     if not counts:
         return
     if nc is None:  # before the base solve
-        _check_inversion(scene, params, {"N": N, "scheme": scheme}, "generate")
+        check_inversion(BoundScene(scene, dict(params), {}, scene.name), {"N": N, "scheme": scheme}, "generate")
     P = math.prod(counts)
     n_int = int(N or 50)
     if sizes is None:

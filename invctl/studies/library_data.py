@@ -33,8 +33,6 @@ from ..errors import LibraryError, OutputPathError, ParameterError, ResultFileEr
 if TYPE_CHECKING:
     from ..inversion import Inverse
 
-__all__ = ["Axis", "Library", "LibraryStore", "grid_counts", "parse_grid", "reference_arguments", "resolve_axes"]
-
 _AXIS = re.compile(r"^(?:(param|ref):)?([A-Za-z_]\w*)(?:\[(\d+)\])?$")
 
 

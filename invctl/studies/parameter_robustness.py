@@ -28,8 +28,6 @@ import numpy as np
 
 from ..errors import InvctlError, ParameterError
 
-__all__ = ["RobustnessTable", "feedforward_robustness"]
-
 
 @dataclass
 class RobustnessTable:

@@ -11,8 +11,6 @@ import numpy as np
 from ..errors import InvctlError, SceneError
 from ..scenes import ReportContext
 
-__all__ = ["run_reports", "format_value"]
-
 
 def format_value(v) -> str:
     if isinstance(v, (bool, np.bool_)):

@@ -28,9 +28,6 @@ import numpy as np
 from ..errors import ParameterError, SceneError
 from .sweep import SweepResult, grid, sweep
 
-__all__ = ["plant_mismatch", "mismatch_point", "switched_lambda_map", "lambda_map_point", "contact_grid",
-           "contact_point", "plot_sweep"]
-
 _CACHE: dict[Any, Any] = {}
 
 
@@ -60,6 +57,12 @@ def _run_sweep(fn, grids: dict, *, executor, max_workers, progress, label: str, 
                 progress=progress, label=label)
     res.meta.update(meta)
     return res
+
+
+def _known(names, known, what: str) -> None:
+    bad = sorted(set(names) - set(known))
+    if bad or not names:
+        raise ParameterError(f"{what}; unknown {bad}; known: {sorted(known)}")
 
 
 def _two(grids: dict, what: str):
@@ -104,10 +107,7 @@ def plant_mismatch(scene: str, *, controller: str = "C1", t_end=None, params=Non
     sc = _load(scene, "tracking", "plant_mismatch")
     sc.require("simulate")
     model = sc.model(params)
-    bad = sorted(set(factors) - set(model.values))
-    if bad or not factors:
-        raise ParameterError(f"plant_mismatch: give factors of the plant's parameters, e.g. m3=[1.0, 1.2]; unknown "
-                             f"{bad}; known: {sorted(model.values)}")
+    _known(factors, model.values, "plant_mismatch: give factors of the plant's parameters, e.g. m3=[1.0, 1.2]")
     fn = functools.partial(mismatch_point, scene=scene_reference(sc), controller=controller, t_end=t_end,
                            params=tuple(sorted(dict(params or {}).items())))
     return _run_sweep(fn, factors, executor=executor, max_workers=max_workers, progress=progress,
@@ -183,10 +183,7 @@ def contact_grid(scene: str, *, controller=None, t_end=None, base=None, executor
     from ..scenes import scene_reference
 
     sc = _load(scene, "contact", "contact_grid")
-    unknown = sorted(set(grids) - set(sc.params) - set(sc.settings))
-    if unknown or not grids:
-        raise ParameterError(f"{sc.name}: give grids of parameters or settings; unknown {unknown}; known: "
-                             f"{sorted({**sc.params, **sc.settings})}")
+    _known(grids, {**sc.params, **sc.settings}, f"{sc.name}: give grids of parameters or settings")
     fn = functools.partial(contact_point, scene=scene_reference(sc), controller=controller, t_end=t_end,
                            base=tuple(sorted(dict(base or {}).items())))
     return _run_sweep(fn, grids, executor=executor, max_workers=max_workers, progress=progress,

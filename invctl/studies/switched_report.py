@@ -16,8 +16,6 @@ from .pipeline import Step
 from .switched import (design_bf_min, design_bt_min, design_bt_visible, design_kt_max, effective_wall, error_system,
                        lambda_map, lambda_point, lambda_sweep, reduction_check, simulate_scenario)
 
-__all__ = ["analyze", "simulate", "design", "Session"]
-
 
 def analyze(bound, *, samples: int = 200) -> CommandResult:
     """Theorem 1 (visible eigenvectors, Lambda three ways, GUAS) and Theorem 2 (ISS)."""

@@ -12,8 +12,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["TimestepStudy", "timestep_study", "fitted_slope"]
-
 
 def fitted_slope(h, err) -> float:
     """Least-squares slope of ``log(err)`` against ``log(h)``."""

@@ -34,11 +34,6 @@ from ..errors import (CoordinateError, DimensionError, FunnelViolation, OptionEr
 from ..io import file_loader, read_json
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
-__all__ = ["CONTROLLERS", "NEEDS_INVERSE", "check_controller", "TrackingSetup", "TrackingStudy", "setup_tracking",
-           "run_controller", "run_tracking_study", "tracking_model", "tracking_linearization",
-           "equilibrium_configuration", "invert_tracking", "plant_of", "a1_along", "feedback_design",
-           "INTEGRATOR_OPTIONS", "check_integrator_options"]
-
 
 class _Names(dict):
     """Controller name -> description; lookups ignore case (``--controller c1-inv`` and ``C1-INV`` work)."""
@@ -434,7 +429,7 @@ def setup_tracking(scene, params=None, plant_params=None, *, inverse=None, inver
 def a1_along(setup: TrackingSetup, res: ClosedLoopResult, stride: int = 10) -> dict:
     """(A1) along a run: smallest eigenvalue of the symmetric part of ``rho [stacked K] S~(q, v) E`` at every
     ``stride``-th grid point (> 0 required), the time of the minimum and the fraction where it holds."""
-    from ..control.funnel_design import a1_margin_along
+    from ..control.new_output import a1_margin_along
 
     sl = slice(None, None, stride)
     return a1_margin_along(setup.controller, setup.model, res.q[:, sl], res.v[:, sl], t=res.t[sl]).to_dict()

@@ -21,8 +21,6 @@ from .pipeline import Step
 from .tracking import (CONTROLLERS, NEEDS_INVERSE, check_controller, compare_runs, design_configuration,
                        invert_tracking, run_controller, setup_tracking, tracking_linearization, tracking_model)
 
-__all__ = ["analyze", "invert", "design", "simulate", "load_inverse", "Session"]
-
 #: frames per second of the animations the pipeline writes (GIF delays are whole 1/100 s: 10, 20, 25, 50 are exact)
 ANIMATION_FPS = 20
 
@@ -80,22 +78,21 @@ def analyze(bound, *, samples: int = 200) -> CommandResult:
     wall = time.perf_counter() - t0
     p, l, m = rd.blocks
     eig = lin.eigenvalues
-    lines = [f"invctl analyze {scene.name}: n = {model.n}, l = {l}, p = {p}, m = {m}"]
-    if scene.description:
-        lines.append(f"  {scene.description}")
-    lines += [
-        "parameters: " + ", ".join(f"{k}={v:.6g}" for k, v in model.values.items()),
-        f"vector relative degree of the auxiliary ODE (10): {list(rd.r_aux)}  ->  r_hat = {rd.r_hat}, "
-        f"r_bar = {rd.r_bar}",
-        f"high-gain matrix Gamma on {rd.samples} points of {rd.region or 'the sample box'}:",
+    lines = _header(scene, model, rd, f"l = {l}, p = {p}, m = {m}") + [
         f"  worst condition number {rd.worst_condition:.4g} at q = {np.round(rd.worst_point[0], 4).tolist()}",
         f"  smallest singular value {rd.min_singular_value:.4g}; det Gamma in [{rd.det_range[0]:.4g}, "
         f"{rd.det_range[1]:.4g}]",
         f"internal dynamics: dimension 2n - r_bar = {internal.dim} ({internal.method}, {internal.coordinates})",
         f"  checks: max |L_K phi| = {checks['L_K_phi_max']:.2g}, min sigma(Phi') = "
-        f"{checks['Phi_prime_sigma_min']:.3g}"
+        f"{checks['Phi_prime_sigma_min']:.3g} at the design point"
         + (f", Sect. 2 vs Sect. 3 rhs differ by {checks['sect2_vs_sect3_max_diff']:.2g} (relative, near the "
            "linearization points)" if checks["sect2_vs_sect3_max_diff"] is not None else ""),
+    ]
+    if checks.get("Phi_prime_singular_sample") is not None:
+        lines.append(f"  Phi' singular at {checks['Phi_prime_singular_count']} of {rd.samples} region samples "
+                     "(the coordinates are local; a sample of the singular set: q = "
+                     f"{np.round(checks['Phi_prime_singular_sample'], 5).tolist()})")
+    lines += [
         f"linearization (37) at {len(lin.points)} point(s)"
         + (f" (configurations in the region: {lin.diagnostics['points_in_region']})"
            if "points_in_region" in lin.diagnostics else "")
@@ -135,6 +132,17 @@ def analyze(bound, *, samples: int = 200) -> CommandResult:
     return CommandResult("\n".join(lines), data)
 
 
+def _header(scene, model, rd, sizes, r_bar_note="") -> list[str]:
+    """The first lines of an analysis: the scene, its parameters, the relative degree, Gamma's heading."""
+    head = [f"invctl analyze {scene.name}: n = {model.n}, {sizes}"]
+    return head + ([f"  {scene.description}"] if scene.description else []) + [
+        "parameters: " + ", ".join(f"{k}={v:.6g}" for k, v in model.values.items()),
+        f"vector relative degree of the auxiliary ODE (10): {list(rd.r_aux)}  ->  r_hat = {rd.r_hat}, "
+        f"r_bar = {rd.r_bar}{r_bar_note}",
+        f"high-gain matrix Gamma on {rd.samples} points of {rd.region or 'the sample box'}:",
+    ]
+
+
 def _analyze_flat(scene, model, ref, point, samples, t0) -> CommandResult:
     """The analysis of an output without internal dynamics (r_bar = 2n: a flat output)."""
     from ..analysis import relative_degree
@@ -145,14 +153,7 @@ def _analyze_flat(scene, model, ref, point, samples, t0) -> CommandResult:
 
         points = list(operating_points(model, ref, 11, guess_q=point)) if ref is not None else [point]
     rd = relative_degree(model, samples=samples, points=points)
-    lines = [f"invctl analyze {scene.name}: n = {model.n}, m = {model.m}"]
-    if scene.description:
-        lines.append(f"  {scene.description}")
-    lines += [
-        "parameters: " + ", ".join(f"{k}={v:.6g}" for k, v in model.values.items()),
-        f"vector relative degree of the auxiliary ODE (10): {list(rd.r_aux)}  ->  r_hat = {rd.r_hat}, "
-        f"r_bar = {rd.r_bar} = 2n",
-        f"high-gain matrix Gamma on {rd.samples} points of {rd.region or 'the sample box'}:",
+    lines = _header(scene, model, rd, f"m = {model.m}", " = 2n") + [
         f"  worst condition number {rd.worst_condition:.4g}, smallest singular value {rd.min_singular_value:.4g}",
         "internal dynamics: none (r_bar = 2n): the output is flat; the state and the input are algebraic "
         f"functions of y_ref and its first {rd.r_hat} derivatives (no pre- or post-actuation)",

@@ -31,8 +31,6 @@ import numpy as np
 from ..errors import SceneError
 from .tradeoff import TradeoffSpec
 
-__all__ = ["tracking_jobs", "contact_jobs", "switched_jobs", "jobs_of", "spec_for", "fitted_order", "gamma_min_reference"]
-
 
 def fitted_order(knob, error) -> float:
     """Least-squares slope of ``log(error)`` against ``log(knob)`` (the convergence order)."""
