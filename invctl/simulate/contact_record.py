@@ -424,44 +424,51 @@ class ChunkRecorder:
         rows = self.pos if not self.events else self.n_event_rows
         return rows * self.row_bytes() + self.n_imp_rows * self.impact_bytes()
 
-    def consume(self, Y: np.ndarray, use: int, base: int, x_after: np.ndarray):
-        """Record rows ``0..use-1`` of the chunk output ``Y`` (``ny x >= use``)
-        whose first row is step ``base``; ``x_after`` holds ``v``, ``E``, ``V``
-        of the state after the last of them (post-impact values)."""
+    def consume(self, Y: np.ndarray, use: int, base: int, x_after: dict, cols: np.ndarray | None = None):
+        """Record the rows of steps ``0..use-1`` of a chunk whose first step is
+        ``base``: ``Y[:, :use]`` (``ny x >= use``), or, with ``cols``, the
+        sorted steps ``cols`` whose rows are ``Y[:, :len(cols)]`` (the compiled
+        driver keeps only the rows this recorder may need: every ``every``-th
+        step and, with an impact table, the event steps and the steps after
+        them).  ``x_after`` holds ``v``, ``E``, ``V`` of the state after step
+        ``use - 1`` (post-impact values)."""
         L = self.L
         if use <= 0:
             return
+        if cols is None:
+            cols = np.arange(use)
+        m = cols.size
         if self.complete:
+            assert m == use, "a complete record needs every step of the chunk"
             self.R[self.pos:self.pos + use] = Y[:L.ncols, :use].T
-            self.S[self.pos:self.pos + use] = np.arange(base, base + use)
+            self.S[self.pos:self.pos + use] = base + cols
             self.pos += use
         else:
             parts = []
             if self.regular:
-                first = (-base) % self.every
-                parts.append(np.arange(first, use, self.every))
+                parts.append(np.flatnonzero((base + cols) % self.every == 0))
             ev = None
             if self.events or self.impacts:
-                ev = np.flatnonzero(Y[L.sl("event").start, :use] > 0.5)
+                ev = np.flatnonzero(Y[L.sl("event").start, :m] > 0.5)
             if self.events:
                 parts.append(ev)
-                if base == 0:
+                if base == 0 and m and cols[0] == 0:
                     parts.append(np.zeros(1, np.intp))
             sel = parts[0] if len(parts) == 1 else np.unique(np.concatenate(parts))
             if sel.size:
                 rows = Y[:L.ncols, sel].T
                 if self.events:
                     self.blocks.append(rows)
-                    self.steps.append(base + sel)
+                    self.steps.append(base + cols[sel])
                     self.n_event_rows += sel.size
                 else:
                     self.R[self.pos:self.pos + sel.size] = rows
-                    self.S[self.pos:self.pos + sel.size] = base + sel
+                    self.S[self.pos:self.pos + sel.size] = base + cols[sel]
                     self.pos += sel.size
             if ev is not None and ev.size:
-                self._impacts(Y, use, base, ev, x_after)
+                self._impacts(Y, cols, use, base, ev, x_after)
 
-    def _impacts(self, Y, use, base, ev, x_after):
+    def _impacts(self, Y, cols, use, base, ev, x_after):
         L = self.L
         sub = Y[L.sl("impact"), :][:, ev] > 0.5
         ci, cj = np.nonzero(sub)
@@ -469,7 +476,10 @@ class ChunkRecorder:
             return
         col = ev[cj]
         nxt = col + 1
-        inside = nxt < Y.shape[1]
+        m = cols.size
+        inside = nxt < m
+        inside[inside] = cols[nxt[inside]] == cols[col[inside]] + 1
+        assert np.all(inside | (cols[col] + 1 == use)), "the row after an impact step is missing"
         vq = L.sl("v")
         vplus = np.empty((col.size, L.n))
         Vn = np.empty(col.size)
@@ -481,7 +491,7 @@ class ChunkRecorder:
             vplus[~inside] = x_after["v"]
             Vn[~inside] = x_after["V"]
             En[~inside] = x_after["E"]
-        self.imp["step"].append(base + col)
+        self.imp["step"].append(base + cols[col])
         self.imp["contact"].append(ci)
         self.imp["pre"].append(Y[L.sl("U").start + ci, col])
         self.imp["post"].append(Y[L.sl("U_next").start + ci, col])
