@@ -98,19 +98,20 @@ def compile_c(code: str, *, large: bool = False, verbose: bool = False) -> Path 
         return None
     # -O1 for very long straight-line code: -O3 takes minutes there and runs no faster (measured)
     opt = "-O1" if large else "-O3"
-    key = hashlib.sha256(code.encode() + opt.encode() + b"-ffp-contract=off").hexdigest()[:20]
+    key = hashlib.sha256(code.encode() + opt.encode() + b"-ffp-contract=off -fno-semantic-interposition").hexdigest()[:20]
     lib = cache_dir() / f"mj_{key}.so"
     if not lib.exists():
         csrc = cache_dir() / f"mj_{key}.{os.getpid()}.c"
         csrc.write_text(code)
         tmp_lib = lib.with_suffix(f".{os.getpid()}.tmp.so")
-        cmd = [cc, opt, "-march=native", "-ffp-contract=off", "-fPIC", "-shared", str(csrc), "-o", str(tmp_lib),
-               "-lm"]
+        # -fno-semantic-interposition: calls between the generated functions may be inlined
+        extra = ["-march=native", "-fno-semantic-interposition"]
+        cmd = [cc, opt, *extra, "-ffp-contract=off", "-fPIC", "-shared", str(csrc), "-o", str(tmp_lib), "-lm"]
         if verbose:
             print("invctl: compiling time-stepping loop:", " ".join(cmd), file=sys.stderr)
         res = subprocess.run(cmd, capture_output=True, text=True)
         if res.returncode != 0:
-            cmd.remove("-march=native")
+            cmd = [a for a in cmd if a not in extra]
             res = subprocess.run(cmd, capture_output=True, text=True)
             if res.returncode != 0:
                 print(f"invctl: C compilation failed, using the CasADi VM:\n{res.stderr[:500]}", file=sys.stderr)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -349,15 +350,18 @@ class RowLayout:
         return 2 * self.n + 3 + 4 * self.mu + self.m
 
     def sl(self, name: str) -> slice:
+        return self._slices[name]
+
+    @cached_property
+    def _slices(self) -> dict:
         n, mu, m = self.n, self.mu, self.m
         sizes = [("q", n), ("v", n), ("t", 1), ("gap", mu), ("U", mu), ("E", 1), ("V", 1), ("u", m), ("P", mu),
                  ("act", mu), ("U_next", mu), ("impact", mu), ("event", 1), ("ok", 1)]
-        o = 0
+        out, o = {}, 0
         for key, size in sizes:
-            if key == name:
-                return slice(o, o + size)
+            out[key] = slice(o, o + size)
             o += size
-        raise KeyError(name)
+        return out
 
     @property
     def ny(self) -> int:

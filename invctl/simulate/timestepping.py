@@ -274,13 +274,19 @@ class MoreauJean:
             variants = [step_with(ca.SX.zeros(mu)), (Xn, Y)]
         exprs = [pick]
         for Xv, Yv in variants:
-            exprs += [Xv, Yv, ca.vertcat(Yv[ok_i], Yv[ev_i])]
+            # flags: the LCP flag, the event flag, the variant of the next step (its active set)
+            fl = ca.vertcat(Yv[ok_i], Yv[ev_i], ca.substitute(pick, X, Xv))
+            exprs += [Xv, Yv, fl]
         outs, csym, cexpr = ca.extract_parametric(exprs, Pr, {"extract_trivial": True})
         C = ca.vertcat(*csym) if csym else ca.SX(0, 1)
         self._pre = ca.Function("mj_pre", [Pr], [ca.vertcat(*cexpr) if cexpr else ca.SX(0, 1)], ["p"], ["c"])
         self._pick = ca.Function("mj_pick", [X, C], [outs[0]], ["x", "c"], ["variant"])
-        self._variants = [ca.Function(f"mj_step{i}", [X, C], outs[1 + 3 * i:4 + 3 * i], ["x", "c"],
-                                      ["x_next", "y", "flags"]) for i in range(len(variants))]
+        # each variant with its row (recorded steps) and without (the others: less work)
+        self._variants = []
+        for i in range(len(variants)):
+            Xv, Yv, fl = outs[1 + 3 * i:4 + 3 * i]
+            self._variants += [ca.Function(f"mj_row{i}", [X, C], [Xv, Yv, fl], ["x", "c"], ["x_next", "y", "flags"]),
+                               ca.Function(f"mj_fast{i}", [X, C], [Xv, fl], ["x", "c"], ["x_next", "flags"])]
 
     def _substeps(self) -> int:
         s = self.substeps
@@ -668,14 +674,26 @@ def _driver_code(mj: MoreauJean) -> str:
     index) and, with ``keep_events``, of the event steps and the steps after them; it stops before
     a step whose LCP flag is 0 and after a step that leaves a non-finite ``(q, v)``."""
     fns = (mj._pre, mj._pick, *mj._variants)
-    nv = len(mj._variants)
+    nv = len(mj._variants) // 2
     sz = {k: max(getattr(f, f"sz_{k}")() for f in fns) for k in ("arg", "res", "iw", "w")}
-    return generate_c(*fns) + f"""
+    row_case = "\n".join(f"      case {i}: mj_row{i}(arg, res, iw, w, 0); break;" for i in range(nv))
+    fast_case = "\n".join(f"      case {i}: mj_fast{i}(arg, res, iw, w, 0); break;" for i in range(nv))
+    code = generate_c(*fns)
+    # fmin/fmax with C99's semantics (a NaN operand loses), inlined instead of libm calls
+    for name, op in (("fmin", "<"), ("fmax", ">")):
+        code = code.replace(f"return {name}(x, y);", f"return x {op} y ? x : (y == y ? y : x);")
+    return code + f"""
 #include <string.h>
 #define MJ_NX {mj.nx}
 #define MJ_NY {mj.ny}
 #define MJ_NC {max(1, mj._pre.nnz_out(0))}
 #define MJ_NQV {mj._lay["v"].stop}
+
+static void mj_row(int v, const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w) {{
+    switch (v) {{
+{row_case}
+    }}
+}}
 
 CASADI_SYMBOL_EXPORT int mj_drive(const casadi_real* p, casadi_real* x, casadi_real* Y, long long* cols,
                                   long long n, long long base, long long every, int keep_events,
@@ -683,28 +701,33 @@ CASADI_SYMBOL_EXPORT int mj_drive(const casadi_real* p, casadi_real* x, casadi_r
   const casadi_real* arg[{sz["arg"] + 2}];
   casadi_real* res[{sz["res"] + 3}];
   casadi_int iw[{sz["iw"] + 1}];
-  casadi_real w[{sz["w"] + 1}], c[MJ_NC], xb[MJ_NX], fl[2], na, s;
+  casadi_real w[{sz["w"] + 1}], c[MJ_NC], xb[MJ_NX], fl[3], s;
   casadi_real *xc = x, *xn = xb, *xt;
   long long j, r = 0, cnt = (every - base % every) % every;
-  int i, rec, ev, prev_ev = 0, status = 0;
-  int (*f)(const casadi_real**, casadi_real**, casadi_int*, casadi_real*, int);
-  int (*fs[{nv}])(const casadi_real**, casadi_real**, casadi_int*, casadi_real*, int) = {{{", ".join(f"mj_step{i}" for i in range(nv))}}};
+  int i, v, rec, ev, prev_ev = 0, status = 0;
   arg[0] = p; res[0] = c;
   if (mj_pre(arg, res, iw, w, 0)) return 1;
   arg[1] = c;
+  arg[0] = x; res[0] = fl + 2;
+  mj_pick(arg, res, iw, w, 0);
   for (j = 0; j < n; ++j) {{
-    arg[0] = xc;
-    res[0] = &na;
-    mj_pick(arg, res, iw, w, 0);
-    f = fs[(int)na];
+    v = (int)fl[2];
     rec = cnt == 0 || prev_ev;
-    res[0] = xn; res[1] = rec ? Y + r * MJ_NY : 0; res[2] = fl;
-    f(arg, res, iw, w, 0);
+    arg[0] = xc; res[0] = xn;
+    if (rec) {{
+      res[1] = Y + r * MJ_NY; res[2] = fl;
+      mj_row(v, arg, res, iw, w);
+    }} else {{
+      res[1] = fl;
+      switch (v) {{
+{fast_case}
+      }}
+    }}
     if (!(fl[0] > 0.5)) {{ status = 1; break; }}
     ev = keep_events && fl[1] > 0.5;
     if (ev && !rec) {{  /* an event step: its row, the same step again */
-      res[1] = Y + r * MJ_NY;
-      f(arg, res, iw, w, 0);
+      res[1] = Y + r * MJ_NY; res[2] = fl;
+      mj_row(v, arg, res, iw, w);
       rec = 1;
     }}
     if (rec) cols[r++] = j;
