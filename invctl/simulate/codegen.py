@@ -12,7 +12,7 @@ from pathlib import Path
 
 import casadi as ca
 
-__all__ = ["c_compiler", "cache_dir", "compile_function", "compile_c", "generate_c", "small_solve", "cse", "Layout"]
+__all__ = ["c_compiler", "cache_dir", "compile_c", "generate_c", "small_solve", "cse", "Layout"]
 
 
 def c_compiler() -> str | None:
@@ -98,15 +98,16 @@ def compile_c(code: str, *, large: bool = False, verbose: bool = False) -> Path 
         return None
     # -O1 for very long straight-line code: -O3 takes minutes there and runs no faster (measured)
     opt = "-O1" if large else "-O3"
-    key = hashlib.sha256(code.encode() + opt.encode() + b"-ffp-contract=off -fno-semantic-interposition").hexdigest()[:20]
+    # -fno-semantic-interposition: calls between the generated functions may be inlined
+    extra = ["-march=native", "-fno-semantic-interposition"]
+    flags = [opt, *extra, "-ffp-contract=off", "-fPIC", "-shared"]
+    key = hashlib.sha256(code.encode() + " ".join(flags).encode()).hexdigest()[:20]
     lib = cache_dir() / f"mj_{key}.so"
     if not lib.exists():
         csrc = cache_dir() / f"mj_{key}.{os.getpid()}.c"
         csrc.write_text(code)
         tmp_lib = lib.with_suffix(f".{os.getpid()}.tmp.so")
-        # -fno-semantic-interposition: calls between the generated functions may be inlined
-        extra = ["-march=native", "-fno-semantic-interposition"]
-        cmd = [cc, opt, *extra, "-ffp-contract=off", "-fPIC", "-shared", str(csrc), "-o", str(tmp_lib), "-lm"]
+        cmd = [cc, *flags, str(csrc), "-o", str(tmp_lib), "-lm"]
         if verbose:
             print("invctl: compiling time-stepping loop:", " ".join(cmd), file=sys.stderr)
         res = subprocess.run(cmd, capture_output=True, text=True)
@@ -120,10 +121,3 @@ def compile_c(code: str, *, large: bool = False, verbose: bool = False) -> Path 
         os.replace(tmp_lib, lib)
         csrc.unlink(missing_ok=True)
     return lib
-
-
-def compile_function(fn: ca.Function, *, large: bool = False, verbose: bool = False) -> ca.Function:
-    """``fn`` as generated C compiled with the system compiler, cached on disk under the hash
-    of its code (the CasADi VM version when no compiler works)."""
-    lib = compile_c(generate_c(fn), large=large, verbose=verbose)
-    return fn if lib is None else ca.external(fn.name(), str(lib))

@@ -400,6 +400,7 @@ class ChunkRecorder:
         if not self.events:
             self.R = np.empty((self.rows_needed(N, every, events), layout.ncols))
             self.S = np.empty(self.R.shape[0], np.int64)
+            self.A = np.empty((self.R.shape[0], layout.mu), bool)  # active flags, taken while a chunk is in cache
         self.pos = 0
         self.n_event_rows = 0
         self.imp: dict[str, list] = {k: [] for k in ("step", "contact", "pre", "post", "v_plus", "dV", "dE")}
@@ -446,6 +447,7 @@ class ChunkRecorder:
             assert m == use, "a complete record needs every step of the chunk"
             self.R[self.pos:self.pos + use] = Y[:L.ncols, :use].T
             self.S[self.pos:self.pos + use] = base + cols
+            self.A[self.pos:self.pos + use] = Y[L.sl("act"), :use].T > 0.5
             self.pos += use
         else:
             parts = []
@@ -468,6 +470,7 @@ class ChunkRecorder:
                 else:
                     self.R[self.pos:self.pos + sel.size] = rows
                     self.S[self.pos:self.pos + sel.size] = base + cols[sel]
+                    self.A[self.pos:self.pos + sel.size] = rows[:, L.sl("act")] > 0.5
                     self.pos += sel.size
             if ev is not None and ev.size:
                 self._impacts(Y, cols, use, base, ev, x_after)
@@ -516,6 +519,7 @@ class ChunkRecorder:
         else:
             self.R[self.pos] = final_row
             self.S[self.pos] = N
+            self.A[self.pos] = False
             self.pos += 1
 
     def impact_table(self) -> dict:
@@ -538,6 +542,12 @@ class ChunkRecorder:
         for v in self.imp.values():
             del v[k:]
         self.n_imp_rows = sum(a.size for a in self.imp["contact"])
+
+    def active(self) -> np.ndarray:
+        """Active flags of the recorded rows (one row per recorded step)."""
+        if self.events:
+            return self.rows()[0][:, self.L.sl("act")] > 0.5
+        return self.A[:self.pos]
 
     def rows(self):
         """``(R, S)``: recorded rows so far and their step indices (views)."""
