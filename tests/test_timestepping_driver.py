@@ -6,6 +6,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+import invctl_scenes.bouncing_ball as bb
 import invctl_scenes.prismatic_clearance as prism
 from invctl.control.pdplus import pd_gravity
 from invctl.errors import ContactError, SimulationFailed
@@ -107,6 +108,16 @@ def test_statistics_equal_a_numpy_recomputation(prism_pair):
     assert dec.stats["n_impacts"] == n_imp >= 3
     assert dec.stats["n_changes"] == n_chg
     np.testing.assert_allclose(dec.stats["P_sum"], full.P.sum(axis=1), rtol=1e-12)
+
+
+def test_projection_steps_equal_the_vm():
+    """With the position projection (part of every variant): the bouncing ball's C run equals the VM's."""
+    m = bb.build()
+    a, b = (MoreauJean(m, potential=bb.potential(m), backend=k, projection=True).run([1.0], [0.0], 3.0, 1e-3,
+                                                                                      record_every=3)
+            for k in ("vm", "c"))
+    assert a.stats["n_impacts"] >= 5 and a.max_gap_violation <= 1e-10
+    _same_run(a, b)
 
 
 def test_non_finite_state_stops_the_driver_with_the_prefix():
