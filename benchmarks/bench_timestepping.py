@@ -3,8 +3,8 @@
 2-DoF prismatic clearance scene, h = 1e-4, 1e5 steps, PD (36) on body 1;
 the CasADi VM, generated C (when a compiler is present) and a plain numpy
 loop implementing the same step are timed in the same run and printed as
-ratios.  Parameters enter through the loop state: a second run with other
-gains reuses the compiled loop (timed separately).
+ratios.  Parameters enter as an input held over the loop: a second run with
+other gains reuses the compiled loop (timed separately).
 
     python benchmarks/bench_timestepping.py [--steps 100000] [--smoke]
 

@@ -76,36 +76,46 @@ class Layout:
         return self.sl[name]
 
 
-def compile_function(fn: ca.Function, *, large: bool = False, verbose: bool = False) -> ca.Function:
-    """``fn`` as generated C compiled with the system compiler, cached on disk under the hash
-    of its code (the CasADi VM version when no compiler works)."""
+def generate_c(*fns: ca.Function) -> str:
+    """C code of ``fns`` (CasADi code generation, no header)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        src = Path(tmp) / f"{fns[0].name()}.c"
+        cg = ca.CodeGenerator(src.name, {"with_header": False})
+        for fn in fns:
+            cg.add(fn)
+        cg.generate(str(tmp) + os.sep)
+        return src.read_text()
+
+
+def compile_c(code: str, *, large: bool = False, verbose: bool = False) -> Path | None:
+    """Shared library of the C ``code`` built with the system compiler, cached on disk under the hash
+    of the code (None when no compiler works).  No ``-ffast-math``, and no contraction to fused
+    multiply-adds: the compiled arithmetic is the VM's, to the last bit."""
     cc = c_compiler()
     if cc is None:
-        return fn
-    with tempfile.TemporaryDirectory() as tmp:
-        src = Path(tmp) / f"{fn.name()}.c"
-        cg = ca.CodeGenerator(src.name, {"with_header": False})
-        cg.add(fn)
-        cg.generate(str(tmp) + os.sep)
-        code = src.read_text()
+        return None
     # -O1 for very long straight-line code: -O3 takes minutes there and runs no faster (measured)
     opt = "-O1" if large else "-O3"
-    key = hashlib.sha256(code.encode() + opt.encode()).hexdigest()[:20]
+    # -fno-semantic-interposition: calls between the generated functions may be inlined
+    extra = ["-march=native", "-fno-semantic-interposition"]
+    flags = [opt, *extra, "-ffp-contract=off", "-fPIC", "-shared"]
+    key = hashlib.sha256(code.encode() + " ".join(flags).encode()).hexdigest()[:20]
     lib = cache_dir() / f"mj_{key}.so"
     if not lib.exists():
         csrc = cache_dir() / f"mj_{key}.{os.getpid()}.c"
         csrc.write_text(code)
         tmp_lib = lib.with_suffix(f".{os.getpid()}.tmp.so")
-        cmd = [cc, opt, "-march=native", "-fPIC", "-shared", str(csrc), "-o", str(tmp_lib), "-lm"]
+        cmd = [cc, *flags, str(csrc), "-o", str(tmp_lib), "-lm"]
         if verbose:
             print("invctl: compiling time-stepping loop:", " ".join(cmd), file=sys.stderr)
         res = subprocess.run(cmd, capture_output=True, text=True)
         if res.returncode != 0:
-            cmd.remove("-march=native")
+            cmd = [a for a in cmd if a not in extra]
             res = subprocess.run(cmd, capture_output=True, text=True)
             if res.returncode != 0:
                 print(f"invctl: C compilation failed, using the CasADi VM:\n{res.stderr[:500]}", file=sys.stderr)
-                return fn
+                csrc.unlink(missing_ok=True)
+                return None
         os.replace(tmp_lib, lib)
         csrc.unlink(missing_ok=True)
-    return ca.external(fn.name(), str(lib))
+    return lib

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -339,15 +340,18 @@ class RowLayout:
         return 2 * self.n + 3 + 4 * self.mu + self.m
 
     def sl(self, name: str) -> slice:
+        return self._slices[name]
+
+    @cached_property
+    def _slices(self) -> dict:
         n, mu, m = self.n, self.mu, self.m
         sizes = [("q", n), ("v", n), ("t", 1), ("gap", mu), ("U", mu), ("E", 1), ("V", 1), ("u", m), ("P", mu),
                  ("act", mu), ("U_next", mu), ("impact", mu), ("event", 1), ("ok", 1)]
-        o = 0
+        out, o = {}, 0
         for key, size in sizes:
-            if key == name:
-                return slice(o, o + size)
+            out[key] = slice(o, o + size)
             o += size
-        raise KeyError(name)
+        return out
 
     @property
     def ny(self) -> int:
@@ -386,6 +390,7 @@ class ChunkRecorder:
         if not self.events:
             self.R = np.empty((self.rows_needed(N, every, events), layout.ncols))
             self.S = np.empty(self.R.shape[0], np.int64)
+            self.A = np.empty((self.R.shape[0], layout.mu), bool)  # active flags, taken while a chunk is in cache
         self.pos = 0
         self.n_event_rows = 0
         self.imp: dict[str, list] = {k: [] for k in ("step", "contact", "pre", "post", "v_plus", "dV", "dE")}
@@ -414,42 +419,51 @@ class ChunkRecorder:
         rows = self.pos if not self.events else self.n_event_rows
         return rows * self.row_bytes() + self.n_imp_rows * self.impact_bytes()
 
-    def consume(self, Y: np.ndarray, use: int, base: int, x_after: np.ndarray):
-        """Record rows ``0..use-1`` of the chunk output ``Y`` (``ny x >= use``)
-        whose first row is step ``base``; ``x_after`` holds ``v``, ``E``, ``V``
-        of the state after the last of them (post-impact values)."""
+    def consume(self, Y: np.ndarray, use: int, base: int, x_after: dict, cols: np.ndarray | None = None):
+        """Record the rows of steps ``0..use-1`` of a chunk whose first step is
+        ``base``: ``Y[:, :use]`` (``ny x >= use``), or, with ``cols``, the
+        sorted steps ``cols`` whose rows are ``Y[:, :len(cols)]`` (the compiled
+        driver keeps only the rows this recorder may need: every ``every``-th
+        step and, with an impact table, the event steps and the steps after
+        them).  ``x_after`` holds ``v``, ``E``, ``V`` of the state after step
+        ``use - 1`` (post-impact values)."""
         L = self.L
         if use <= 0:
             return
+        if cols is None:
+            cols = np.arange(use)
+        m = cols.size
         if self.complete:
+            assert m == use, "a complete record needs every step of the chunk"
             self.R[self.pos:self.pos + use] = Y[:L.ncols, :use].T
-            self.S[self.pos:self.pos + use] = np.arange(base, base + use)
+            self.S[self.pos:self.pos + use] = base + cols
+            self.A[self.pos:self.pos + use] = Y[L.sl("act"), :use].T > 0.5
             self.pos += use
         else:
             parts = []
             if self.regular:
-                first = (-base) % self.every
-                parts.append(np.arange(first, use, self.every))
-            ev = np.flatnonzero(Y[L.sl("event").start, :use] > 0.5) if self.events or self.impacts else None
+                parts.append(np.flatnonzero((base + cols) % self.every == 0))
+            ev = np.flatnonzero(Y[L.sl("event").start, :m] > 0.5) if self.events or self.impacts else None
             if ev is not None and self.events:
                 parts.append(ev)
-                if base == 0:
+                if base == 0 and m and cols[0] == 0:
                     parts.append(np.zeros(1, np.intp))
             sel = parts[0] if len(parts) == 1 else np.unique(np.concatenate(parts))
             if sel.size:
                 rows = Y[:L.ncols, sel].T
                 if self.events:
                     self.blocks.append(rows)
-                    self.steps.append(base + sel)
+                    self.steps.append(base + cols[sel])
                     self.n_event_rows += sel.size
                 else:
                     self.R[self.pos:self.pos + sel.size] = rows
-                    self.S[self.pos:self.pos + sel.size] = base + sel
+                    self.S[self.pos:self.pos + sel.size] = base + cols[sel]
+                    self.A[self.pos:self.pos + sel.size] = rows[:, L.sl("act")] > 0.5
                     self.pos += sel.size
             if ev is not None and ev.size:
-                self._impacts(Y, use, base, ev, x_after)
+                self._impacts(Y, cols, use, base, ev, x_after)
 
-    def _impacts(self, Y, use, base, ev, x_after):
+    def _impacts(self, Y, cols, use, base, ev, x_after):
         L = self.L
         sub = Y[L.sl("impact"), :][:, ev] > 0.5
         ci, cj = np.nonzero(sub)
@@ -457,7 +471,10 @@ class ChunkRecorder:
             return
         col = ev[cj]
         nxt = col + 1
-        inside = nxt < Y.shape[1]
+        m = cols.size
+        inside = nxt < m
+        inside[inside] = cols[nxt[inside]] == cols[col[inside]] + 1
+        assert np.all(inside | (cols[col] + 1 == use)), "the row after an impact step is missing"
         vq = L.sl("v")
         vplus = np.empty((col.size, L.n))
         Vn = np.empty(col.size)
@@ -469,7 +486,7 @@ class ChunkRecorder:
             vplus[~inside] = x_after["v"]
             Vn[~inside] = x_after["V"]
             En[~inside] = x_after["E"]
-        self.imp["step"].append(base + col)
+        self.imp["step"].append(base + cols[col])
         self.imp["contact"].append(ci)
         self.imp["pre"].append(Y[L.sl("U").start + ci, col])
         self.imp["post"].append(Y[L.sl("U_next").start + ci, col])
@@ -490,6 +507,7 @@ class ChunkRecorder:
         else:
             self.R[self.pos] = final_row
             self.S[self.pos] = N
+            self.A[self.pos] = False
             self.pos += 1
 
     def impact_table(self) -> dict:
@@ -512,6 +530,12 @@ class ChunkRecorder:
         for v in self.imp.values():
             del v[k:]
         self.n_imp_rows = sum(a.size for a in self.imp["contact"])
+
+    def active(self) -> np.ndarray:
+        """Active flags of the recorded rows (one row per recorded step)."""
+        if self.events:
+            return self.rows()[0][:, self.L.sl("act")] > 0.5
+        return self.A[:self.pos]
 
     def rows(self):
         """``(R, S)``: recorded rows so far and their step indices (views)."""
