@@ -8,6 +8,9 @@ DPI = 100
 #: fixed margins of :func:`grid` in inches: left (tick labels and axis label), right, bottom (tick labels and
 #: axis label), top (a title), the suptitle's extra top, the gap between stacked axes without labels
 MARGINS = {"left": 0.85, "right": 0.2, "bottom": 0.55, "top": 0.4, "suptitle": 0.3, "stack": 0.15}
+#: at most this many tick intervals on a linear axis of :func:`grid` (matplotlib's own choice, a tick about every three
+#: font sizes, puts 9 on a 7-inch time axis; each tick is artists and a text laid out at every draw)
+NBINS = 5
 
 
 def close(figures) -> None:
@@ -28,7 +31,8 @@ def grid(rows: int, cols: int, figsize, *, sharex: bool = False, labelled_rows: 
     """A pyplot figure of ``rows x cols`` axes (a 2-d array) at :data:`DPI` with fixed margins (:data:`MARGINS`)
     in place of a layout engine, which would lay it out at every draw: room for tick labels and an axis label left
     of and below every axes, a title above every row (``labelled_rows``; else above the first row only, the rows
-    stacked, e.g. with ``sharex``) and a ``suptitle``. :func:`save` checks the labels fit and lays out otherwise."""
+    stacked, e.g. with ``sharex``) and a ``suptitle``; at most :data:`NBINS` tick intervals on a linear axis.
+    :func:`save` checks the labels fit and lays out otherwise."""
     import matplotlib.pyplot as plt
 
     w, h = figsize
@@ -44,6 +48,8 @@ def grid(rows: int, cols: int, figsize, *, sharex: bool = False, labelled_rows: 
         fig, axs = plt.subplots(rows, cols, figsize=figsize, dpi=DPI, sharex=sharex, squeeze=False, gridspec_kw=dict(
             left=m["left"] / w, right=1 - m["right"] / w, bottom=m["bottom"] / h, top=1 - top / h,
             wspace=gap_w / ax_w, hspace=gap_h / ax_h))
+    for ax in axs.flat:
+        ax.locator_params(nbins=NBINS)
     return fig, axs
 
 
