@@ -167,7 +167,7 @@ def test_study_figures_are_drawn_once_and_nothing_is_clipped(tmp_path):
     import matplotlib.pyplot as plt
     from PIL import Image
 
-    from invctl.plot import DPI
+    from invctl.plot import DPI, NBINS
 
     u = np.vstack([40 * np.sin(T), -60 * np.cos(T)])
     r1 = np.vstack([0.3 * np.sin(T) ** 2, 0.2 * T / 2])
@@ -192,6 +192,10 @@ def test_study_figures_are_drawn_once_and_nothing_is_clipped(tmp_path):
         assert draws.count(fig) == 1, key
         assert fig.get_layout_engine() is None, key
         assert _fits(fig), key
+        for ax in fig.axes:  # at most NBINS tick intervals in view on a linear axis
+            for axis, (lo, hi) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+                ticks = [t for t in axis.get_majorticklocs() if min(lo, hi) <= t <= max(lo, hi)]
+                assert axis.get_scale() != "linear" or len(ticks) <= NBINS + 1, (key, ticks)
         with Image.open(tmp_path / f"{key}.png") as im:
             assert im.size == (round(fig.get_figwidth() * DPI), round(fig.get_figheight() * DPI))
     plt.close("all")
