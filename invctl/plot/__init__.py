@@ -58,7 +58,8 @@ def save(fig, path, dpi: float | None = None) -> Path:
     with a layout engine (constrained layout, or the placeholder ``tight_layout`` leaves) twice, once to lay it out
     and once to render; a PNG here is rendered once, with the layout in the same draw, and written from the
     canvas. A figure without a layout engine (:func:`grid`) whose titles or axis labels leave the figure or run
-    into an axes or another label after that draw is laid out by constrained layout and drawn again."""
+    into an axes or another label after that draw is laid out by constrained layout and drawn again. PNGs are
+    compressed at zlib level 1."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     path = Path(path)
@@ -75,7 +76,8 @@ def save(fig, path, dpi: float | None = None) -> Path:
         canvas.draw()
     from matplotlib.image import imsave
 
-    imsave(path, canvas.buffer_rgba(), format="png", origin="upper", dpi=fig.dpi)
+    # zlib level 1: about twice as fast as Pillow's default 6, files about 10 % larger
+    imsave(path, canvas.buffer_rgba(), format="png", origin="upper", dpi=fig.dpi, pil_kwargs={"compress_level": 1})
     return path
 
 
