@@ -7,7 +7,7 @@ from pathlib import Path
 DPI = 100
 #: fixed margins of :func:`grid` in inches: left (tick labels and axis label), right, bottom (tick labels and
 #: axis label), top (a title), the suptitle's extra top, the gap between stacked axes without labels
-MARGINS = {"left": 0.85, "right": 0.2, "bottom": 0.55, "top": 0.4, "suptitle": 0.3, "stack": 0.15}
+MARGINS = {"left": 1.0, "right": 0.2, "bottom": 0.55, "top": 0.4, "suptitle": 0.3, "stack": 0.15}
 #: at most this many tick intervals on a linear axis of :func:`grid` (matplotlib's own choice, a tick about every three
 #: font sizes, puts 9 on a 7-inch time axis; each tick is artists and a text laid out at every draw)
 NBINS = 5
