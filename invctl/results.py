@@ -174,7 +174,9 @@ class Trajectory:
         axes[0].set_title(f"{type(self).__name__}: {Status.of(getattr(self, 'status', 'ok')).value}")
         fig = axes[0].figure
         if path:
-            fig.savefig(path, dpi=120)
+            from .plot import save
+
+            save(fig, path)
         return fig
 
     def plot(self, ax=None, *, path=None, **options):

@@ -148,3 +148,75 @@ def test_single_run_figure_takes_the_units_recorded_in_the_run():
     import matplotlib.pyplot as plt
 
     plt.close("all")
+
+
+def _fits(fig):
+    """Independently of invctl.plot.crowded: every shown axes with its tick labels, axis labels and title (its tight
+    box) lies inside the figure, and no two of them overlap."""
+    r = fig.canvas.get_renderer()
+    boxes = [ax.get_tightbbox(r) for ax in fig.axes if ax.get_visible() and ax.axison]
+    frame = fig.bbox
+    inside = all(b.x0 >= frame.x0 and b.y0 >= frame.y0 and b.x1 <= frame.x1 and b.y1 <= frame.y1 for b in boxes)
+    apart = not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+    return inside and apart
+
+
+def test_study_figures_are_drawn_once_and_nothing_is_clipped(tmp_path):
+    """Each comparison figure is written with one draw (matplotlib's savefig draws a laid-out figure twice) at the
+    fixed margins (no fallback layout), and its axes with their labels and ticks lie inside it, apart."""
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    from invctl.plot import DPI, NBINS
+
+    u = np.vstack([40 * np.sin(T), -60 * np.cos(T)])
+    r1 = np.vstack([0.3 * np.sin(T) ** 2, 0.2 * T / 2])
+    runs = {"C1": _run("C1", T, REF + 0.01, REF, u, r1), "C2": _run("C2", T, REF - 0.2 * T, REF, 2 * u, 2 * r1),
+            "C3": _run("C3", T, REF + 0.1, REF, u)}
+    units = {"x": "m", "y": "m", "a": "rad", "b": "rad", "u1": "N", "u2": "N"}
+    draws = []
+    real_subplots = plt.subplots
+
+    def counting(*a, **k):
+        fig, axs = real_subplots(*a, **k)
+        fig.canvas.mpl_connect("draw_event", lambda ev: draws.append(ev.canvas.figure))
+        return fig, axs
+
+    plt.subplots = counting
+    try:
+        figs = _study(runs, units).plot(tmp_path)
+    finally:
+        plt.subplots = real_subplots
+    assert set(figs) == {"states", "errors", "inputs", "funnel"}
+    for key, fig in figs.items():
+        assert draws.count(fig) == 1, key
+        assert fig.get_layout_engine() is None, key
+        assert _fits(fig), key
+        for ax in fig.axes:  # at most NBINS tick intervals in view on a linear axis
+            for axis, (lo, hi) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+                ticks = [t for t in axis.get_majorticklocs() if min(lo, hi) <= t <= max(lo, hi)]
+                assert axis.get_scale() != "linear" or len(ticks) <= NBINS + 1, (key, ticks)
+        with Image.open(tmp_path / f"{key}.png") as im:
+            assert im.size == (round(fig.get_figwidth() * DPI), round(fig.get_figheight() * DPI))
+    plt.close("all")
+
+
+def test_save_lays_out_a_figure_whose_labels_do_not_fit(tmp_path):
+    """A label too long for the fixed margins is found after the draw (it leaves the figure) and the figure is laid
+    out by constrained layout and drawn again: then everything fits. A figure that fits keeps its margins."""
+    import matplotlib.pyplot as plt
+
+    from invctl.plot import crowded, grid, save
+
+    fig, axs = grid(1, 2, (6, 3))
+    for ax in axs[0]:
+        ax.plot(T, 1e3 * T)
+        ax.set(xlabel="t [s]", ylabel="y [m]", title="fits")
+    save(fig, tmp_path / "fits.png")
+    assert fig.get_layout_engine() is None and crowded(fig) == [] and _fits(fig)
+    axs[0, 1].set_ylabel("a label\nover three\nlines [m]", fontsize=20)  # runs into the left axes
+    fig.canvas.draw()
+    assert crowded(fig) == ["a label\nover three\nlines [m]"] and not _fits(fig)
+    save(fig, tmp_path / "laid_out.png")
+    assert fig.get_layout_engine() is not None and crowded(fig) == [] and _fits(fig)
+    plt.close("all")

@@ -255,6 +255,6 @@ SCENE = Scene("ball", build, params={"m": 1.0, "g": 9.81, "e": 0.5}, settings={"
 ''')
     scene = invctl.load_scene(str(path))
     builds = scene.build.__globals__["BUILDS"]
-    runs = scene.pipeline(tmp_path / "out", quiet=True, t_end=0.3)
+    runs = scene.pipeline(tmp_path / "out", quiet=True, t_end=0.3, animate=True)
     assert sorted(runs) == ["also_off", "off"] and builds == [{}]
     assert all((tmp_path / "out" / f"anim_{k}.gif").stat().st_size > 0 for k in runs)

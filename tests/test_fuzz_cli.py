@@ -136,7 +136,7 @@ def _option_values(draw, name: str, scene: str, tmp: Path, case: int) -> list[st
     """argv pieces for one option (empty: option left out)."""
     flag = "--" + name.replace("_", "-")
     valid = draw(st.integers(0, 9)) < 7
-    if name in ("force", "quiet", "no_animation"):
+    if name in ("force", "quiet", "no_animation", "animate"):
         return [flag]
     if name == "N":
         v = draw(st.integers(4, 60)) if valid else draw(st.sampled_from(["3", "0", "-5", "abc", "2.5", "1e9",

@@ -19,11 +19,12 @@ def _json(capsys):
     return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("scene", ["cartpole", "two_link_arm"])
-def test_tracking_pipeline_on_a_scene_without_hand_picked_numerics(scene, tmp_path, capsys):
+@pytest.mark.parametrize("scene, animate", [("cartpole", True), ("two_link_arm", False)])
+def test_tracking_pipeline_on_a_scene_without_hand_picked_numerics(scene, animate, tmp_path, capsys):
     """No boundary selection, horizon, gains or funnels declared: all derived; C1 and C2 stay inside
-    their funnels on the declared plant mismatch and the feedforward helps (C1 < C2 < C3)."""
-    assert main(["pipeline", scene, "--out-dir", str(tmp_path), "--quiet", "--json"]) == 0
+    their funnels on the declared plant mismatch and the feedforward helps (C1 < C2 < C3). Animations only
+    with ``--animate``."""
+    assert main(["pipeline", scene, "--out-dir", str(tmp_path), "--quiet", "--json"] + ["--animate"] * animate) == 0
     data = _json(capsys)
     runs = data["runs"]
     for name in ("C1", "C2"):
@@ -31,7 +32,10 @@ def test_tracking_pipeline_on_a_scene_without_hand_picked_numerics(scene, tmp_pa
     e = [runs[c]["cumulative_output_error"] for c in ("C1", "C2", "C3")]
     assert e[0] < e[1] < e[2]
     for name in ("C1", "C2", "C3"):
-        assert (tmp_path / f"run_{name}.npz").exists() and (tmp_path / f"anim_{name}.gif").stat().st_size > 0
+        assert (tmp_path / f"run_{name}.npz").exists()
+    anims = sorted(p.name for p in tmp_path.glob("anim_*"))
+    assert anims == (sorted(f"anim_{name}.gif" for name in runs) if animate else []) and len(runs) >= 3
+    assert all(p.stat().st_size > 0 for p in tmp_path.glob("anim_*"))
     for fig in ("states", "errors", "inputs", "funnel"):
         assert (tmp_path / f"{fig}.png").exists()
 
@@ -53,7 +57,8 @@ def test_animate_a_saved_run(tmp_path, capsys):
 
 
 def test_contact_and_switched_pipelines(tmp_path, capsys):
-    assert main(["pipeline", "bouncing_ball", "--set", "t_end=1.5", "--out-dir", str(tmp_path / "b"), "--json"]) == 0
+    assert main(["pipeline", "bouncing_ball", "--set", "t_end=1.5", "--out-dir", str(tmp_path / "b"), "--json",
+                 "--animate"]) == 0
     data = _json(capsys)
     none = data["runs"]["none"]
     assert none["n_impacts"] >= 2 and none["max_energy_increase"] <= 1e-12

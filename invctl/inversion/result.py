@@ -222,7 +222,9 @@ class Inverse(Animated):
         axes[0].set_title(f"stable inversion ({self.scheme}, N={self.N}, {status}); shaded: [t0, tf]")
         fig.tight_layout()
         if path:
-            fig.savefig(path, dpi=120)
+            from ..plot import save
+
+            save(fig, path)
         return fig
 
     def to_npz(self, path, dt: float | None = None, meta: dict | None = None):

@@ -477,8 +477,9 @@ def snapshot(model, drawing: Drawing, t, q, path, *, times=None, n: int = 5, tra
     for f in range(times.size):
         _Pose(ax, drawing, alpha=0.25 + 0.75 * (f + 1) / times.size).update(P[f])
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    return path
+    from . import save
+
+    return save(fig, path)
 
 
 def animate_result(result, path, *, scene=None, params=None, fps: float = 25, speed: float = 1.0,

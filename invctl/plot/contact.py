@@ -80,5 +80,7 @@ def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = N
         fig.suptitle(title)
     fig.tight_layout()
     if path:
-        fig.savefig(path, dpi=120)
+        from . import save
+
+        save(fig, path)
     return fig

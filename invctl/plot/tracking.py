@@ -5,23 +5,18 @@ from pathlib import Path
 
 import numpy as np
 
+from . import grid, save
+
 _COLORS = {"C1": "tab:blue", "C2": "tab:orange", "C3": "tab:green", "C1-inv": "tab:purple"}
 #: a curve larger than this many times every other curve of its axis does not set the axis (drawn clipped, marked)
 OFF_SCALE = 10.0
 
 
-def _plt():
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def plot_run(res, path=None, units=None):
     """One run: outputs vs reference, errors, inputs, funnel ratios (``units``: name -> unit; default the
     scene's, recorded in the run's ``meta``)."""
-    plt = _plt()
     units = dict(units or (res.meta or {}).get("units") or {})
-    fig, ax = plt.subplots(2, 2, figsize=(10, 6.5), constrained_layout=True)
+    fig, ax = grid(2, 2, (10, 6.5))
     t = res.t
     ynames = res.y_names or [f"y{i + 1}" for i in range(res.y.shape[0])]
     curves = []
@@ -58,7 +53,7 @@ def plot_run(res, path=None, units=None):
         ax[1, 1].axis("off")
         ax[1, 1].text(0.1, 0.5, "no feedback: no funnel", transform=ax[1, 1].transAxes)
     if path:
-        fig.savefig(path, dpi=120)
+        save(fig, path)
     return fig
 
 
@@ -140,7 +135,6 @@ def plot_study(study, out_dir=None, fmt="png", captions=None, units=None):
     to a prefix (e.g. the paper's figure numbers); ``units`` maps quantity names to units (default: the
     study's ``info["units"]``, declared by the scene).  A run that left its region or funnel is marked with
     a cross and does not set the axes."""
-    plt = _plt()
     captions = dict(captions or {})
     units = dict(units if units is not None else (study.info.get("units") or {}))
     runs = study.runs
@@ -148,8 +142,7 @@ def plot_study(study, out_dir=None, fmt="png", captions=None, units=None):
     main = runs.get("C1") or next(iter(runs.values()))
     qn = main.q_names or [f"q{i + 1}" for i in range(main.q.shape[0])]
     groups = _by_unit(qn, units)
-    fig, axs = plt.subplots(len(groups), 1, figsize=(7, 1.2 + 2.2 * len(groups)), sharex=True,
-                            constrained_layout=True, squeeze=False)
+    fig, axs = grid(len(groups), 1, (7, 1.2 + 2.2 * len(groups)), sharex=True, labelled_rows=False)
     for ax, idx in zip(axs[:, 0], groups):
         curves = []
         for i in idx:
@@ -166,7 +159,8 @@ def plot_study(study, out_dir=None, fmt="png", captions=None, units=None):
         if ref.shape[0] != 2:
             continue
         key = f"path_{sname.replace(' ', '_')}"
-        fig, ax = plt.subplots(figsize=(6, 4.5), constrained_layout=True)
+        fig, axs = grid(1, 1, (6, 4.5))
+        ax = axs[0, 0]
         ax.plot(ref[0], ref[1], "k--", lw=1.2, label="reference")
         curves = [(None, ref[0], ref[1], "k")]
         for name, r in runs.items():
@@ -184,8 +178,7 @@ def plot_study(study, out_dir=None, fmt="png", captions=None, units=None):
     panels += [(f"{s}: ||error||", (lambda r, s=s: r.signal_error(s)), units.get(s)) for s in main.signals]
     cols = min(len(panels), 3)
     rows = -(-len(panels) // cols)
-    fig, axs = plt.subplots(rows, cols, figsize=(4.8 * cols, 3.4 * rows + 0.4), constrained_layout=True,
-                            squeeze=False)
+    fig, axs = grid(rows, cols, (4.8 * cols, 3.4 * rows + 0.4), suptitle=True)
     for k, (label, err, unit) in enumerate(panels):
         ax = axs[k // cols, k % cols]
         for name, r in runs.items():
@@ -201,7 +194,7 @@ def plot_study(study, out_dir=None, fmt="png", captions=None, units=None):
     figs["errors"] = fig
 
     m = main.u.shape[0]
-    fig, axs = plt.subplots(m, 1, figsize=(7, 2.6 * m + 0.6), sharex=True, constrained_layout=True, squeeze=False)
+    fig, axs = grid(m, 1, (7, 2.6 * m + 0.6), sharex=True, labelled_rows=False)
     unames = main.u_names or [f"u{i + 1}" for i in range(m)]
     for name, r in runs.items():
         for i in range(m):
@@ -214,30 +207,30 @@ def plot_study(study, out_dir=None, fmt="png", captions=None, units=None):
     axs[0, 0].legend()
     figs["inputs"] = fig
 
-    figs["funnel"] = _plot_ratios(plt, runs, _title(captions, "funnel", "funnel ratios phi|e| (boundary at 1)"))
+    figs["funnel"] = _plot_ratios(runs, _title(captions, "funnel", "funnel ratios phi|e| (boundary at 1)"))
 
     if out_dir is not None:
         d = Path(out_dir)
         d.mkdir(parents=True, exist_ok=True)
         for key, f in figs.items():
-            f.savefig(d / f"{key}.{fmt}", dpi=120)
+            save(f, d / f"{key}.{fmt}")
     return figs
 
 
-def _plot_ratios(plt, runs, title):
+def _plot_ratios(runs, title):
     """One axis per funnel level (the ratio names of the first feedback run): ``phi |e|`` of every run with
     feedback, the boundary at 1; the legend gives each run's largest ratio over all levels (the table's
     ``max phi|e|``)."""
     fb = {n: r for n, r in runs.items() if r.ratios.size}
     if not fb:
-        fig, ax = plt.subplots(figsize=(7, 2), constrained_layout=True)
+        fig, axs = grid(1, 1, (7, 2))
+        ax = axs[0, 0]
         ax.axis("off")
         ax.text(0.05, 0.5, "no run with feedback: no funnel", transform=ax.transAxes)
         return fig
     first = next(iter(fb.values()))
     names = first.ratio_names or [f"level {k}" for k in range(first.ratios.shape[0])]
-    fig, axs = plt.subplots(len(names), 1, figsize=(7, 1.0 + 1.6 * len(names)), sharex=True,
-                            constrained_layout=True, squeeze=False)
+    fig, axs = grid(len(names), 1, (7, 1.0 + 1.6 * len(names)), sharex=True, labelled_rows=False)
     for k, (ax, level) in enumerate(zip(axs[:, 0], names)):
         for name, r in fb.items():
             if k < r.ratios.shape[0]:
@@ -259,9 +252,9 @@ def _plot_ratios(plt, runs, title):
 
 def plot_funnels(controller, t_end: float, path=None):
     """The funnel boundaries ``1/phi_i,j(t)`` of every level and ``1/phi(t)`` of ``e_bar`` (log scale)."""
-    plt = _plt()
     t = np.linspace(0.0, t_end, 400)
-    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    fig, axs = grid(1, 1, (7, 4))
+    ax = axs[0, 0]
     for i, row in enumerate(controller.levels.phi):
         for j, f in enumerate(row):
             ax.semilogy(t, np.ravel(f.boundary(t)), label=f"level {i + 1},{j}")
@@ -269,5 +262,5 @@ def plot_funnels(controller, t_end: float, path=None):
     ax.set(title="funnel boundaries 1/phi(t)", xlabel="t [s]", ylabel="1/phi (units of the error level)")
     ax.legend(fontsize=8, ncol=2)
     if path:
-        fig.savefig(path, dpi=120)
+        save(fig, path)
     return fig

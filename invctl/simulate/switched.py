@@ -180,7 +180,9 @@ class SwitchedSimulation(Trajectory):
         ax, path = plot_target(ax, path)
         fig = plot_simulation(self, axes=ax, title=title)[0].figure
         if path:
-            fig.savefig(path, dpi=130)
+            from ..plot import save
+
+            save(fig, path)
         return fig
 
 

@@ -89,7 +89,10 @@ OPTIONS: dict[str, Option] = {
     "job": Option(str, "which job's trade-off (default: the scene's first; see docs/tradeoffs.md)", ("study",)),
     "force": Option(bool, "replace existing output files", ("invert", "simulate", "design"), False, flag=True),
     "quiet": Option(bool, "no progress output", ("invert", "simulate", "pipeline", "study"), False, flag=True),
-    "no_animation": Option(bool, "do not write animations of the runs", ("pipeline",), False, flag=True),
+    "animate": Option(bool, "also write an animation of each run (anim_<controller>.gif; scenes with a drawing)",
+                      ("pipeline",), False, flag=True),
+    "no_animation": Option(bool, "write no animations (the default; kept for earlier command lines)", ("pipeline",),
+                           False, flag=True),
     "record_every": Option(int, "contact runs: keep every k-th step (default: at most 20000 samples per run; "
                            "1: every step; the run's statistics and impacts stay exact)",
                            ("simulate", "pipeline"), None, _at_least(1)),
@@ -361,7 +364,7 @@ def pipeline(scene, values=None, **options) -> CommandResult:
     wf = workflow(bound.scene)
     kw = wf.prepare(bound, "pipeline", o)
     result = _interruptible(lambda: run_pipeline(bound, wf.verbs.Session(bound, **kw), out_dir=out_dir,
-                                                 animate=not o["no_animation"]),
+                                                 animate=o["animate"] and not o["no_animation"]),
                             out_dir=out_dir, meta={"scene": bound.reference, "params": bound.params})
     stale = Path(out_dir) / "INTERRUPTED.txt"  # the note of an earlier interrupted run in this folder
     if stale.is_file():

@@ -2,7 +2,7 @@
 
 The scene's workflow prepares a :class:`Session` (the analysis, design and setup the runs share); the
 pipeline then runs each controller, writes ``run_<name>.npz`` as soon as the run is complete, draws its
-figure and animation, and lets the session compare the runs. A Ctrl-C keeps the complete runs on disk
+figure and (on request) its animation, and lets the session compare the runs. A Ctrl-C keeps the complete runs on disk
 and the simulated prefix of the run under way (:class:`~invctl.errors.RunInterrupted`).
 """
 from __future__ import annotations
@@ -64,9 +64,9 @@ class Session:
         return []
 
 
-def run_pipeline(bound: BoundScene, session: Session, *, out_dir, animate: bool = True) -> CommandResult:
-    """Run every controller of ``session`` and compare them, writing runs, figures and animations (of ``bound.model``)
-    to ``out_dir``. Returns the report, its data and the runs by controller (each a :class:`~invctl.results.Trajectory`)."""
+def run_pipeline(bound: BoundScene, session: Session, *, out_dir, animate: bool = False) -> CommandResult:
+    """Run every controller of ``session`` and compare them, writing runs, figures and, with ``animate``, animations
+    (of ``bound.model``) to ``out_dir``. Returns the report, its data and the runs by controller (each a :class:`~invctl.results.Trajectory`)."""
     t0 = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

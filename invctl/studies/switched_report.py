@@ -75,8 +75,10 @@ def _run(bound, t_end=None):
 def _figure(sim, red, path) -> None:
     import matplotlib.pyplot as plt
 
+    from ..plot import save
+
     fig = sim.plot() if red is None else _plot_fig7(sim, red)[0].figure
-    fig.savefig(path, dpi=130)
+    save(fig, path)
     plt.close(fig)
 
 
@@ -164,8 +166,10 @@ def design(bound, *, plot=None) -> CommandResult:
         else:
             sw = lambda_sweep(p, "bf", np.geomspace(1, 1e5, 120))
             ax = plot_lambda_curve(sw["values"], sw["Lambda"], sw["visible"])
+        from ..plot import save
+
         ax.figure.tight_layout()
-        ax.figure.savefig(plot, dpi=130)
+        save(ax.figure, plot)
         plt.close(ax.figure)
         lines.append(f"  figure written to {plot}")
     return CommandResult("\n".join(lines), data)
