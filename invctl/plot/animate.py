@@ -344,20 +344,25 @@ def _write_mp4(path: Path, frames, fps: float) -> None:
     """MP4 (H.264) by piping raw RGB frames to ffmpeg; an incomplete file is removed."""
     import subprocess
 
-    proc = None
+    ffmpeg = shutil.which("ffmpeg") or "ffmpeg"  # checked by the caller
+    proc: subprocess.Popen | None = None
     try:
         for rgb in frames:
             if proc is None:
                 w, h = rgb.size
-                proc = subprocess.Popen([shutil.which("ffmpeg"), "-y", "-loglevel", "error", "-f", "rawvideo",
+                proc = subprocess.Popen([ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo",
                                          "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{fps:g}", "-i", "-",
                                          "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-vcodec", "h264",
                                          "-pix_fmt", "yuv420p", str(path)],
                                         stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+            assert proc.stdin is not None  # stdin=PIPE
             try:
                 proc.stdin.write(rgb.tobytes())
             except BrokenPipeError:  # ffmpeg stopped reading: its message says why
                 break
+        if proc is None:
+            raise AnimationError(f"no frames to write to {path}: the run has no samples")
+        assert proc.stdin is not None and proc.stderr is not None  # both PIPE
         try:
             proc.stdin.close()
         except BrokenPipeError:

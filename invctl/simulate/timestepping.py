@@ -119,8 +119,7 @@ class MoreauJean:
         self.projection = bool(projection)
         self.projection_iters = int(projection_iters)
         self.substeps = int(substeps)
-        self.chunk = None if chunk is None else int(chunk)
-        if self.substeps < 1 or (chunk is not None and (self.chunk % self.substeps or self.chunk < 64)):
+        if self.substeps < 1 or (chunk is not None and (int(chunk) % self.substeps or int(chunk) < 64)):
             raise ParameterError(f"chunk ({chunk}) must be >= 64 and a multiple of substeps ({substeps})")
         self.max_enum = int(max_enum)
         self.lcp = lcp
@@ -128,9 +127,9 @@ class MoreauJean:
         self.pgs_sweeps = int(pgs_sweeps)
         self.verbose = verbose
         self._build()
-        if self.chunk is None:
-            # about 2e7 instructions per chunk: streaming overhead < 1 %, little work lost on a recomputed step
-            self.chunk = int(min(8192, max(256, 1 << int(np.log2(2e7 / self.step.n_instructions())))))
+        # default: about 2e7 instructions per chunk (streaming overhead < 1 %, little work lost on a recomputed step)
+        self.chunk: int = (int(min(8192, max(256, 1 << int(np.log2(2e7 / self.step.n_instructions())))))
+                           if chunk is None else int(chunk))
         if backend == "auto":
             backend = "c" if c_compiler() else "vm"
         self.backend = backend
