@@ -66,6 +66,7 @@ class Transcription:
             self._c = lambda f: compile_cached(f, key=cache_key) if f.name() in have else f  # noqa: E731
             self.compiled = len(have) == len(wanted)
             self.compiled_pieces = tuple(f.name() for f in wanted if f.name() in have)
+        self.interval_sx = interval  # the SX form (parameter derivatives, sensitivity.py)
         self.interval = interval = self._c(interval)
         rhs = self._c(rhs)
         self.nX = nx * (N + 1) + nx * self.n_col

@@ -473,12 +473,12 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
     G = quasi_static_guess(model, reference, np.linspace(t0, tf, 41), q0, servo=servo, path=path)
     eq = _equilibrium_solver(model)
     E = []
+    Ys = servo.reference_samples(reference, np.array([t0, tf]))
     for k, t in ((0, t0), (-1, tf)):
-        X, _ = eq.solve(reference(t).ravel(), guess_w=np.concatenate([G[:n, k], G[2 * n:, k]]), theta=th,
+        X, _ = eq.solve(Ys[:reference.m, k], guess_w=np.concatenate([G[:n, k], G[2 * n:, k]]), theta=th,
                         where=f" at t = {t:.6g}")
         E.append(X)
     E0, Ef = E
-    Ys = servo.reference_samples(reference, np.array([t0, tf]))
     A0, _, AT0 = tangent_dynamics(servo, E0, Ys[:, :1], th)
     Af, Tfb, ATf = tangent_dynamics(servo, Ef, Ys[:, 1:], th)
     it0, itf = np.linalg.eigvals(AT0), np.linalg.eigvals(ATf)

@@ -107,19 +107,20 @@ class Buffered:
 _BUFFERED: dict = {}
 
 
-def buffered_map(fn: ca.Function, k: int) -> Buffered:
-    """``fn`` (one-column inputs) at ``k`` points (inputs of ``k`` columns), called through buffers
-    (:class:`Buffered`), memoized per function object like :func:`mapped`."""
-    hit = _BUFFERED.get((id(fn), k))
+def buffered_map(fn: ca.Function, k: int, once: tuple = ()) -> Buffered:
+    """``fn`` (one-column inputs) at ``k`` points (inputs of ``k`` columns, those numbered in ``once`` of
+    one column, the same at every point), called through buffers (:class:`Buffered`), memoized per
+    function object like :func:`mapped`."""
+    hit = _BUFFERED.get((id(fn), k, once))
     if hit is not None and hit[0] is fn:
         return hit[1]
     if len(_BUFFERED) > 64:
         _BUFFERED.clear()
-    ins = [ca.MX.sym(fn.name_in(i), fn.size1_in(i), k) for i in range(fn.n_in())]
+    ins = [ca.MX.sym(fn.name_in(i), fn.size1_in(i), 1 if i in once else k) for i in range(fn.n_in())]
     out = fn.map(k)(*ins)
     outs = [ca.densify(o) for o in (out if isinstance(out, (list, tuple)) else [out])]
     b = Buffered(ca.Function(f"{fn.name()}_at_{k}", ins, outs))
-    _BUFFERED[(id(fn), k)] = (fn, b)
+    _BUFFERED[(id(fn), k, once)] = (fn, b)
     return b
 
 @dataclass(frozen=True)
@@ -329,6 +330,17 @@ class ServoModel:
         return self._fn("servo_residuals", [S["phi_p"], S["phi_v"], S["phi_a"]], ["pos", "vel", "acc"])
 
     @cached_property
+    def linearization(self) -> Buffered:
+        """``(X, Y, theta) -> (dF/dX, C)``: the Jacobian of the inverse model and of the constraint residuals
+        (:attr:`constraint_jacobian`) at one point, in one call through buffers (the linearizations of
+        the plan and the dichotomy check at the equilibria)."""
+        X, Y, th = (ca.MX.sym(k, *s) for k, s in (("X", (self.layout.nx, 1)), ("Y", (4 * self.layout.m, 1)),
+                                                   ("theta", self.model.theta.shape)))
+        A = self.jacobian_evaluator(X, Y, th)[1]
+        return Buffered(ca.Function("servo_linearization", [X, Y, th],
+                                    [ca.densify(A), ca.densify(self.constraint_jacobian(X, Y, th))]))
+
+    @cached_property
     def constraint_jacobian(self) -> ca.Function:
         """``(X, Y, theta) -> C``: Jacobian w.r.t. ``X`` of the stacked position, velocity and
         acceleration residuals; its null space is the tangent space of the constraint manifold."""
@@ -415,7 +427,7 @@ def _decoupling_scales(model, Q) -> np.ndarray:
         except AttributeError:
             pass
     K, n = Q.shape[1], model.n
-    M, C, W = (np.array(x) for x in mapped(parts, K)(Q, model.theta_values))
+    M, C, W = buffered_map(parts, K, once=(1,))(Q, model.theta_values)
     M = M.reshape(n, K, n).transpose(1, 0, 2)
     C = C.reshape(C.shape[0], K, n).transpose(1, 0, 2)
     W = W.reshape(n, K, -1).transpose(1, 0, 2)
