@@ -120,3 +120,39 @@ def test_sensitivities_use_the_held_transcription(model, ref, built):
     up, dn = (pi.resolve(model.with_params(m3=0.5 + s), tol=1e-12).inverse.X(t) for s in (h, -h))
     an = sens.derivative("m3").X(t)
     assert np.max(np.abs((up - dn) / (2 * h) - an)) <= 1e-6 * np.max(np.abs(an))
+
+
+def test_background_worker_is_not_waited_for(tmp_path, monkeypatch):
+    """The compile worker is a child of the caller that the caller does not wait for: it is still
+    running (held by a gate) when ``compile_in_background`` returns, and is reaped once done."""
+    import os
+    import time
+
+    from invctl.inversion import compiled
+
+    if compiled.compiler() is None or not hasattr(os, "fork"):
+        pytest.skip("no C compiler or no fork")
+    monkeypatch.setenv("INVCTL_CACHE", str(tmp_path))
+    monkeypatch.setenv("INVCTL_BACKGROUND_COMPILE", "1")
+    gate, build = tmp_path / "gate", compiled._build
+
+    def gated(fn, name, flags):
+        while not gate.exists():
+            time.sleep(0.01)
+        build(fn, name, flags)
+
+    monkeypatch.setattr(compiled, "_build", gated)
+    x = ca.SX.sym("x", 2)
+    fn = ca.Function("gated", [x], [ca.cos(x) * x[1]])
+    try:
+        lock = compiled.compile_in_background([fn], key="gate-test")
+        assert lock is not None and lock.exists() and len(compiled._WORKERS) == 1
+        assert os.waitpid(compiled._WORKERS[0], os.WNOHANG) == (0, 0)  # this process's child, running
+    finally:
+        gate.write_text("go")  # never leave a worker waiting
+    for _ in range(1200):
+        compiled._reap()
+        if not compiled._WORKERS:
+            break
+        time.sleep(0.1)
+    assert compiled._WORKERS == [] and not lock.exists() and compiled.is_cached(fn, key="gate-test")

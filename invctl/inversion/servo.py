@@ -136,7 +136,7 @@ class Layout:
     def nx(self) -> int:
         return 2 * self.n + self.l + self.p + self.m
 
-    @property
+    @cached_property
     def blocks(self) -> dict[str, slice]:
         n, l, p, m = self.n, self.l, self.p, self.m
         return {"q": slice(0, n), "v": slice(n, 2 * n), "lam": slice(2 * n, 2 * n + l),
