@@ -409,9 +409,9 @@ def main():
         print(f"  first solve in-process vs scipy solve_bvp at equal accuracy (goal: >= 5x faster): IPOPT "
               f"{best['time_s'] / first_wall:.1f}x, Newton {best['time_s'] / first_n_wall:.1f}x")
         print(f"  first run on a new machine vs the virtual-machine path (goal: <= 1): {cold_wall / vm_wall:.2f}")
-        print("  what limits the re-solve: the Newton/IPOPT solve is the smallest part; the setup re-plans the "
-              "automatic horizon (quasi-static path, linearizations and row choice at both ends), solves both end "
-              "equilibria and re-checks the dichotomy of the selection; the result is checked between the nodes")
+        print("  what limits the re-solve: with the horizon given, the solve and the setup (both end equilibria, the "
+              "dichotomy check of the selection: small numpy/LAPACK calls); with the automatic horizon, its re-plan "
+              "(quasi-static path, linearizations, invariant subspaces and row choice at both ends)")
 
     print("\nsingle shooting on the unstable internal dynamics (forward integration of the inverse ODE):")
     inv = ours[1e-7]["inv"]

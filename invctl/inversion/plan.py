@@ -337,7 +337,8 @@ def choose_rows(Z, W):
         sig = np.minimum(1.0, np.linalg.svd(Zp[comp], compute_uv=False)[:, -1])
     best = float(sig.max())
     cand = np.flatnonzero(sig >= 0.5 * best)
-    sens = np.array([_sensitivity(Z[subsets[c]], W[subsets[c]]) for c in cand])
+    sens = (np.linalg.norm(np.linalg.solve(Z[subsets[cand]], W[subsets[cand]]), 2, axis=(1, 2))
+            if W.shape[1] else np.zeros(cand.size))  # _sensitivity of every candidate, batched
     near = cand[sens <= max(2.0 * sens.min(), 1e-12)]
     pick = near[np.argmax(sig[near])]
     rows = tuple(int(i) for i in subsets[pick])
@@ -357,11 +358,12 @@ def _metrics(Z, W, rows) -> tuple[float, float]:
 
 def _by_name(servo, rows) -> dict:
     out: dict = {}
+    blocks, names = servo.layout.blocks, servo.names
     for i in rows:
         for b in BLOCKS:
-            sl = servo.layout.blocks[b]
+            sl = blocks[b]
             if sl.start <= i < sl.stop:
-                out.setdefault(b, []).append(servo.names[b][i - sl.start])
+                out.setdefault(b, []).append(names[b][i - sl.start])
     return out
 
 
