@@ -156,3 +156,30 @@ def test_background_worker_is_not_waited_for(tmp_path, monkeypatch):
             break
         time.sleep(0.1)
     assert compiled._WORKERS == [] and not lock.exists() and compiled.is_cached(fn, key="gate-test")
+
+
+def test_linearizations_use_the_compiled_jacobian_once_a_transcription_has_it(tmp_path, monkeypatch):
+    """A compiled transcription hands its ``rhs_jac`` to the servo model: the plan's and the dichotomy
+    check's linearizations run in C and equal the virtual machine's (the same operations)."""
+    from invctl.inversion import compiled
+    from invctl.model import Model, ParamSet
+    from invctl.reference import Reference, poly9_timing_law
+
+    if compiled.compiler() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("INVCTL_CACHE", str(tmp_path))
+    P = ParamSet(["m", "c"])
+    q, v = ca.SX.sym("q", 1), ca.SX.sym("v", 1)
+    md = Model.from_lagrangian("mass", q, v, P, {"m": 2.0, "c": 0.5}, T=0.5 * P["m"] * v[0] ** 2, Q=-P["c"] * v,
+                               B=ca.DM([[1.0]]), h=q)
+    t = ca.SX.sym("t")
+    yr = Reference(t, poly9_timing_law(t, 0.0, 1.0), 0.0, 1.0, 4)
+    servo = servo_model(md)
+    X, Y = np.array([0.3, -0.2, 0.7]), np.array([0.3, 0.1, -0.4, 2.0])
+    vm = servo.linearization(X, Y, md.theta_values)
+    solver = InversionSolver(md, yr, N=30, backend="newton", compiled=True)
+    assert "servo_rhs_jac" in solver.solve().diagnostics["compiled_pieces"]
+    assert servo.__dict__["_compiled_rhs_jac"].is_a("External")
+    for a, b in zip(servo.linearization(X, Y, md.theta_values), vm):
+        assert np.max(np.abs(a - b)) <= 1e-14 * max(1.0, np.max(np.abs(b)))
+    assert np.allclose(vm[0], np.array(servo.rhs_jac(X, Y, md.theta_values)[1]), rtol=1e-14, atol=1e-14)

@@ -65,6 +65,8 @@ class Transcription:
                     compile_in_background(missing, key=cache_key)
             self._c = lambda f: compile_cached(f, key=cache_key) if f.name() in have else f  # noqa: E731
             self.compiled = len(have) == len(wanted)
+            if servo.rhs_jac.name() in have:  # the plan's and the dichotomy check's linearizations too
+                servo.use_compiled(self._c(servo.rhs_jac))
             self.compiled_pieces = tuple(f.name() for f in wanted if f.name() in have)
         self.interval_sx = interval  # the SX form (parameter derivatives, sensitivity.py)
         self.interval = interval = self._c(interval)

@@ -329,16 +329,32 @@ class ServoModel:
         S = self._sym
         return self._fn("servo_residuals", [S["phi_p"], S["phi_v"], S["phi_a"]], ["pos", "vel", "acc"])
 
-    @cached_property
+    @property
     def linearization(self) -> Buffered:
         """``(X, Y, theta) -> (dF/dX, C)``: the Jacobian of the inverse model and of the constraint residuals
         (:attr:`constraint_jacobian`) at one point, in one call through buffers (the linearizations of
-        the plan and the dichotomy check at the equilibria)."""
+        the plan and the dichotomy check at the equilibria); ``dF/dX`` by the compiled ``rhs_jac`` once a
+        transcription has it (:meth:`use_compiled`)."""
+        rj = self.__dict__.get("_compiled_rhs_jac")
+        made = self.__dict__.setdefault("_linearizations", {})
+        if rj is not None:
+            hit = made.get("compiled")
+            if hit is None or hit[0] is not rj:
+                made["compiled"] = hit = (rj, self._linearization(rj))
+            return hit[1]
+        if "vm" not in made:
+            made["vm"] = (None, self._linearization(self.jacobian_evaluator))
+        return made["vm"][1]
+
+    def use_compiled(self, rhs_jac: ca.Function) -> None:
+        """Evaluate :attr:`linearization` with ``rhs_jac``, the compiled equivalent of :attr:`rhs_jac`."""
+        self.__dict__["_compiled_rhs_jac"] = rhs_jac
+
+    def _linearization(self, jac: ca.Function) -> Buffered:
         X, Y, th = (ca.MX.sym(k, *s) for k, s in (("X", (self.layout.nx, 1)), ("Y", (4 * self.layout.m, 1)),
                                                    ("theta", self.model.theta.shape)))
-        A = self.jacobian_evaluator(X, Y, th)[1]
         return Buffered(ca.Function("servo_linearization", [X, Y, th],
-                                    [ca.densify(A), ca.densify(self.constraint_jacobian(X, Y, th))]))
+                                    [ca.densify(jac(X, Y, th)[1]), ca.densify(self.constraint_jacobian(X, Y, th))]))
 
     @cached_property
     def constraint_jacobian(self) -> ca.Function:
