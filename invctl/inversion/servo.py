@@ -90,9 +90,9 @@ class Buffered:
         self._shapes = [(fn.size1_out(i), fn.size2_out(i)) for i in range(fn.n_out())]
         self._buf, self._run = fn.buffer()
         for i, a in enumerate(self._in):
-            self._buf.set_arg(i, memoryview(a))
+            self._buf.set_arg(i, memoryview(a))  # type: ignore[call-arg, arg-type]  # stubs: (i, buffer, size)
         for i, a in enumerate(self._out):
-            self._buf.set_res(i, memoryview(a))
+            self._buf.set_res(i, memoryview(a))  # type: ignore[call-arg, arg-type]
         self._lock = threading.Lock()
 
     def __call__(self, *args) -> list:
