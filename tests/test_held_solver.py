@@ -104,6 +104,18 @@ def test_reference_samples_outside_the_transition_are_its_rest_values(model, ref
         assert np.array_equal(servo.reference_samples(ref, t), direct)
 
 
+def test_reference_samples_of_a_reference_moving_outside_are_evaluated(model):
+    """A reference that is not constant outside [t0, tf] (against its contract) is sampled as it is."""
+    from invctl.reference import Reference
+
+    servo = servo_model(model)
+    t = ca.SX.sym("t")
+    moving = Reference(t, ca.vertcat(ca.sin(3 * t), 0.1 * t ** 4), 0.0, 1.0, 4)
+    tt = np.linspace(-2.0, 3.0, 41)
+    direct = np.vstack([np.array(o) for o in mapped(moving.function(3), tt.size)(tt[None, :])])
+    assert np.array_equal(servo.reference_samples(moving, tt), direct)
+
+
 def test_sensitivities_use_the_held_transcription(model, ref, built):
     # N = 36: no other test of this module holds a transcription of that size (nothing cached to reuse)
     solver = InversionSolver(model, ref, q_guess=scene.initial_configuration(model), N=36, backend="newton")
