@@ -41,6 +41,7 @@ class EquilibriumSolver:
         res = ca.vertcat(sub(md.g) if l else ca.SX(0, 1), sub(md.j) if p else ca.SX(0, 1), sub(md.h) - y, bal)
         self._F = ca.Function("equilibrium", [w, y, md.theta], [res, ca.jacobian(res, w)])
         self.sizes = (n, l, p, m)
+        self._maps: dict = {}  # F mapped over K points, built once per K (re-solves of a held inversion)
 
     def solve(self, y, guess_q=None, guess_w=None, *, theta=None, tol: float = 1e-12, max_iter: int = 50,
               where: str = ""):
@@ -97,7 +98,9 @@ class EquilibriumSolver:
         Y = np.atleast_2d(np.asarray(Y, float))
         W = np.array(W0, float)
         nw, K = W.shape
-        F = self._F.map(K)
+        F = self._maps.get(K)
+        if F is None:
+            F = self._maps[K] = self._F.map(K)
 
         def evaluate(Wv):
             r, Jm = F(Wv, Y, th)

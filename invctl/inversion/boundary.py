@@ -108,6 +108,9 @@ def resolve_selection(servo, start, end, *, allow_underdetermined: bool = False)
     return Selection(tuple(s), tuple(e), labels)
 
 
+_TANGENT: dict = {}
+
+
 def tangent_dynamics(servo, X, Y, theta):
     """The linearized inverse model at ``X`` and its restriction to the constraint manifold.
 
@@ -116,14 +119,25 @@ def tangent_dynamics(servo, X, Y, theta):
     invariant manifold on which (35) holds) and ``A_T = T^T A T``.  At an equilibrium ``A`` maps
     ``T`` into itself, and the eigenvalues of ``A_T`` are those of the linearized internal
     (zero) dynamics (003 Sect. 2-3); the other ``nx - dim T`` eigenvalues of ``A`` belong to
-    the constraint drift (``-omega`` with Baumgarte stabilization, ``0`` without).
+    the constraint drift (``-omega`` with Baumgarte stabilization, ``0`` without).  The last few
+    results are remembered (read-only arrays): the same point is linearized once.
     """
     import scipy.linalg as sla
 
-    A = np.array(servo.jacobian_evaluator(X, Y, theta)[1])
-    C = np.array(servo.constraint_jacobian(X, Y, theta))
+    X, Y, theta = (np.asarray(a, float).ravel() for a in (X, Y, theta))
+    key = (id(servo), X.tobytes(), Y.tobytes(), theta.tobytes())
+    hit = _TANGENT.get(key)
+    if hit is not None and hit[0] is servo:  # a plan and the dichotomy check of its equilibria
+        return hit[1]
+    A, C = servo.linearization(X, Y, theta)
     T = sla.null_space(C) if C.size else np.eye(A.shape[0])
-    return A, T, T.T @ A @ T
+    out = (A, T, T.T @ A @ T)
+    for a in out:
+        a.flags.writeable = False
+    if len(_TANGENT) >= 8:
+        _TANGENT.pop(next(iter(_TANGENT)))
+    _TANGENT[key] = (servo, out)
+    return out
 
 
 def neutral_tolerance(eigenvalues, neutral: float = 1e-6) -> float:

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .schemes import Scheme
-from .servo import NUMERIC_SOLVES_NX
+from .servo import NUMERIC_SOLVES_NX, Buffered
 
 
 class Transcription:
@@ -54,7 +54,7 @@ class Transcription:
         if self._compile_request:
             from .compiled import compile_cached, compile_in_background, is_cached
 
-            wanted = [rhs, interval, servo.rhs_jac, self.block_function()]
+            wanted = [rhs, interval, servo.rhs_jac, self.block_function(), servo.residuals]
             if self._compile_request is True:
                 have = {f.name() for f in wanted}
             else:  # "auto": what the disk cache has now; the rest compiles in the background
@@ -65,7 +65,10 @@ class Transcription:
                     compile_in_background(missing, key=cache_key)
             self._c = lambda f: compile_cached(f, key=cache_key) if f.name() in have else f  # noqa: E731
             self.compiled = len(have) == len(wanted)
+            if servo.rhs_jac.name() in have:  # the plan's and the dichotomy check's linearizations too
+                servo.use_compiled(self._c(servo.rhs_jac))
             self.compiled_pieces = tuple(f.name() for f in wanted if f.name() in have)
+        self.interval_sx = interval  # the SX form (parameter derivatives, sensitivity.py)
         self.interval = interval = self._c(interval)
         rhs = self._c(rhs)
         self.nX = nx * (N + 1) + nx * self.n_col
@@ -334,6 +337,19 @@ class Transcription:
         if k not in cache:
             cache[k] = self._c(self.servo.rhs).map(k)
         return cache[k]
+
+    def mapped_call(self, name: str, k: int) -> "Buffered":
+        """``servo.<name>`` (``rhs`` or ``residuals``) at ``k`` points ``(X, Y, theta)``, compiled when the
+        transcription is, called through buffers (:class:`Buffered`); built once per ``k``: the slopes
+        of a solution and its checks at the mesh and between the nodes."""
+        cache = self.__dict__.setdefault("_calls", {})
+        if (name, k) not in cache:
+            fn = self._c(getattr(self.servo, name))
+            X, Y, th = ca.MX.sym("X", self.nx, k), ca.MX.sym("Y", self.m4, k), ca.MX.sym("theta", self.ntheta)
+            out = fn.map(k)(X, Y, th)
+            outs = [ca.densify(o) for o in (out if isinstance(out, (list, tuple)) else [out])]
+            cache[name, k] = Buffered(ca.Function(f"{fn.name()}_at_{k}", [X, Y, th], outs))
+        return cache[name, k]
 
     def _rhs_jac_map(self, k: int) -> ca.Function:
         cache = self.__dict__.setdefault("_rjm", {})

@@ -9,7 +9,7 @@ transcription uses them only where it supplies its own Jacobian (square
 systems).  Whether this pays is measured in ``benchmarks/bench_inversion.py``.
 
 ``compile_in_background(fns, key)`` compiles what is missing in a separate process (a
-detached fork of the caller; ``python -m invctl.inversion.compiled`` where there is no fork),
+forked child of the caller that it does not wait for; ``python -m invctl.inversion.compiled`` where there is no fork),
 smallest function first, which outlives the caller: the first run on a new machine solves in CasADi's virtual machine and the
 pieces switch to C as they land in the cache (a held solver picks them up between
 solves; the next run finds them).  ``INVCTL_BACKGROUND_COMPILE=0`` turns it off.
@@ -68,6 +68,7 @@ def _name(fn: ca.Function, flags, key: str | None = None) -> str:
 
 def is_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",), key: str | None = None) -> bool:
     """Whether the compiled form of ``fn`` is already in the disk cache (and a compiler exists)."""
+    _reap()
     return compiler() is not None and (cache_dir() / f"{_name(fn, flags, key)}.so").exists()
 
 
@@ -154,31 +155,49 @@ def compile_in_background(fns, flags: tuple[str, ...] = ("-O2",), key: str | Non
     return lock
 
 
+#: background workers forked by this process and not yet reaped (:func:`_reap`)
+_WORKERS: list = []
+
+
+def _reap() -> None:
+    """Collect the exit status of finished background workers (no zombies left behind; never waits)."""
+    for pid in list(_WORKERS):
+        try:
+            done = os.waitpid(pid, os.WNOHANG)[0] == pid
+        except ChildProcessError:  # reaped by someone else
+            done = True
+        if done:
+            _WORKERS.remove(pid)
+
+
 def _fork_worker(todo, flags, lock: Path) -> None:
-    """Compile ``todo`` in a detached grandchild of this process: it has the functions in memory, so
-    nothing is serialized on the caller's path (a fork costs milliseconds); lowest CPU priority, its
-    own session, standard streams to ``/dev/null`` and no other inherited descriptors (nobody waits
-    on a pipe it holds); it removes ``lock`` when done."""
+    """Compile ``todo`` in a forked child of this process: it has the functions in memory, so nothing
+    is serialized on the caller's path, and the caller does not wait for it (a double fork that
+    detaches the worker made the caller wait for the intermediate child: 30-70 ms of a first call on a
+    loaded machine); lowest CPU priority, its own session, standard streams to ``/dev/null`` and no
+    other inherited descriptors (nobody waits on a pipe it holds); it removes ``lock`` when done and is
+    reaped by the next :func:`compile_in_background` or :func:`is_cached` of the caller (or by init
+    after the caller exits)."""
+    _reap()
     pid = os.fork()
     if pid:
-        os.waitpid(pid, 0)  # the child exits at once; the grandchild is re-parented
+        _WORKERS.append(pid)
         return
     try:
-        if os.fork() == 0:
-            try:
-                os.setsid()
-                os.nice(19)
-                null = os.open(os.devnull, os.O_RDWR)
-                for fd in (0, 1, 2):
-                    os.dup2(null, fd)
-                os.closerange(3, 4096)
-                for f, nm in todo:
-                    if not (cache_dir() / f"{nm}.so").exists():
-                        _build(f, nm, flags)
-            finally:
-                lock.unlink(missing_ok=True)
+        os.setsid()
+        os.nice(19)
+        null = os.open(os.devnull, os.O_RDWR)
+        for fd in (0, 1, 2):
+            os.dup2(null, fd)
+        os.closerange(3, 4096)
+        for f, nm in todo:
+            if not (cache_dir() / f"{nm}.so").exists():
+                _build(f, nm, flags)
     finally:
-        os._exit(0)
+        try:
+            lock.unlink(missing_ok=True)
+        finally:
+            os._exit(0)
 
 
 def _worker(job: Path, lock: Path) -> None:

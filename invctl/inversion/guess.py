@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .cache import equilibrium_solver as _equilibrium_solver
-from .servo import check_decoupling, mapped
+from .servo import buffered_map, check_decoupling
 
 
 def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: str = "", path=None) -> np.ndarray:
@@ -26,7 +26,7 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
                          "difference quotients)")
     eq = _equilibrium_solver(model)
     n, l, p, m = model.n, model.ell, model.p, model.m
-    ys = reference(times)
+    ys = reference(times) if servo is None else servo.reference_samples(reference, times)[:reference.m]
     th = model.theta_values
 
     def continuation(idx, w=None):
@@ -62,9 +62,9 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     X = np.vstack([Q, V, np.zeros((l + p + m, times.size))])
     Y = servo.reference_samples(reference, times)
     th = model.theta_values
-    _pos, _vel, acc = mapped(servo.residuals, times.size)(X, Y, th)
-    Az = np.array(mapped(servo.decoupling, times.size)(X, Y, th)).reshape(l + p + m, l + p + m, times.size, order="F")
-    acc = np.array(acc)
+    _pos, _vel, acc = buffered_map(servo.residuals, times.size, once=(2,))(X, Y, th)
+    Az = buffered_map(servo.decoupling, times.size, once=(2,))(X, Y, th)[0].reshape(
+        l + p + m, l + p + m, times.size, order="F")
     check_decoupling(model, Az, times, Q)
     Z = np.linalg.solve(Az.transpose(2, 0, 1), -acc.T[:, :, None])[:, :, 0].T
     return np.vstack([Q, V, Z])

@@ -337,7 +337,8 @@ def choose_rows(Z, W):
         sig = np.minimum(1.0, np.linalg.svd(Zp[comp], compute_uv=False)[:, -1])
     best = float(sig.max())
     cand = np.flatnonzero(sig >= 0.5 * best)
-    sens = np.array([_sensitivity(Z[subsets[c]], W[subsets[c]]) for c in cand])
+    sens = (np.linalg.norm(np.linalg.solve(Z[subsets[cand]], W[subsets[cand]]), 2, axis=(1, 2))
+            if W.shape[1] else np.zeros(cand.size))  # _sensitivity of every candidate, batched
     near = cand[sens <= max(2.0 * sens.min(), 1e-12)]
     pick = near[np.argmax(sig[near])]
     rows = tuple(int(i) for i in subsets[pick])
@@ -357,11 +358,12 @@ def _metrics(Z, W, rows) -> tuple[float, float]:
 
 def _by_name(servo, rows) -> dict:
     out: dict = {}
+    blocks, names = servo.layout.blocks, servo.names
     for i in rows:
         for b in BLOCKS:
-            sl = servo.layout.blocks[b]
+            sl = blocks[b]
             if sl.start <= i < sl.stop:
-                out.setdefault(b, []).append(servo.names[b][i - sl.start])
+                out.setdefault(b, []).append(names[b][i - sl.start])
     return out
 
 
@@ -473,12 +475,12 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
     G = quasi_static_guess(model, reference, np.linspace(t0, tf, 41), q0, servo=servo, path=path)
     eq = _equilibrium_solver(model)
     E = []
+    Ys = servo.reference_samples(reference, np.array([t0, tf]))
     for k, t in ((0, t0), (-1, tf)):
-        X, _ = eq.solve(reference(t).ravel(), guess_w=np.concatenate([G[:n, k], G[2 * n:, k]]), theta=th,
+        X, _ = eq.solve(Ys[:reference.m, k], guess_w=np.concatenate([G[:n, k], G[2 * n:, k]]), theta=th,
                         where=f" at t = {t:.6g}")
         E.append(X)
     E0, Ef = E
-    Ys = servo.reference_samples(reference, np.array([t0, tf]))
     A0, _, AT0 = tangent_dynamics(servo, E0, Ys[:, :1], th)
     Af, Tfb, ATf = tangent_dynamics(servo, Ef, Ys[:, 1:], th)
     it0, itf = np.linalg.eigvals(AT0), np.linalg.eigvals(ATf)

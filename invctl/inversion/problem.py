@@ -142,13 +142,13 @@ def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest
         ends = (G[:, 0], G[:, -1])
     eq = equilibrium_solver(model)
     E = []
-    for X0, t, name in ((ends[0], T0, "T0"), (ends[1], Tf, "Tf")):  # the ends of the path are static
-        X, _ = eq.solve(reference(t).ravel(), guess_w=np.concatenate([X0[:n], X0[2 * n:]]),
-                        theta=model.theta_values, where=f" at {name} = {t}")
+    Yends = servo.reference_samples(reference, np.array([T0, Tf]))
+    for X0, k, name in ((ends[0], 0, "T0"), (ends[1], 1, "Tf")):  # the ends of the path are static
+        X, _ = eq.solve(Yends[:reference.m, k], guess_w=np.concatenate([X0[:n], X0[2 * n:]]),
+                        theta=model.theta_values, where=f" at {name} = {(T0, Tf)[k]}")
         E.append(X)
     dich = None
     if square and not (rest_start or rest_end):
-        Yends = servo.reference_samples(reference, np.array([T0, Tf]))
         dich = dichotomy(servo, sel, E[0], Yends[:, :1], E[1], Yends[:, 1:], model.theta_values)
         public = {k: v for k, v in dich.items() if not k.startswith("eigenvalues")}
         if dich["neutral_internal"] and sel.end:  # all at T0: an initial value problem, no dichotomy needed

@@ -420,8 +420,9 @@ class ParametricInverse:
             Rw, Rt = (np.array(a) for a in dR(self._w(E), np.ravel(y), th))
             dw = -np.linalg.solve(Rw, Rt)
             dE.append(np.vstack([dw[:n], np.zeros((n, nth)), dw[n:]]))
-        # dg/dtheta (total: through the equilibria too) from the transcription's own interval function
-        trs = self.transcription(compiled=False)
+        # dg/dtheta (total: through the equilibria too) from the transcription's own interval function (its
+        # SX form: the same transcription, compiled or not)
+        trs = self.transcription()
         N, o = self.t_mesh.size - 1, trs.N + trs.m4 * trs.nY
         h = np.diff(self.t_mesh)
         Y = np.asarray(self.p[N:o]).reshape(trs.m4, trs.nY, order="F")
@@ -446,11 +447,11 @@ class ParametricInverse:
 
 
 def _interval_theta(trs) -> ca.Function:
-    """``d(defect of one interval)/dtheta`` from the (uncompiled) transcription's interval function:
+    """``d(defect of one interval)/dtheta`` from the transcription's interval function (its SX form):
     Hermite-Simpson also through the node slopes, ``+ d/dF_a F_theta(a) + d/dF_b F_theta(b)``."""
     fn = _FUN.get(trs)
     if fn is None:
-        iv, nx, nth = trs.interval, trs.nx, trs.ntheta
+        iv, nx, nth = trs.interval_sx, trs.nx, trs.ntheta
         ins = [ca.SX.sym(iv.name_in(i), iv.sparsity_in(i)) for i in range(iv.n_in())]
         defect = iv(*ins)[0]
         th = ins[-1]

@@ -76,6 +76,53 @@ def mapped(fn: ca.Function, k: int) -> ca.Function:
     return out
 
 
+class Buffered:
+    """``fn`` (dense inputs and outputs) called through CasADi's zero-copy buffers: ``call(*arrays)`` returns
+    the outputs as numpy arrays.  Converting a 13 x 400 array to a ``DM`` costs ~1 ms, several times a
+    compiled evaluation on it; the buffers are shared, so calls are serialized by a lock."""
+
+    def __init__(self, fn: ca.Function):
+        import threading
+
+        self.fn = fn
+        self._in = [np.zeros(fn.nnz_in(i)) for i in range(fn.n_in())]
+        self._out = [np.zeros(fn.nnz_out(i)) for i in range(fn.n_out())]
+        self._shapes = [(fn.size1_out(i), fn.size2_out(i)) for i in range(fn.n_out())]
+        self._buf, self._run = fn.buffer()
+        for i, a in enumerate(self._in):
+            self._buf.set_arg(i, memoryview(a))  # type: ignore[call-arg, arg-type]  # stubs: (i, buffer, size)
+        for i, a in enumerate(self._out):
+            self._buf.set_res(i, memoryview(a))  # type: ignore[call-arg, arg-type]
+        self._lock = threading.Lock()
+
+    def __call__(self, *args) -> list:
+        with self._lock:
+            for a, v in zip(self._in, args):
+                np.copyto(a, np.asarray(v, float).ravel(order="F"))
+            self._run()
+            return [o.reshape(shape, order="F").copy() for o, shape in zip(self._out, self._shapes)]
+
+
+
+_BUFFERED: dict = {}
+
+
+def buffered_map(fn: ca.Function, k: int, once: tuple = ()) -> Buffered:
+    """``fn`` (one-column inputs) at ``k`` points (inputs of ``k`` columns, those numbered in ``once`` of
+    one column, the same at every point), called through buffers (:class:`Buffered`), memoized per
+    function object like :func:`mapped`."""
+    hit = _BUFFERED.get((id(fn), k, once))
+    if hit is not None and hit[0] is fn:
+        return hit[1]
+    if len(_BUFFERED) > 64:
+        _BUFFERED.clear()
+    ins = [ca.MX.sym(fn.name_in(i), fn.size1_in(i), 1 if i in once else k) for i in range(fn.n_in())]
+    out = fn.map(k)(*ins)
+    outs = [ca.densify(o) for o in (out if isinstance(out, (list, tuple)) else [out])]
+    b = Buffered(ca.Function(f"{fn.name()}_at_{k}", ins, outs))
+    _BUFFERED[(id(fn), k, once)] = (fn, b)
+    return b
+
 @dataclass(frozen=True)
 class Layout:
     """Sizes and names of the unknown vector ``X = (q, v, lam, mu, u)``."""
@@ -89,7 +136,7 @@ class Layout:
     def nx(self) -> int:
         return 2 * self.n + self.l + self.p + self.m
 
-    @property
+    @cached_property
     def blocks(self) -> dict[str, slice]:
         n, l, p, m = self.n, self.l, self.p, self.m
         return {"q": slice(0, n), "v": slice(n, 2 * n), "lam": slice(2 * n, 2 * n + l),
@@ -282,6 +329,33 @@ class ServoModel:
         S = self._sym
         return self._fn("servo_residuals", [S["phi_p"], S["phi_v"], S["phi_a"]], ["pos", "vel", "acc"])
 
+    @property
+    def linearization(self) -> Buffered:
+        """``(X, Y, theta) -> (dF/dX, C)``: the Jacobian of the inverse model and of the constraint residuals
+        (:attr:`constraint_jacobian`) at one point, in one call through buffers (the linearizations of
+        the plan and the dichotomy check at the equilibria); ``dF/dX`` by the compiled ``rhs_jac`` once a
+        transcription has it (:meth:`use_compiled`)."""
+        rj = self.__dict__.get("_compiled_rhs_jac")
+        made = self.__dict__.setdefault("_linearizations", {})
+        if rj is not None:
+            hit = made.get("compiled")
+            if hit is None or hit[0] is not rj:
+                made["compiled"] = hit = (rj, self._linearization(rj))
+            return hit[1]
+        if "vm" not in made:
+            made["vm"] = (None, self._linearization(self.jacobian_evaluator))
+        return made["vm"][1]
+
+    def use_compiled(self, rhs_jac: ca.Function) -> None:
+        """Evaluate :attr:`linearization` with ``rhs_jac``, the compiled equivalent of :attr:`rhs_jac`."""
+        self.__dict__["_compiled_rhs_jac"] = rhs_jac
+
+    def _linearization(self, jac: ca.Function) -> Buffered:
+        X, Y, th = (ca.MX.sym(k, *s) for k, s in (("X", (self.layout.nx, 1)), ("Y", (4 * self.layout.m, 1)),
+                                                   ("theta", self.model.theta.shape)))
+        return Buffered(ca.Function("servo_linearization", [X, Y, th],
+                                    [ca.densify(jac(X, Y, th)[1]), ca.densify(self.constraint_jacobian(X, Y, th))]))
+
     @cached_property
     def constraint_jacobian(self) -> ca.Function:
         """``(X, Y, theta) -> C``: Jacobian w.r.t. ``X`` of the stacked position, velocity and
@@ -304,21 +378,42 @@ class ServoModel:
         return self._fn("servo_Az", [self._sym["Az"]], ["Az"])
 
     def reference_samples(self, reference, t) -> np.ndarray:
-        """``Y = (y, y', y'', y''')`` at times ``t``: shape ``(4m, len(t))`` (the last few sample
-        sets are remembered: re-solves on the same mesh sample the reference once)."""
+        """``Y = (y, y', y'', y''')`` at times ``t``: shape ``(4m, len(t))``.
+
+        A :class:`~invctl.reference.Reference` is constant outside ``[t0, tf]``: times before ``t0``
+        (after ``tf``) take its samples at ``t0 - (tf - t0)`` (``tf + (tf - t0)``), so only the times of
+        ``[t0, tf]`` are evaluated; the last few sample sets are remembered, so re-solves on the same mesh,
+        or on a horizon that moved only outside ``[t0, tf]``, evaluate nothing.  A reference whose samples
+        at one and two transition lengths outside differ is not constant there: every time is evaluated."""
         t = np.atleast_1d(np.asarray(t, float))
+        t0, tf = reference.t0, reference.tf
         memo = self.__dict__.setdefault("_samples", {})
-        key = (id(reference), t.tobytes())
-        hit = memo.get(key)
-        if hit is not None and hit[0] is reference:
-            return hit[1].copy()
-        fn = reference.function(3)
-        outs = mapped(fn, t.size)(t[None, :])
-        Y = np.vstack([np.array(o).reshape(reference.m, t.size) for o in outs])
-        if len(memo) >= 16:
-            memo.pop(next(iter(memo)))
-        memo[key] = (reference, Y)
-        return Y.copy()
+
+        def sample(ts):
+            key = (id(reference), ts.tobytes())
+            hit = memo.get(key)
+            if hit is not None and hit[0] is reference:
+                return hit[1]
+            Ys = (np.vstack(buffered_map(reference.function(3), ts.size)(ts)) if ts.size
+                  else np.zeros((4 * reference.m, 0)))
+            if len(memo) >= 16:
+                memo.pop(next(iter(memo)))
+            memo[key] = (reference, Ys)
+            return Ys
+
+        before, after = t < t0, t > tf
+        if not (before.any() or after.any()):
+            return sample(t).copy()
+        tau = tf - t0
+        rest = sample(np.array([t0 - 2 * tau, t0 - tau, tf + tau, tf + 2 * tau]))
+        if not (np.array_equal(rest[:, 0], rest[:, 1]) and np.array_equal(rest[:, 2], rest[:, 3])):
+            return sample(t).copy()
+        inside = ~(before | after)
+        Y = np.empty((4 * reference.m, t.size))
+        Y[:, inside] = sample(t[inside])
+        Y[:, before] = rest[:, 1:2]
+        Y[:, after] = rest[:, 2:3]
+        return Y
 
 
 def _check_position_output(model) -> None:
@@ -353,7 +448,7 @@ def _decoupling_scales(model, Q) -> np.ndarray:
         except AttributeError:
             pass
     K, n = Q.shape[1], model.n
-    M, C, W = (np.array(x) for x in mapped(parts, K)(Q, model.theta_values))
+    M, C, W = buffered_map(parts, K, once=(1,))(Q, model.theta_values)
     M = M.reshape(n, K, n).transpose(1, 0, 2)
     C = C.reshape(C.shape[0], K, n).transpose(1, 0, 2)
     W = W.reshape(n, K, -1).transpose(1, 0, 2)

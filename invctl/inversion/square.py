@@ -63,8 +63,8 @@ def solve_square(model, reference, opts: Options, warm_start: Any = None, setup:
         x, info, cont_info = _continuation(reference, tr, servo, t_mesh, x0, setup.E0, setup.Ef, theta, **kw)
         solve_s += cont_info.pop("solve_s")
     Xmesh, Xcol = tr.unpack(x)
-    inv = make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta)
-    res = residuals(inv, servo, reference, theta)
+    inv = make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta, tr=tr)
+    res = residuals(inv, servo, reference, theta, tr=tr)
     inv.diagnostics.update(info)
     inv.diagnostics.update({
         "backend": slv.backend, "scheme": sch.name, "N": int(N), "formulation": disc.formulation,
@@ -178,34 +178,37 @@ def _continuation(reference, tr, servo, t_mesh, x0, E0, Ef, theta, **kw):
     return x, info, {"steps": steps, "solve_s": total}
 
 
-def make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta, dX=None) -> Inverse:
+def make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta, dX=None, tr=None) -> Inverse:
     """The :class:`Inverse` of a solution on ``t_mesh`` (slopes ``dX`` at the mesh for
-    Hermite-Simpson: ``F`` of the servo model unless given)."""
+    Hermite-Simpson: ``F`` of the servo model unless given, through the transcription ``tr``'s
+    compiled right-hand side when given)."""
     if dX is None:
-        dX = sch.mesh_slopes(Xmesh, lambda: mapped(servo.rhs, t_mesh.size)(
-            Xmesh, servo.reference_samples(reference, t_mesh), theta))
+        rhs = mapped(servo.rhs, t_mesh.size) if tr is None else tr.mapped_call("rhs", t_mesh.size)
+        dX = sch.mesh_slopes(Xmesh, lambda: rhs(Xmesh, servo.reference_samples(reference, t_mesh), theta)[0])
     L = servo.layout
     return Inverse(sch.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
                    reference.t0, reference.tf, servo.names, {}, y_ref_fn=reference)
 
 
-def residuals(inv: Inverse, servo, reference, theta, samples_per_interval: int = 4) -> dict:
+def residuals(inv: Inverse, servo, reference, theta, samples_per_interval: int = 4, tr=None) -> dict:
     """Constraint residuals of (35) at the mesh and between mesh points: ``position``
     (``g`` and ``h - y_ref`` together), ``holonomic`` (``g``), ``servo`` (``h - y_ref``),
-    ``velocity`` and ``acceleration`` levels."""
+    ``velocity`` and ``acceleration`` levels.  One mapped evaluation at all points (the
+    transcription ``tr``'s compiled one when given)."""
     tm = inv.t_mesh
     s = np.linspace(0, 1, samples_per_interval + 1)[1:-1]
     tt = (tm[:-1, None] + np.diff(tm)[:, None] * s[None, :]).ravel()
+    t = np.concatenate([tm, tt])
+    fn = mapped(servo.residuals, t.size) if tr is None else tr.mapped_call("residuals", t.size)
+    pos, vel, acc = (np.array(r) for r in fn(inv.X(t), servo.reference_samples(reference, t), theta))
+    nl, k = servo.layout.l, tm.size
     out = {}
-    for name, t in (("mesh", tm), ("between", tt)):
-        X = inv.X(t)
-        Y = servo.reference_samples(reference, t)
-        pos, vel, acc = (np.array(r) for r in mapped(servo.residuals, t.size)(X, Y, theta))
-        out[f"position_{name}"] = float(np.max(np.abs(pos))) if pos.size else 0.0
-        nl = servo.layout.l
-        out[f"holonomic_{name}"] = float(np.max(np.abs(pos[:nl]))) if nl else 0.0
-        out[f"servo_{name}"] = float(np.max(np.abs(pos[nl:]))) if pos[nl:].size else 0.0
-        out[f"velocity_{name}"] = float(np.max(np.abs(vel))) if vel.size else 0.0
-        out[f"acceleration_{name}"] = float(np.max(np.abs(acc))) if acc.size else 0.0
+    for name, part in (("mesh", slice(0, k)), ("between", slice(k, None))):
+        p, v, a = pos[:, part], vel[:, part], acc[:, part]
+        out[f"position_{name}"] = float(np.max(np.abs(p))) if p.size else 0.0
+        out[f"holonomic_{name}"] = float(np.max(np.abs(p[:nl]))) if nl and p.size else 0.0
+        out[f"servo_{name}"] = float(np.max(np.abs(p[nl:]))) if p[nl:].size else 0.0
+        out[f"velocity_{name}"] = float(np.max(np.abs(v))) if v.size else 0.0
+        out[f"acceleration_{name}"] = float(np.max(np.abs(a))) if a.size else 0.0
     out["position"] = max(out["position_mesh"], out["position_between"])
     return out
