@@ -253,6 +253,36 @@ def test_gauss_newton_and_exact_hessians_reach_the_same_optimum(manip, manip_u2)
     assert np.max(np.abs(b.X_mesh - manip_u2.X_mesh)) < 1e-5 * np.max(np.abs(b.X_mesh))
 
 
+def test_exact_hessian_converges_on_a_coarse_mesh_and_through_the_elastic_problem(manip, monkeypatch):
+    # HS N = 20: with the adaptive barrier update the exact Hessian stalled at max_iter in the bounded
+    # problem and, with either update, in the elastic one; now both reach the Gauss-Newton optimum (an
+    # independent Hessian) to IPOPT's tolerance (same objective to 1e-6, states to 1e-5 relative), also when the
+    # first bounded solve is cut to one iteration and the elastic problem's feasible point restarts it
+    import dataclasses
+
+    from invctl.inversion import bounded
+
+    md, ref, q0 = manip
+    gn = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}))
+    ex = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}), hessian="exact")
+    assert ex.diagnostics["status"] == "Solve_Succeeded" and ex.diagnostics["restarted"] is None
+    calls = []
+    orig = bounded.solve_scaled
+
+    def first_cut_short(tr, slv, x0, params, limits, **kw):
+        calls.append(1)
+        if len(calls) == 1:
+            slv = dataclasses.replace(slv, max_iter=1)
+        return orig(tr, slv, x0, params, limits, **kw)
+
+    monkeypatch.setattr(bounded, "solve_scaled", first_cut_short)
+    el = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}), hessian="exact")
+    assert len(calls) == 2 and "restarted from the elastic" in el.diagnostics["restarted"]
+    for b in (ex, el):
+        assert b.diagnostics["objective"] == pytest.approx(gn.diagnostics["objective"], rel=1e-6)
+        assert np.max(np.abs(b.X_mesh - gn.X_mesh)) < 1e-5 * np.max(np.abs(gn.X_mesh))
+
+
 def test_pre_actuation_bound_costs_error_at_the_unstable_rate(manip):
     # the inverse must start at rest at T0 = t0 - pre; the exact one leaves the start equilibrium along
     # the unstable internal mode (rate 24.4/s, plan), whose neglected part ~exp(-rate pre) is what the
