@@ -344,11 +344,12 @@ def test_minimum_time_manipulator_reports_the_active_constraint(manip):
 # ----------------------------------------------------------------------------- derivatives
 @pytest.mark.parametrize("scheme,relaxed,free_time,elastic", [
     ("hermite-simpson", True, False, False), ("legendre2", True, True, False), ("hermite-simpson", False, True, False),
-    ("radau2", True, False, True),
+    ("radau2", True, False, True), ("hermite-simpson", True, False, True),
 ])
 def test_assembled_derivatives_match_automatic_differentiation(scheme, relaxed, free_time, elastic):
     # the custom Jacobian and the structured exact Hessian against CasADi's AD of the plain graph,
-    # at a random point (relative 1e-12: rounding of ~1e10-sized entries)
+    # at a random point (relative 1e-12: rounding of ~1e10-sized entries), and every Hessian entry on its own
+    # (1e-8 relative to 1 + |entry|; measured <= 3e-10), so that small entries next to large ones are checked too
     md = mn.build(**mn.PRESETS["guess"])
     sv = servo_model(md)
     sel = resolve_selection(sv, mn.BOUNDARY["start"], mn.BOUNDARY["end"])
@@ -371,6 +372,7 @@ def test_assembled_derivatives_match_automatic_differentiation(scheme, relaxed, 
     H_ad = ca.Function("h", [tr._x, tr._p], [ca.triu(ca.hessian(L, tr._x)[0])])(x, p).full()
     H = tr._build_exact_hessian()(x, p, 0.8, lam_g).full()
     assert np.max(np.abs(H - H_ad)) <= 1e-12 * np.max(np.abs(H_ad))
+    assert np.max(np.abs(H - H_ad) / (1 + np.abs(H_ad))) <= 1e-8
 
 
 # ----------------------------------------------------------------------------- options
