@@ -253,6 +253,36 @@ def test_gauss_newton_and_exact_hessians_reach_the_same_optimum(manip, manip_u2)
     assert np.max(np.abs(b.X_mesh - manip_u2.X_mesh)) < 1e-5 * np.max(np.abs(b.X_mesh))
 
 
+def test_exact_hessian_converges_on_a_coarse_mesh_and_through_the_elastic_problem(manip, monkeypatch):
+    # HS N = 20: with the adaptive barrier update the exact Hessian stalled at max_iter in the bounded
+    # problem and, with either update, in the elastic one; now both reach the Gauss-Newton optimum (an
+    # independent Hessian) to IPOPT's tolerance (same objective to 1e-6, states to 1e-5 relative), also when the
+    # first bounded solve is cut to one iteration and the elastic problem's feasible point restarts it
+    import dataclasses
+
+    from invctl.inversion import bounded
+
+    md, ref, q0 = manip
+    gn = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}))
+    ex = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}), hessian="exact")
+    assert ex.diagnostics["status"] == "Solve_Succeeded" and ex.diagnostics["restarted"] is None
+    calls = []
+    orig = bounded.solve_scaled
+
+    def first_cut_short(tr, slv, x0, params, limits, **kw):
+        calls.append(1)
+        if len(calls) == 1:
+            slv = dataclasses.replace(slv, max_iter=1)
+        return orig(tr, slv, x0, params, limits, **kw)
+
+    monkeypatch.setattr(bounded, "solve_scaled", first_cut_short)
+    el = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}), hessian="exact")
+    assert len(calls) == 2 and "restarted from the elastic" in el.diagnostics["restarted"]
+    for b in (ex, el):
+        assert b.diagnostics["objective"] == pytest.approx(gn.diagnostics["objective"], rel=1e-6)
+        assert np.max(np.abs(b.X_mesh - gn.X_mesh)) < 1e-5 * np.max(np.abs(gn.X_mesh))
+
+
 def test_pre_actuation_bound_costs_error_at_the_unstable_rate(manip):
     # the inverse must start at rest at T0 = t0 - pre; the exact one leaves the start equilibrium along
     # the unstable internal mode (rate 24.4/s, plan), whose neglected part ~exp(-rate pre) is what the
@@ -314,11 +344,12 @@ def test_minimum_time_manipulator_reports_the_active_constraint(manip):
 # ----------------------------------------------------------------------------- derivatives
 @pytest.mark.parametrize("scheme,relaxed,free_time,elastic", [
     ("hermite-simpson", True, False, False), ("legendre2", True, True, False), ("hermite-simpson", False, True, False),
-    ("radau2", True, False, True),
+    ("radau2", True, False, True), ("hermite-simpson", True, False, True),
 ])
 def test_assembled_derivatives_match_automatic_differentiation(scheme, relaxed, free_time, elastic):
     # the custom Jacobian and the structured exact Hessian against CasADi's AD of the plain graph,
-    # at a random point (relative 1e-12: rounding of ~1e10-sized entries)
+    # at a random point (relative 1e-12: rounding of ~1e10-sized entries), and every Hessian entry on its own
+    # (1e-8 relative to 1 + |entry|; measured <= 3e-10), so that small entries next to large ones are checked too
     md = mn.build(**mn.PRESETS["guess"])
     sv = servo_model(md)
     sel = resolve_selection(sv, mn.BOUNDARY["start"], mn.BOUNDARY["end"])
@@ -341,6 +372,43 @@ def test_assembled_derivatives_match_automatic_differentiation(scheme, relaxed, 
     H_ad = ca.Function("h", [tr._x, tr._p], [ca.triu(ca.hessian(L, tr._x)[0])])(x, p).full()
     H = tr._build_exact_hessian()(x, p, 0.8, lam_g).full()
     assert np.max(np.abs(H - H_ad)) <= 1e-12 * np.max(np.abs(H_ad))
+    assert np.max(np.abs(H - H_ad) / (1 + np.abs(H_ad))) <= 1e-8
+
+
+def test_structured_hessian_matches_automatic_differentiation_at_ipopt_iterates(manip, monkeypatch):
+    # what IPOPT receives along a bounded solve (manipulator, |u2| <= 8 N, HS N = 16, objective scaled by 1e3,
+    # IPOPT's own multipliers, iterates 1 and 4 of the exact-Hessian solve): the structured Hessian and the
+    # assembled Jacobian against CasADi's AD of the plain NLP, entry by entry (1e-8 of 1 + |entry|; measured
+    # 2e-11 at N = 20 on the iterates where the adaptive barrier update stalled)
+    from invctl.inversion import bounded
+
+    md, ref, q0 = manip
+    cap = {}
+
+    def capture(tr, slv, x0, params, limits, **kw):
+        cap.update(tr=tr, slv=slv, x0=x0, params=params, limits=limits)
+        raise InversionFailed("captured")
+
+    monkeypatch.setattr(bounded, "solve_scaled", capture)
+    with pytest.raises(InversionFailed, match="captured"):
+        invert(md, ref, q_guess=q0, N=16, bounds=Bounds(u={"u2": 8.0}), hessian="exact")
+    tr, p = cap["tr"], cap["params"](1e3)
+    lbx, ubx, lbg, ubg = cap["limits"]
+    f, g = tr._plain
+    lf, lg = ca.MX.sym("lf"), ca.MX.sym("lg", tr.ng)
+    H_ad = ca.Function("h", [tr._x, tr._p, lf, lg], [ca.triu(ca.hessian(lf * f + ca.dot(lg, g), tr._x)[0])])
+    J_ad = ca.Function("j", [tr._x, tr._p], [ca.jacobian(g, tr._x)])
+    J_as = ca.Function("j2", [tr._x, tr._p], [ca.jacobian(tr.g, tr._x)])
+    H_st = tr._build_exact_hessian()
+    for k in (1, 4):
+        solver = tr.ipopt({**bounded._ipopt_options(cap["slv"], "exact"), "ipopt.max_iter": k}, hessian="exact")
+        sol = solver(x0=cap["x0"], p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        x, lam = np.array(sol["x"]).ravel(), np.array(sol["lam_g"]).ravel()
+        assert np.max(np.abs(lam)) > 1e-3  # the constraint curvature takes part
+        Ha, H = H_ad(x, p, 1.0, lam).full(), H_st(x, p, 1.0, lam).full()
+        assert np.max(np.abs(H - Ha) / (1 + np.abs(Ha))) <= 1e-8
+        Ja, J = J_ad(x, p).full(), J_as(x, p).full()
+        assert np.max(np.abs(J - Ja) / (1 + np.abs(Ja))) <= 1e-8
 
 
 # ----------------------------------------------------------------------------- options

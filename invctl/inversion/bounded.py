@@ -39,9 +39,16 @@ from .ocp import slack_scale
 from .options import Objective, Options
 from .problem import prepare, resolve_plan
 
-#: IPOPT options of the bounded problems (measured on the manipulator with an active input bound,
-#: HS N = 100: 13 Gauss-Newton iterations with the adaptive barrier update against 27 monotone)
+#: IPOPT options of the bounded problems: the adaptive barrier update (measured on the manipulator, |u2| <= 6 ... 9 N,
+#: HS N = 20, 40, 100, Gauss-Newton: 17-31 iterations, monotone 18-29; minimum time, exact Hessian, five
+#: test problems: 9-25 iterations, monotone 14-32) ...
 IPOPT_BOUNDED_DEFAULTS = {"ipopt.mu_strategy": "adaptive"}
+#: ... except with the exact Hessian on a fixed duration (hessian="exact" in invert): the monotone one. With the
+#: adaptive update the exact Hessian's first steps (after the barrier parameter rose to ~4) go far beyond the
+#: region where the defects are near linear and IPOPT stalls in tiny steps: |u2| <= 8 N, HS N = 20, bounded and
+#: elastic problems at max_iter; monotone: 20 iterations (N = 40, 100: 18, 22 against 24, 24; |u2| <= 6, 7, 9 N,
+#: N = 20, 40: 15-21 against 14-31)
+IPOPT_EXACT_HESSIAN_DEFAULTS = {"ipopt.mu_strategy": "monotone"}
 #: distance (relative to max(1, |bound|)) within which a bound counts as active
 ACTIVE_TOL = 1e-6
 #: weight of the least-squares tracking in the elastic problem (relaxations weigh 1/|bound|): small,
@@ -239,7 +246,7 @@ def solve_scaled(tr, slv, x0, params, limits, *, hessian: str, scale: float = 1e
 
     Returns ``(solution, stats, scale)``; ``stats["iterations"]`` counts both solves."""
     lbx, ubx, lbg, ubg = limits
-    opts = _ipopt_options(slv)
+    opts = _ipopt_options(slv, hessian, tr.free_time)
     if slv.progress:
         opts["iteration_callback"] = _progress(tr)
     solver = tr.ipopt(opts, hessian=hessian)
@@ -312,9 +319,12 @@ def _hessian(slv, auto: str) -> str:
     return auto if slv.hessian == "auto" else slv.hessian
 
 
-def _ipopt_options(slv):
+def _ipopt_options(slv, hessian: str, free_time: bool = False):
+    """IPOPT options of a bounded (``free_time``: minimum-time) solve with this Hessian; the user's
+    ``ipopt_options`` win."""
     opts = dict(IPOPT_DEFAULTS)
-    opts.update(IPOPT_BOUNDED_DEFAULTS)
+    exact = hessian in ("exact", "ad") and not free_time
+    opts.update(IPOPT_EXACT_HESSIAN_DEFAULTS if exact else IPOPT_BOUNDED_DEFAULTS)
     opts["ipopt.max_iter"] = int(slv.max_iter)
     opts["ipopt.max_wall_time"] = float(slv.max_wall_time)
     opts.update(slv.ipopt_options or {})
@@ -566,7 +576,11 @@ def _infeasible(model, reference, servo, setup, rb, sch, t_mesh, Y, theta, c, ob
             k = tr.i_r + index[(r.kind, r.entry, side)]
             if np.isfinite(need):
                 x0[k] = max(x0[k], need + 1e-6 * scale[k - tr.i_r])
-    solver = tr.ipopt(_ipopt_options(slv), hessian=_hessian(slv, "gauss-newton"))
+    # Gauss-Newton also when the bounded solve used the exact Hessian: the elastic objective is flat (ELASTIC_EPS) and
+    # the exact Hessian's constraint curvature dominates it (|u2| <= 8 N, HS N = 20: max_iter with either barrier
+    # update, 24 Gauss-Newton iterations)
+    hessian = "gauss-newton" if _hessian(slv, "gauss-newton") in ("exact", "ad") else _hessian(slv, "gauss-newton")
+    solver = tr.ipopt(_ipopt_options(slv, hessian), hessian=hessian)
     sol = solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     st = solver.stats()
     xe = np.array(sol["x"]).ravel()
