@@ -110,10 +110,14 @@ def test_reference_samples_of_a_reference_moving_outside_are_evaluated(model):
 
     servo = servo_model(model)
     t = ca.SX.sym("t")
-    moving = Reference(t, ca.vertcat(ca.sin(3 * t), 0.1 * t ** 4), 0.0, 1.0, 4)
-    tt = np.linspace(-2.0, 3.0, 41)
-    direct = np.vstack([np.array(o) for o in mapped(moving.function(3), tt.size)(tt[None, :])])
-    assert np.array_equal(servo.reference_samples(moving, tt), direct)
+    # the second is periodic with period tf - t0 (fmod: bit-equal samples at one and two transition lengths
+    # outside, its derivatives there not zero)
+    periodic = ca.sin(2 * np.pi * ca.fmod(t + 10.0, 1.0))
+    for moving in (Reference(t, ca.vertcat(ca.sin(3 * t), 0.1 * t ** 4), 0.0, 1.0, 4),
+                   Reference(t, ca.vertcat(periodic, 0.5 * periodic), 0.0, 1.0, 4)):
+        tt = np.linspace(-2.0, 3.0, 41)
+        direct = np.vstack([np.array(o) for o in mapped(moving.function(3), tt.size)(tt[None, :])])
+        assert np.array_equal(servo.reference_samples(moving, tt), direct)
 
 
 def test_sensitivities_use_the_held_transcription(model, ref, built):

@@ -383,8 +383,9 @@ class ServoModel:
         A :class:`~invctl.reference.Reference` is constant outside ``[t0, tf]``: times before ``t0``
         (after ``tf``) take its samples at ``t0 - (tf - t0)`` (``tf + (tf - t0)``), so only the times of
         ``[t0, tf]`` are evaluated; the last few sample sets are remembered, so re-solves on the same mesh,
-        or on a horizon that moved only outside ``[t0, tf]``, evaluate nothing.  A reference whose samples
-        at one and two transition lengths outside differ is not constant there: every time is evaluated."""
+        or on a horizon that moved only outside ``[t0, tf]``, evaluate nothing.  A reference that is not at
+        rest at one and two transition lengths outside (different values, or a derivative not zero: a
+        periodic signal has equal values there) is evaluated at every time."""
         t = np.atleast_1d(np.asarray(t, float))
         t0, tf = reference.t0, reference.tf
         memo = self.__dict__.setdefault("_samples", {})
@@ -406,7 +407,9 @@ class ServoModel:
             return sample(t).copy()
         tau = tf - t0
         rest = sample(np.array([t0 - 2 * tau, t0 - tau, tf + tau, tf + 2 * tau]))
-        if not (np.array_equal(rest[:, 0], rest[:, 1]) and np.array_equal(rest[:, 2], rest[:, 3])):
+        m = reference.m
+        if not (np.array_equal(rest[:, 0], rest[:, 1]) and np.array_equal(rest[:, 2], rest[:, 3])
+                and not np.any(rest[m:])):  # at rest there: equal values and zero derivatives at both probes
             return sample(t).copy()
         inside = ~(before | after)
         Y = np.empty((4 * reference.m, t.size))
