@@ -287,10 +287,13 @@ def bench_min_time(lines):
     t0 = time.perf_counter()
     held = MinimumTimeSolver(md, ref, bounds=Bounds(u=1.0), N=N_CART)
     dh = held.solve().diagnostics
+    first_held = time.perf_counter() - t0
+    dr = held.solve().diagnostics
     lines.append(f"   invctl MinimumTimeSolver: {dh['status']}, {dh['iterations']} iterations, duration "
                  f"{dh['free_time']['duration']:.10f} s (rel. diff {abs(dh['free_time']['duration'] / ft['duration'] - 1):.1e})"
-                 "; its re-solves start at the last optimum (primal-dual)")
-    ours["invctl MinimumTimeSolver"] = (time.perf_counter() - t0, held.solve, dh["iterations"])
+                 f"; a re-solve starts at the last optimum (primal-dual): {dr['iterations']} iterations, duration "
+                 f"rel. diff {abs(dr['free_time']['duration'] / ft['duration'] - 1):.1e}")
+    ours["invctl MinimumTimeSolver"] = (first_held, held.solve, dh["iterations"])
     return _rows_and_lines(lines, ours, peers, "tau", ft["duration"], inv.X_mesh, lambda r: f"{r['tau']:.10f} s")
 
 
