@@ -211,12 +211,12 @@ def _minimum_time(hold, model, reference, *, bounds=None, energy: float = 0.0, d
     rho, e_w, r_w = (objective.slack, objective.energy + energy, objective.rate) if relaxed else (0.0, energy, 0.0)
 
     # interior points spread over the intervals, then at the extrema of the polynomials (held: the last ones)
-    same = last is not None and last["tr"] is tr
-    points = last["points"] if same else None
+    kept = last if last is not None and last["tr"] is tr else None  # the held solution on this transcription
+    points = None if kept is None else kept["points"]
     # a held re-solve of another problem moves its points to the extrema of its own first solution, as a fresh
     # solve does (the check alone would accept points that leave the bounds violated up to ACTIVE_TOL)
     problem = (rb.lo.tobytes(), rb.hi.tobytes(), rb.rate_lo.tobytes(), rb.rate_hi.tobytes(), float(energy), lo, hi)
-    moved = same and last["problem"] != problem
+    moved = kept is not None and kept["problem"] != problem
 
     def params(scale):
         return tr.parameters(t_mesh, Y, theta, setup.E0, setup.Ef, W=ow, rho=rho, energy=e_w, rate=r_w,
@@ -225,7 +225,7 @@ def _minimum_time(hold, model, reference, *, bounds=None, energy: float = 0.0, d
     t_solve = time.perf_counter()
     hessian = "exact" if slv.hessian == "auto" else slv.hessian
     start, rounds, iterations = x0, 0, 0
-    warm = (last["lam_x"], last["lam_g"]) if same else None
+    warm = None if kept is None else (kept["lam_x"], kept["lam_g"])
     while True:  # until the bounds hold between the nodes too (interior points at the extrema)
         # from the second round on, the last round's primal-dual point: the problem only moved its interior points
         sol, st, scale = solve_scaled(tr, slv, start, params, (lbx, ubx, lbg, ubg), hessian=hessian, scale=1.0,
