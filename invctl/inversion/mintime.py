@@ -89,6 +89,15 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     InversionFailed
         IPOPT did not converge (the last iterate in ``exc.partial``).
     """
+    return _minimum_time(None, model, reference, bounds=bounds, energy=energy, duration=duration, objective=objective,
+                         discretization=discretization, solver=solver, horizon=horizon, warm_start=warm_start,
+                         **keywords)
+
+
+def _minimum_time(hold, model, reference, *, bounds=None, energy: float = 0.0, duration=None, objective=None,
+                  discretization=None, solver=None, horizon=None, warm_start=None, **keywords):
+    """:func:`minimum_time`; ``hold`` (a dict, :class:`MinimumTimeSolver`): the plan, setup and last
+    solution of an earlier call on the same model, reference and options, reused and updated."""
     t_all = time.perf_counter()
     opts = from_keywords("minimum_time", discretization=discretization, solver=solver, horizon=horizon,
                          bounds=bounds, objective=objective, **keywords)
@@ -104,6 +113,9 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
                           "T0/Tf through horizon=Horizon(T0=..., Tf=...) instead")
     disc, slv = opts.discretization, opts.solver
     if disc.tol is not None:
+        if hold is not None:
+            raise OptionError("MinimumTimeSolver: tol refines the mesh by raising N, a new problem each time; give N "
+                              "(or call minimum_time with tol=...)")
         return _refined(model, reference, opts, dict(bounds=opts.bounds, energy=energy, duration=duration,
                                                      objective=opts.objective, horizon=opts.horizon), warm_start)
     tau_ref = reference.tf - reference.t0
@@ -112,9 +124,13 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         raise OptionError(f"minimum_time: duration must be (lower, upper) with 0 < lower < upper, got {duration!r}")
     servo = servo_model(model, disc.formulation, disc.omega)
     rb = bnd.resolve(servo)
-    plan_result = resolve_plan(model, reference, disc, opts.horizon)
     relaxed = objective is not None
-    setup = prepare(model, reference, disc, opts.horizon, plan_result=plan_result, any_count=relaxed)
+    last = hold.get("last") if hold else None
+    if last is not None:  # a held solver's re-solve: plan and setup as before
+        plan_result, setup = last["plan_result"], last["setup"]
+    else:
+        plan_result = resolve_plan(model, reference, disc, opts.horizon)
+        setup = prepare(model, reference, disc, opts.horizon, plan_result=plan_result, any_count=relaxed)
     from .solver import InversionSolver
     from .square import make_inverse, solve_square
 
@@ -129,7 +145,9 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     hz = replace(opts.horizon, T0=setup.T0, Tf=setup.Tf, start=plan_result[2], end=plan_result[3],
                  plan=plan_result[4], plan_options=None)
     square = len(setup.selection.start) + len(setup.selection.end) == servo.layout.nx
-    if warm_start is None and square:
+    if last is not None:
+        guess = None  # the last solution is the start
+    elif warm_start is None and square:
         guess = solve_square(model, reference, replace(opts, horizon=hz, bounds=None, objective=None), setup=setup)
     else:
         guess = None
@@ -171,7 +189,11 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
             tau_cur, mesh_cur = tau_s, mesh_s
         if cur is not guess:
             warm_start, tau0 = cur, tau_cur
-    if warm_start is not None:  # a solution for another duration: sample it at the same shape positions
+    if last is not None:  # the held solution (same layout), its duration moved into the range
+        x0 = last["x"].copy()
+        x0[tr.i_tau] = float(np.clip(x0[tr.i_tau], lo, hi))
+        tau0 = float(x0[tr.i_tau])
+    elif warm_start is not None:  # a solution for another duration: sample it at the same shape positions
         ws_mesh = tr.retimed_mesh(t_mesh, mask, tau_ref, tau0)
         x0 = tr.pack(warm_start.X(ws_mesh), warm_start.X(tr.collocation_times(ws_mesh)) if tc.size else None,
                      tau=tau0)
@@ -188,7 +210,13 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     ow = objective.output_weights(model) if relaxed else 0.0
     rho, e_w, r_w = (objective.slack, objective.energy + energy, objective.rate) if relaxed else (0.0, energy, 0.0)
 
-    points = None  # interior points spread over the intervals, then at the extrema of the polynomials
+    # interior points spread over the intervals, then at the extrema of the polynomials (held: the last ones)
+    kept = last if last is not None and last["tr"] is tr else None  # the held solution on this transcription
+    points = None if kept is None else kept["points"]
+    # a held re-solve of another problem moves its points to the extrema of its own first solution, as a fresh
+    # solve does (the check alone would accept points that leave the bounds violated up to ACTIVE_TOL)
+    problem = (rb.lo.tobytes(), rb.hi.tobytes(), rb.rate_lo.tobytes(), rb.rate_hi.tobytes(), float(energy), lo, hi)
+    moved = kept is not None and kept["problem"] != problem
 
     def params(scale):
         return tr.parameters(t_mesh, Y, theta, setup.E0, setup.Ef, W=ow, rho=rho, energy=e_w, rate=r_w,
@@ -197,8 +225,11 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
     t_solve = time.perf_counter()
     hessian = "exact" if slv.hessian == "auto" else slv.hessian
     start, rounds, iterations = x0, 0, 0
+    warm = None if kept is None else (kept["lam_x"], kept["lam_g"])
     while True:  # until the bounds hold between the nodes too (interior points at the extrema)
-        sol, st, scale = solve_scaled(tr, slv, start, params, (lbx, ubx, lbg, ubg), hessian=hessian, scale=1.0)
+        # from the second round on, the last round's primal-dual point: the problem only moved its interior points
+        sol, st, scale = solve_scaled(tr, slv, start, params, (lbx, ubx, lbg, ubg), hessian=hessian, scale=1.0,
+                                      warm=warm)
         iterations += st["iterations"]
         x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
         viol = _violation(g, lbg, ubg, x, lbx, ubx)
@@ -209,12 +240,15 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         mesh_opt = tr.retimed_mesh(t_mesh, mask, tau_ref, tau)
         Yopt = servo.reference_samples(ref_opt, tr.sample_times(mesh_opt))
         inv = _inverse(tr, servo, ref_opt, sch, mesh_opt, x, Yopt, theta, c, make_inverse)
-        if not ok or rounds >= EXTREMA_ROUNDS or not _beyond_tolerance(rb, between_nodes(inv, rb)):
+        chk = between_nodes(inv, rb)
+        if not ok or rounds >= EXTREMA_ROUNDS or not (_beyond_tolerance(rb, chk) or (moved and not rounds)):
             break
+        warm = (sol["lam_x"], sol["lam_g"])
         if tr.interior is None:  # Legendre/Radau: add the interior points only where a bound needs them
             tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=relaxed, free_time=True,
                                    bounded=rb.bounded, rated=rb.rated, interior="points", compiled=disc.compiled)
             lbx, ubx, lbg, ubg = _limits(tr, rb, (lo, hi))
+            warm = None  # another layout of the constraints
         points, start, rounds = tr.extremum_points(inv), x, rounds + 1
     st["iterations"] = iterations
     solve_s = time.perf_counter() - t_solve
@@ -236,11 +270,11 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
         "solve_s": solve_s, "guess_s": setup.timings["guess_s"], "unknowns": tr.nX, "equations": tr.ng,
         "selection": setup.selection.describe(), "T0": inv.T0, "Tf": inv.Tf, "residuals": res,
         "plan": None if setup.plan is None else setup.plan.to_dict(), "mesh": setup.mesh_kind,
-        "bound_rounds": rounds,
+        "bound_rounds": rounds, "held": last is not None,
         "free_time": {"duration": tau, "reference_duration": tau_ref, "t0": reference.t0, "tf": reference.t0 + tau,
                       "energy": E, "energy_weight": float(energy), "objective": tau + energy * E,
                       "duration_range": [lo, hi], "at_duration_limit": at_limit, "active": active,
-                      "bound_violation": between_nodes(inv, rb)["max_violation_between_nodes"]},
+                      "bound_violation": chk["max_violation_between_nodes"]},
         "wall_s": time.perf_counter() - t_all,
     })
     ft = inv.diagnostics["free_time"]
@@ -253,6 +287,9 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
                        f"(it exists at {tau0:.4g} s, where the bounds are not yet active): the shortest move may "
                        "be limited by the model (the inverse ceasing to exist), not by the bounds; search above it "
                        f"(duration=({tau0:.4g}, ...), --duration {tau0:.4g}:HI)")
+    if hold is not None and ok:
+        hold["last"] = {"plan_result": plan_result, "setup": setup, "tr": tr, "x": x, "points": points, "problem": problem,
+                        "lam_x": sol["lam_x"], "lam_g": sol["lam_g"]}
     key = "holonomic_mesh" if relaxed else "position_mesh"
     if ok and res[key] > slv.residual_tol:
         raise InversionFailed(
@@ -277,8 +314,35 @@ def minimum_time(model, reference, *, bounds=None, energy: float = 0.0, duration
             f"violation {viol:.3g}); try more iterations (max_iter), another initial duration (a reference of a "
             f"feasible duration) or hessian='exact'; the last iterate is in exc.partial{model_limit}", partial=inv,
             diagnostics=inv.diagnostics)
-    check_between_nodes(inv, rb, None, f"minimum_time ({sch.name} N={N})")
+    check_between_nodes(inv, rb, None, f"minimum_time ({sch.name} N={N})", chk)
     return inv
+
+
+class MinimumTimeSolver:
+    """:func:`minimum_time` held for re-solves: the plan, the setup, the transcription and the last
+    solution (its interior bound points and multipliers) are kept, and :meth:`solve` starts IPOPT
+    from that primal-dual point (no exact inverse, no duration estimate).  The model, reference and
+    options are fixed at construction; ``bounds`` (values), ``energy`` and ``duration`` may change
+    from one solve to the next.
+
+    >>> held = MinimumTimeSolver(model, reference, bounds=Bounds(u=1.0), N=100)
+    >>> inv = held.solve(); inv = held.solve(bounds=Bounds(u=1.2))
+    """
+
+    def __init__(self, model, reference, *, bounds=None, energy: float = 0.0, duration=None, **options):
+        self.model, self.reference, self.options = model, reference, options
+        self.problem = {"bounds": bounds, "energy": energy, "duration": duration}
+        self._held: dict = {}
+
+    def solve(self, **problem):
+        """The optimum for these ``bounds``, ``energy``, ``duration`` (default: the last ones), as
+        :func:`minimum_time` returns it (``diagnostics["held"]``: started from the last solution)."""
+        unknown = set(problem) - set(self.problem)
+        if unknown:
+            raise OptionError(f"MinimumTimeSolver.solve: {', '.join(sorted(unknown))} cannot change between solves "
+                              f"(only {', '.join(self.problem)}); build another MinimumTimeSolver")
+        self.problem.update(problem)
+        return _minimum_time(self._held, self.model, self.reference, **self.problem, **self.options)
 
 
 def _refined(model, reference, opts, problem, warm_start):
