@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import LibraryError, OutputPathError, ParameterError, ResultFileError
+from ..plot import finish
 
 if TYPE_CHECKING:
     from ..inversion import Inverse
@@ -401,10 +402,7 @@ class Library:
                     np.zeros(v.shape[0]), "rx", ms=9, mew=2, label="failed")
             ax.legend(fontsize=8)
         ax.set_title(f"{self.counts()['solved']} of {len(self.status)} solved")
-        fig.tight_layout()
-        if path is not None:
-            fig.savefig(path, dpi=120)
-        return fig
+        return finish(fig, path)
 
     # ------------------------------------------------------------ files
     def save(self, path) -> Path:

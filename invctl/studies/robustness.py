@@ -26,6 +26,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import ParameterError, SceneError
+from ..plot import finish
 from .sweep import SweepResult, grid, sweep
 
 _CACHE: dict[Any, Any] = {}
@@ -201,7 +202,4 @@ def plot_sweep(res: SweepResult, keys: Sequence[str], path=None, *, log: Sequenc
     fig, axes = plt.subplots(1, len(keys), figsize=(5.2 * len(keys), 4.2), squeeze=False)
     for ax, key in zip(axes[0], keys):
         res.plot(key, ax=ax, log=key in log, contour=(contour or {}).get(key))
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig
+    return finish(fig, path)

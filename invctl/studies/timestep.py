@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..plot import finish
+
 
 def fitted_slope(h, err) -> float:
     """Least-squares slope of ``log(err)`` against ``log(h)``."""
@@ -61,10 +63,7 @@ class TimestepStudy:
         ax[2].set_title("compiled loop: steps/s")
         for a in ax:
             a.grid(True, which="both", alpha=0.3)
-        fig.tight_layout()
-        if path:
-            fig.savefig(path, dpi=120)
-        return fig
+        return finish(fig, path)
 
 
 def timestep_study(stepper, stepper_projected, q0, v0, t_end, hs, ref_times, ref_post, *, n_impacts: int = 3,
