@@ -541,10 +541,9 @@ class LibraryStore:
         if not f.is_file():
             raise ResultFileError(f"{self.path}: no library.json (an unfinished library: run generate again "
                                   "with the same settings to finish it)")
-        try:
-            return json.loads(f.read_text())
-        except (OSError, ValueError) as exc:
-            raise ResultFileError(f"{f}: cannot read ({exc})") from None
+        from ..io import read_json
+
+        return read_json(f, "library index")
 
     def _mismatch(self, what: str, found) -> None:
         raise OutputPathError(f"--out {self.path}: {what} holds a library of other settings (key {found}, this run "
