@@ -107,20 +107,11 @@ def _values(scene, params, settings) -> dict:
 def contact_setup(scene, params=None, settings=None, *, controller=None, plant_params=None, model=None) -> ContactRun:
     """Model (``model``: already built from ``params``), plant, law and initial state of a contact scene's run."""
     from ..control.pdplus import zero_input
+    from .tracking import plant_of
 
     params, settings = dict(params or {}), dict(settings or {})
     model = scene.model(params) if model is None else model
-    plant_params = dict(plant_params or {})
-    unknown = sorted(set(plant_params) - set(model.values))
-    if unknown:
-        raise ParameterError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(model.values)}")
-    plant = model.with_params(**plant_params) if plant_params else model
-    if plant_params:
-        scene.check_values({**scene.params, **scene.settings, **{k: v for k, v in plant.values.items()
-                                                                 if k in scene.params}})
-        from .tracking import validate_plant
-
-        validate_plant(plant, plant_params)
+    plant = plant_of(scene, model, plant_params, plant_factors={})
     c = _contact(scene)
     name = c.controller_for(model, settings, controller)
     why = c.unmet(name, _values(scene, params, settings))

@@ -85,8 +85,8 @@ def add_reports(lines: list, scene, model, params, settings, command: str, **run
 def write_run(lines: list, data: dict, run, *, out=None, meta=None, plot=None, draw=None, what: str = "run",
               indent: str = "  ") -> None:
     """Write ``run`` to ``out`` (CSV when the name ends in ``.csv`` and the run has ``to_csv``, else ``.npz`` with
-    ``meta``) and its figure to ``plot`` (``draw(plot)``, default ``run.plot(plot)``) when asked, noting both in
-    ``lines`` and ``data``."""
+    ``meta``) and the figure to ``plot`` (``draw(plot)``, default ``run.plot(plot)``) when asked, noting both in
+    ``lines`` and ``data`` (``run`` may be None when only a figure is drawn)."""
     if out:
         if str(out).lower().endswith(".csv") and hasattr(run, "to_csv"):
             run.to_csv(out)

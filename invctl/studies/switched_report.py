@@ -77,8 +77,9 @@ def _figure(sim, red, path) -> None:
     import matplotlib.pyplot as plt
 
     from ..plot import save
+    from ..plot.switched import plot_simulation
 
-    fig = sim.plot() if red is None else _plot_fig7(sim, red)[0].figure
+    fig = sim.plot() if red is None else plot_simulation(sim, overlay=red, overlay_label="(reduced)")[0].figure
     save(fig, path)
     plt.close(fig)
 
@@ -93,12 +94,6 @@ def simulate(bound, *, controller=None, plant_params=None, t_end=None, out=None,
     lines = [text]
     write_run(lines, data, sim, out=out, plot=plot, what="trajectory", draw=lambda p: _figure(sim, red, p))
     return CommandResult("\n".join(lines), data, sim)
-
-
-def _plot_fig7(full, reduced):
-    from ..plot.switched import plot_simulation
-
-    return plot_simulation(full, overlay=reduced, overlay_label="(reduced)")
 
 
 def design(bound, *, plot=None) -> CommandResult:
@@ -144,8 +139,7 @@ def design(bound, *, plot=None) -> CommandResult:
                                                       f"Lambda = {q.Lambda:.6g}") + f", GUAS {q.guas}",
         ]
     if plot:
-        import matplotlib.pyplot as plt
-
+        from ..plot import close, save
         from ..plot.switched import plot_lambda_curve, plot_lambda_map
 
         if scene.switched.wrist:
@@ -154,11 +148,9 @@ def design(bound, *, plot=None) -> CommandResult:
         else:
             sw = lambda_sweep(p, "bf", np.geomspace(1, 1e5, 120))
             ax = plot_lambda_curve(sw["values"], sw["Lambda"], sw["visible"])
-        from ..plot import save
-
         ax.figure.tight_layout()
         save(ax.figure, plot)
-        plt.close(ax.figure)
+        close(ax)
         lines.append(f"  figure written to {plot}")
     return CommandResult("\n".join(lines), data)
 

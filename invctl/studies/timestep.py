@@ -13,13 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..plot import finish
-
-
-def fitted_slope(h, err) -> float:
-    """Least-squares slope of ``log(err)`` against ``log(h)``."""
-    h, err = np.asarray(h, float), np.asarray(err, float)
-    ok = err > 0
-    return float(np.polyfit(np.log(h[ok]), np.log(err[ok]), 1)[0]) if ok.sum() >= 2 else float("nan")
+from .tradeoff_specs import fitted_order
 
 
 @dataclass
@@ -86,5 +80,5 @@ def timestep_study(stepper, stepper_projected, q0, v0, t_end, hs, ref_times, ref
         penp.append(stepper_projected.run(q0, v0, t_end, h, **run_kw).max_gap_violation
                     if stepper_projected is not None else np.nan)
     eta, eva = np.array(et), np.array(ev)
-    return TimestepStudy(hs, eta, eva, np.array(pen), np.array(penp), np.array(sps), fitted_slope(hs, eta),
-                         fitted_slope(hs, eva), reference)
+    return TimestepStudy(hs, eta, eva, np.array(pen), np.array(penp), np.array(sps), fitted_order(hs, eta),
+                         fitted_order(hs, eva), reference)

@@ -193,9 +193,7 @@ def invert(bound, *, N=None, scheme=None, tol=None, backend=None, out=None,
         "max_output_error": fc["error"], "forward_check": {k: fc[k] for k in ("error", "t_worst", "window", "windows", "rate")},
         "residuals": res, "max_u_pre_actuation": pre, "params": dict(params or {}), "plan": d.get("plan"),
     }
-    if "meshes" in d:
-        data["meshes"] = d["meshes"]
-    for key in ("bounds", "tracking", "free_time"):
+    for key in ("meshes", "bounds", "tracking", "free_time"):
         if key in d:
             data[key] = d[key]
     if d.get("method") == "normal-form":
@@ -295,12 +293,9 @@ def design(bound, *, plot=None) -> CommandResult:
              "  " + d.describe().replace("\n", "\n  ")]
     data = d.to_dict()
     if plot:
-        from ..plot import close
         from ..plot.tracking import plot_funnels
 
-        close(plot_funnels(c, setup.t_end, plot))
-        data["plot"] = str(plot)
-        lines.append(f"  figure written to {plot}")
+        write_run(lines, data, None, plot=plot, draw=lambda p: plot_funnels(c, setup.t_end, p))
     return CommandResult("\n".join(lines), data, d)
 
 
