@@ -206,6 +206,9 @@ class watch_sigint:
     the main thread or when SIGINT is ignored.
     """
 
+    def _note(self) -> None:
+        self.seen = True
+
     def __enter__(self):
         import signal
         import threading
@@ -215,7 +218,7 @@ class watch_sigint:
             old = signal.getsignal(signal.SIGINT)
             if callable(old):
                 def handler(signum, frame):
-                    self.seen = True
+                    self._note()
                     return old(signum, frame)
 
                 self._old = old
@@ -230,7 +233,7 @@ class watch_sigint:
         return False
 
 
-class remember_sigint:
+class remember_sigint(watch_sigint):
     """Context manager (the command line's) that also remembers a Ctrl-C, so that one swallowed by a
     compiled library is still honoured: CasADi's conversion of Python arguments catches any exception
     raised inside it, ``KeyboardInterrupt`` included, and carries on.  :func:`check_interrupt` at the
@@ -238,32 +241,19 @@ class remember_sigint:
     points, IPOPT solves) raises it there, and the command line once more when a command returns.  Restores
     the handler in place on exit."""
 
-    def __enter__(self):
-        import signal
-        import threading
-
+    def _note(self) -> None:
         global _SIGINT_PENDING
-        _SIGINT_PENDING, self._old = False, None
-        if threading.current_thread() is threading.main_thread():
-            old = signal.getsignal(signal.SIGINT)
-            if callable(old):
-                def handler(signum, frame):
-                    global _SIGINT_PENDING
-                    _SIGINT_PENDING = True
-                    return old(signum, frame)
+        self.seen = _SIGINT_PENDING = True
 
-                self._old = old
-                signal.signal(signal.SIGINT, handler)
-        return self
+    def __enter__(self):
+        global _SIGINT_PENDING
+        _SIGINT_PENDING = False
+        return super().__enter__()
 
     def __exit__(self, *exc):
         global _SIGINT_PENDING
         _SIGINT_PENDING = False
-        if self._old is not None:
-            import signal
-
-            signal.signal(signal.SIGINT, self._old)
-        return False
+        return super().__exit__(*exc)
 
 
 _SIGINT_PENDING = False

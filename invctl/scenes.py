@@ -92,6 +92,17 @@ def _callable(obj, what: str, scene: str = "", optional: bool = True):
     return obj
 
 
+def _one_of(value, allowed, what: str, scene: str) -> None:
+    if value not in allowed:
+        raise SceneError(f"scene {scene!r}: {what} must be one of {', '.join(map(repr, allowed))}, got {value!r}")
+
+
+def _non_numbers(values: Mapping) -> dict:
+    """The entries of ``values`` that are not finite numbers."""
+    return {k: v for k, v in values.items()
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)}
+
+
 @dataclass(frozen=True)
 class Tracking:
     """What a tracking scene (003) declares beyond its model.
@@ -166,9 +177,7 @@ class Tracking:
     def _check(self, scene: str) -> None:
         for name in ("reference", "initial_configuration", "internal_coordinates"):
             _callable(getattr(self, name), f"tracking.{name}", scene)
-        if self.funnel_levels not in ("per-output", "shared"):
-            raise SceneError(f"scene {scene!r}: tracking.funnel_levels must be 'per-output' or 'shared', "
-                             f"got {self.funnel_levels!r}")
+        _one_of(self.funnel_levels, ("per-output", "shared"), "tracking.funnel_levels", scene)
         for k, unit in dict(self.units).items():
             if not (isinstance(k, str) and isinstance(unit, str)):
                 raise SceneError(f"scene {scene!r}: tracking.units maps names to unit strings, got {k!r}: {unit!r}")
@@ -176,12 +185,8 @@ class Tracking:
             object.__setattr__(self, name, _frozen(getattr(self, name), f"tracking.{name}", scene))
         for k, v in self.signals.items():
             _callable(v, f"tracking.signals[{k!r}]", scene, optional=False)
-        if self.linearize_at not in ("ends", "start"):
-            raise SceneError(f"scene {scene!r}: tracking.linearize_at must be 'ends' or 'start', "
-                             f"got {self.linearize_at!r}")
-        if self.split not in ("schur", "eig", "eig-unit"):
-            raise SceneError(f"scene {scene!r}: tracking.split must be 'schur', 'eig' or 'eig-unit', "
-                             f"got {self.split!r}")
+        _one_of(self.linearize_at, ("ends", "start"), "tracking.linearize_at", scene)
+        _one_of(self.split, ("schur", "eig", "eig-unit"), "tracking.split", scene)
         for k, factor in self.plant.items():
             if not (isinstance(factor, (int, float)) and math.isfinite(factor) and factor > 0):
                 raise SceneError(f"scene {scene!r}: tracking.plant[{k!r}] must be a positive factor, got {factor!r}")
@@ -243,10 +248,8 @@ class Contact:
         for k, v in self.controllers.items():
             _callable(v, f"contact.controllers[{k!r}]", scene, optional=False)
         _callable(self.initial_state, "contact.initial_state", scene, optional=False)
-        _callable(self.potential, "contact.potential", scene)
-        _callable(self.exact_impacts, "contact.exact_impacts", scene)
-        _callable(self.exact_rest, "contact.exact_rest", scene)
-        _callable(self.clearance, "contact.clearance", scene)
+        for name in ("potential", "exact_impacts", "exact_rest", "clearance"):
+            _callable(getattr(self, name), f"contact.{name}", scene)
         dc = self.default_controller
         if isinstance(dc, str) and dc not in self.controllers:
             raise SceneError(f"scene {scene!r}: contact.default_controller {dc!r} is not one of "
@@ -290,9 +293,7 @@ class Switched:
     plant: str = "rigid_wall"
 
     def _check(self, scene: str) -> None:
-        if self.plant not in SWITCHED_PLANTS:
-            raise SceneError(f"scene {scene!r}: switched.plant must be one of {sorted(SWITCHED_PLANTS)}, "
-                             f"got {self.plant!r}")
+        _one_of(self.plant, sorted(SWITCHED_PLANTS), "switched.plant", scene)
 
     @property
     def wrist(self) -> bool:
@@ -329,9 +330,7 @@ class Report:
 
     def _check(self, scene: str) -> None:
         _callable(self.compute, f"report {self.title!r}: compute", scene, optional=False)
-        if self.command not in ("analyze", "simulate"):
-            raise SceneError(f"scene {scene!r}: report {self.title!r}: command must be 'analyze' or 'simulate', "
-                             f"got {self.command!r}")
+        _one_of(self.command, ("analyze", "simulate"), f"report {self.title!r}: command", scene)
         object.__setattr__(self, "printed", _frozen(self.printed, f"report {self.title!r}: printed", scene))
         object.__setattr__(self, "controllers", tuple(self.controllers))
 
@@ -416,9 +415,7 @@ class Scene:
         _callable(self.drawing, "drawing", name)
         for what in ("params", "settings"):
             values = _frozen(getattr(self, what), what, name)
-            bad = {k: v for k, v in values.items()
-                   if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)}
-            if bad:
+            if bad := _non_numbers(values):
                 raise SceneError(f"scene {name!r}: {what} must map names to finite numbers, got {bad}")
             object.__setattr__(self, what, values)
         both = sorted(set(self.params) & set(self.settings))
@@ -459,9 +456,7 @@ class Scene:
             if not isinstance(pname, str) or not pname.isidentifier():
                 raise SceneError(f"scene {name!r}: preset names must be identifier-like strings, got {pname!r}")
             pvalues = _frozen(pvalues, f"presets[{pname!r}]", name)
-            unknown = sorted(set(pvalues) - set(self.params) - set(self.settings))
-            bad = {k: v for k, v in pvalues.items()
-                   if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)}
+            unknown, bad = sorted(set(pvalues) - set(self.params) - set(self.settings)), _non_numbers(pvalues)
             if unknown or bad:
                 raise SceneError(f"scene {name!r}: preset {pname!r} "
                                  + (f"names unknown values {unknown}" if unknown else f"has non-numbers {bad}"))

@@ -58,3 +58,20 @@ def test_sweep_plot_marks_failures():
     res = sweep(damped_peak, POINTS, executor="serial", progress=False)
     ax = res.plot("overshoot")
     assert "2 failed of 6" in ax.get_title()
+
+
+def test_sweep_and_library_share_the_executor_choice():
+    """A sweep checks its executor as a library does (a ParameterError naming what is accepted, before any point
+    runs); one worker runs in this process, a pool of two is owned and shut down by the caller."""
+    from invctl.errors import ParameterError
+    from invctl.studies.sweep import executor_slots, open_executor
+
+    with pytest.raises(ParameterError, match="concurrent.futures.Executor, a dask.distributed.Client or 'serial'"):
+        sweep(damped_peak, POINTS, executor=object(), progress=False)
+    assert open_executor(None, 1) == (None, False, 1) and open_executor("serial", 8) == (None, False, 1)
+    ex, owned, slots = open_executor(None, 2)
+    try:
+        assert owned and slots == 2 == executor_slots(None, 2)
+    finally:
+        ex.shutdown()
+    _check(sweep(damped_peak, POINTS, max_workers=1, progress=False))

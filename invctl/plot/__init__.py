@@ -53,6 +53,14 @@ def grid(rows: int, cols: int, figsize, *, sharex: bool = False, labelled_rows: 
     return fig, axs
 
 
+def finish(fig, path=None, dpi: float = 120):
+    """``fig`` laid out (``tight_layout``) and, with ``path``, written there at ``dpi``; returns ``fig``."""
+    fig.tight_layout()
+    if path:
+        fig.savefig(path, dpi=dpi)
+    return fig
+
+
 def save(fig, path, dpi: float | None = None) -> Path:
     """Write ``fig`` to ``path`` (format by the suffix) with one draw. Matplotlib's ``savefig`` draws a figure
     with a layout engine (constrained layout, or the placeholder ``tight_layout`` leaves) twice, once to lay it out

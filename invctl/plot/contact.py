@@ -40,23 +40,18 @@ def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = N
     qn = tr.names.get("q", [f"q{i + 1}" for i in range(tr.q.shape[0])])
     for i in coords:
         ax[0, 0].plot(tr.q[i], tr.v[i], lw=0.8, label=qn[i])
-    ax[0, 0].set_xlabel("q")
-    ax[0, 0].set_ylabel("v")
-    ax[0, 0].set_title("phase portrait")
+    ax[0, 0].set(title="phase portrait", xlabel="q", ylabel="v")
     ax[0, 0].legend(fontsize=8)
     gn = tr.names.get("gaps", [f"f{i + 1}" for i in range(tr.gaps.shape[0])])
     for i in range(tr.gaps.shape[0]):
         ax[0, 1].plot(tr.t, tr.gaps[i], lw=0.8, label=gn[i])
     ax[0, 1].axhline(0, color="k", lw=0.5)
-    ax[0, 1].set_title(f"gaps (max violation {tr.max_gap_violation:.2e})")
-    ax[0, 1].set_xlabel("t [s]")
-    ax[0, 1].set_ylabel("gap (units of the gap function)")
+    ax[0, 1].set(title=f"gaps (max violation {tr.max_gap_violation:.2e})", xlabel="t [s]",
+                 ylabel="gap (units of the gap function)")
     ax[0, 1].legend(fontsize=8)
     for i in range(tr.P.shape[0]):
         ax[1, 0].plot(tr.t[:tr.P.shape[1]], tr.P[i], lw=0.8, label=f"P {gn[i]}")
-    ax[1, 0].set_title("impulses per step")
-    ax[1, 0].set_xlabel("t [s]")
-    ax[1, 0].set_ylabel("impulse per step")
+    ax[1, 0].set(title="impulses per step", xlabel="t [s]", ylabel="impulse per step")
     ax[1, 0].legend(fontsize=8)
     ax[1, 1].plot(tr.t, tr.energy, lw=0.8, label="energy")
     ax[1, 1].plot(tr.t, tr.V, lw=0.8, ls="--", label="V")
@@ -66,9 +61,8 @@ def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = N
             ax[1, 1].axvline(t, color="r", lw=0.3, alpha=0.4)
     except Exception:
         pass
-    ax[1, 1].set_title(f"energy and V (max V increase {tr.max_V_increase:.2e})")
-    ax[1, 1].set_xlabel("t [s]")
-    ax[1, 1].set_ylabel("energy, V [J]")
+    ax[1, 1].set(title=f"energy and V (max V increase {tr.max_V_increase:.2e})", xlabel="t [s]",
+                 ylabel="energy, V [J]")
     ax[1, 1].legend(fontsize=8)
     win = active_window(tr)
     if win is not None:     # zoom the time axes to where things happen; say so

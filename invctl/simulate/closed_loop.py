@@ -121,12 +121,6 @@ class ClosedLoopResult(Animated):
     def input_peaks(self) -> np.ndarray:
         return np.max(np.abs(self.u), axis=1)
 
-    def sample(self, t) -> dict:
-        """``q, v, u, y`` at times ``t`` (linear interpolation between the output samples)."""
-        t = np.atleast_1d(np.asarray(t, float))
-        return {k: np.array([np.interp(t, self.t, row) for row in getattr(self, k)])
-                for k in ("q", "v", "u", "y")}
-
     def summary(self) -> dict:
         return {"controller": self.controller, "status": self.status, "success": self.success,
                 "message": self.message, "t_end": float(self.t[-1]) if self.t.size else 0.0,

@@ -16,21 +16,13 @@ from ..scenes import CommandResult, _is_path, load_scene
 
 
 def _load(path):
+    from ..results import load
+
     meta = read_meta(path)
-    kind = meta["kind"]
-    if kind == "ClosedLoopResult":
-        from ..simulate.closed_loop import ClosedLoopResult
-
-        return ClosedLoopResult.load(path), meta
-    if kind == "Inverse":
-        from ..inversion.result import Inverse
-
-        return Inverse.load(path), meta
-    if kind == "ContactTrajectory":
-        from ..simulate.timestepping import ContactTrajectory
-
-        return ContactTrajectory.load(path), meta
-    raise ResultFileError(f"{path}: a {kind} has no mechanism to draw (animate closed-loop, contact or inverse runs)")
+    if meta["kind"] not in ("ClosedLoopResult", "Inverse", "ContactTrajectory"):
+        raise ResultFileError(f"{path}: a {meta['kind']} has no mechanism to draw (animate closed-loop, contact or "
+                              "inverse runs)")
+    return load(path), meta
 
 
 def _positive(name: str, value) -> float:

@@ -390,12 +390,9 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
     out.mkdir(parents=True, exist_ok=True)
     result.to_csv(out / f"{stem}.csv")
     result.to_json(out / f"{stem}.json")
-    import matplotlib.pyplot as plt
+    from ..plot import close, finish
 
-    ax = result.plot()
-    ax.figure.tight_layout()
-    ax.figure.savefig(out / f"{stem}.png", dpi=120)
-    plt.close(ax.figure)
+    close(finish(result.plot().figure, out / f"{stem}.png"))
     data = result.to_dict()
     data["files"] = {ext: str(out / f"{stem}.{ext}") for ext in ("csv", "json", "png")}
     return CommandResult(result.table() + f"\nwritten: {out / f'{stem}.csv'}, .json, .png", data)

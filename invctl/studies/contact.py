@@ -33,7 +33,7 @@ from ..errors import DimensionError, ParameterError, RunInterrupted, SceneError,
 from ..scenes import CommandResult
 from . import pipeline
 from .pipeline import Step
-from .reports import run_reports
+from .reports import add_reports, run_reports, write_run
 
 if TYPE_CHECKING:
     from ..control.pdplus import FeedbackLaw
@@ -107,20 +107,11 @@ def _values(scene, params, settings) -> dict:
 def contact_setup(scene, params=None, settings=None, *, controller=None, plant_params=None, model=None) -> ContactRun:
     """Model (``model``: already built from ``params``), plant, law and initial state of a contact scene's run."""
     from ..control.pdplus import zero_input
+    from .tracking import plant_of
 
     params, settings = dict(params or {}), dict(settings or {})
     model = scene.model(params) if model is None else model
-    plant_params = dict(plant_params or {})
-    unknown = sorted(set(plant_params) - set(model.values))
-    if unknown:
-        raise ParameterError(f"--plant-set: unknown plant parameter(s) {unknown}; known: {sorted(model.values)}")
-    plant = model.with_params(**plant_params) if plant_params else model
-    if plant_params:
-        scene.check_values({**scene.params, **scene.settings, **{k: v for k, v in plant.values.items()
-                                                                 if k in scene.params}})
-        from .tracking import validate_plant
-
-        validate_plant(plant, plant_params)
+    plant = plant_of(scene, model, plant_params, plant_factors={})
     c = _contact(scene)
     name = c.controller_for(model, settings, controller)
     why = c.unmet(name, _values(scene, params, settings))
@@ -325,6 +316,7 @@ def _prop3_conditions(run: ContactRun, idx, q_d) -> dict:
 
 
 def _summary(run: ContactRun) -> tuple[list, dict]:
+    """Report lines and data of a run: statistics, the law's report and the scene's declared reports."""
     tr = run.result
     ti = tr.impact_times
     lines = [f"{run.scene.name}: controller {run.controller}, h = {tr.h:g} s, t_end = {tr.t[-1]:.6g} s",
@@ -344,7 +336,11 @@ def _summary(run: ContactRun) -> tuple[list, dict]:
         lines.append(f"recorded {tr.t.size} of {tr.stats['steps'] + 1} steps ({data['record']}, every "
                      f"{data['record_every']}; statistics and impacts exact; --record-every 1 records all)")
     law_lines, law_data = law_report(run)
-    return lines + law_lines, {**data, **law_data}
+    lines, data = lines + law_lines, {**data, **law_data}
+    if rdata := add_reports(lines, run.scene, run.model, run.params, run.settings, "simulate", result=run.trajectory,
+                            controller=run.controller):
+        data["reports"] = rdata
+    return lines, data
 
 
 def simulate(bound, *, controller=None, plant_params=None, t_end=None, out=None, plot=None, quiet=False,
@@ -356,20 +352,8 @@ def simulate(bound, *, controller=None, plant_params=None, t_end=None, out=None,
                                     model=bound.model),
                       t_end=t_end, progress=None if not quiet else False, record_every=record_every, record=record)
     lines, data = _summary(run)
-    rtext, rdata = run_reports(scene, run.model, params, run.settings, "simulate", result=run.trajectory,
-                               controller=run.controller)
-    if rtext:
-        lines.append(rtext)
-        data["reports"] = rdata
-    if out:
-        data["out"] = str(run.result.to_npz(out, meta=run.meta()))
-        lines.append(f"trajectory written to {data['out']}")
-    if plot:
-        from ..plot import close
-
-        close(run.result.plot(plot, title=f"{scene.name} ({run.controller})"))
-        data["plot"] = str(plot)
-        lines.append(f"figure written to {plot}")
+    write_run(lines, data, run.result, out=out, meta=run.meta(), plot=plot, what="trajectory", indent="",
+              draw=lambda p: run.result.plot(p, title=f"{scene.name} ({run.controller})"))
     return CommandResult("\n".join(lines), data, run.trajectory)
 
 
@@ -409,11 +393,6 @@ class Session(pipeline.Session):
             raise
         self._runs[name] = run
         lines, data = _summary(run)
-        rtext, rdata = run_reports(self.scene, run.model, self.params, run.settings, "simulate",
-                                   result=run.trajectory, controller=name)
-        if rtext:
-            lines.append(rtext)
-            data["reports"] = rdata
         return Step(run.trajectory, lines + [""], data)
 
     def meta(self, name):

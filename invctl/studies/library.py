@@ -31,10 +31,9 @@ import hashlib
 import heapq
 import json
 import math
-import os
 import sys
 import time
-from concurrent.futures import FIRST_COMPLETED, Executor, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
@@ -43,6 +42,7 @@ import numpy as np
 
 from ..errors import INTERRUPT_LIKE, InvctlError, ParameterError, RunInterrupted, check_interrupt, is_interrupt
 from .library_data import Axis, Library, LibraryStore, grid_counts, reference_arguments, resolve_axes
+from .sweep import executor_slots, open_executor
 
 
 # ------------------------------------------------------------------ the work of one point
@@ -253,31 +253,10 @@ def _neighbours(shape):
     return out
 
 
-def _executor(executor, max_workers):
-    """``(executor, owned, slots)``: a process pool by default, a Dask client's executor, or ``None`` (serial)."""
-    if executor == "serial":
-        return None, False, 1
-    if executor is None:
-        n = max_workers or os.cpu_count() or 1
-        if n <= 1:
-            return None, False, 1
-        return ProcessPoolExecutor(max_workers=n), True, n
-    if hasattr(executor, "get_executor") and not isinstance(executor, Executor):  # dask.distributed.Client
-        try:
-            slots = sum(executor.nthreads().values())
-        except Exception:
-            slots = os.cpu_count() or 1
-        return executor.get_executor(), False, max(1, slots)
-    if not isinstance(executor, Executor):
-        raise ParameterError(f"executor must be a concurrent.futures.Executor, a dask.distributed.Client or "
-                             f"'serial', got {type(executor).__name__}")
-    return executor, False, max(1, getattr(executor, "_max_workers", None) or os.cpu_count() or 1)
-
-
 def _run(ctx, points, norm, seed_pos, done: dict, todo: list, *, continuation, verify_mask, executor, max_workers,
          on_record: Callable, shape):
     """Solve ``todo`` (flat indices) in a wavefront from the base; ``done`` holds solved records."""
-    ex, owned, slots = _executor(executor, max_workers)
+    ex, owned, slots = open_executor(executor, max_workers)
     nbrs = _neighbours(shape)
     pending = set(todo)
     ready: list = []
@@ -406,7 +385,7 @@ def generate(scene, grid, *, params=None, out=None, executor=None, max_workers: 
     if verify not in ("all", "corners", "none"):
         raise ParameterError(f"verify must be 'all', 'corners' or 'none', got {verify!r}")
     params, _ = scene.split(params)
-    slots = _slots(executor, max_workers)
+    slots = executor_slots(executor, max_workers)
     check_library_size(scene, params, grid_counts(grid), N, scheme, slots)  # before any value is materialized
     axes = resolve_axes(scene, grid)
     shape = tuple(len(a.values) for a in axes)
@@ -541,20 +520,6 @@ def _interrupted(store, axes, points, done) -> RunInterrupted:
                                            "out": None if store is None else str(store.path)})
     exc.saved = [str(s) for s in saved]
     return exc
-
-
-def _slots(executor, max_workers) -> int:
-    """How many points run at once (as :func:`_executor` will decide), without starting workers."""
-    if executor == "serial":
-        return 1
-    if executor is None:
-        return max(1, max_workers or os.cpu_count() or 1)
-    if hasattr(executor, "nthreads"):
-        try:
-            return max(1, sum(executor.nthreads().values()))
-        except Exception:
-            return 1
-    return max(1, getattr(executor, "_max_workers", None) or 1)
 
 
 #: Lower bounds of a point's cost, per collocation interval: the Newton continuation measured 0.13 ms

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import LibraryError, OutputPathError, ParameterError, ResultFileError
+from ..plot import finish
 
 if TYPE_CHECKING:
     from ..inversion import Inverse
@@ -401,10 +402,7 @@ class Library:
                     np.zeros(v.shape[0]), "rx", ms=9, mew=2, label="failed")
             ax.legend(fontsize=8)
         ax.set_title(f"{self.counts()['solved']} of {len(self.status)} solved")
-        fig.tight_layout()
-        if path is not None:
-            fig.savefig(path, dpi=120)
-        return fig
+        return finish(fig, path)
 
     # ------------------------------------------------------------ files
     def save(self, path) -> Path:
@@ -543,10 +541,9 @@ class LibraryStore:
         if not f.is_file():
             raise ResultFileError(f"{self.path}: no library.json (an unfinished library: run generate again "
                                   "with the same settings to finish it)")
-        try:
-            return json.loads(f.read_text())
-        except (OSError, ValueError) as exc:
-            raise ResultFileError(f"{f}: cannot read ({exc})") from None
+        from ..io import read_json
+
+        return read_json(f, "library index")
 
     def _mismatch(self, what: str, found) -> None:
         raise OutputPathError(f"--out {self.path}: {what} holds a library of other settings (key {found}, this run "

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InvctlError, ParameterError
+from ..plot import finish
 
 
 @dataclass
@@ -80,10 +81,7 @@ class RobustnessTable:
         ax.set_xlabel(f"int ||e - e_nominal|| dt  (parameter error +-{100 * self.info['relative']:g} %)")
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3, axis="x")
-        fig.tight_layout()
-        if path is not None:
-            fig.savefig(path, dpi=120)
-        return fig
+        return finish(fig, path)
 
 
 def _deviation(res, e0, t0):

@@ -72,3 +72,31 @@ def run_reports(scene, model, params, settings, command: str, *, result=None, co
             entry["printed"] = dict(rep.printed)
         data[rep.title] = entry
     return "\n".join(lines), data
+
+
+def add_reports(lines: list, scene, model, params, settings, command: str, **run) -> dict:
+    """:func:`run_reports`, its text appended to ``lines``; returns its data (empty: no report applies)."""
+    text, data = run_reports(scene, model, params, settings, command, **run)
+    if text:
+        lines.append(text)
+    return data
+
+
+def write_run(lines: list, data: dict, run, *, out=None, meta=None, plot=None, draw=None, what: str = "run",
+              indent: str = "  ") -> None:
+    """Write ``run`` to ``out`` (CSV when the name ends in ``.csv`` and the run has ``to_csv``, else ``.npz`` with
+    ``meta``) and the figure to ``plot`` (``draw(plot)``, default ``run.plot(plot)``) when asked, noting both in
+    ``lines`` and ``data`` (``run`` may be None when only a figure is drawn)."""
+    if out:
+        if str(out).lower().endswith(".csv") and hasattr(run, "to_csv"):
+            run.to_csv(out)
+        else:
+            out = run.to_npz(out, meta=meta)
+        data["out"] = str(out)
+        lines.append(f"{indent}{what} written to {out}")
+    if plot:
+        from ..plot import close
+
+        close(draw(plot) if draw else run.plot(plot))
+        data["plot"] = str(plot)
+        lines.append(f"{indent}figure written to {plot}")

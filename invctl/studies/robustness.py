@@ -26,6 +26,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import ParameterError, SceneError
+from ..plot import finish
 from .sweep import SweepResult, grid, sweep
 
 _CACHE: dict[Any, Any] = {}
@@ -52,10 +53,16 @@ def _load(scene: str, kind: str, what: str):
     return sc
 
 
-def _run_sweep(fn, grids: dict, *, executor, max_workers, progress, label: str, meta: dict) -> SweepResult:
+def _run_sweep(point, sc, grids: dict, run: tuple, label: str, meta: dict, **fixed) -> SweepResult:
+    """``point(scene=..., **fixed, **values)`` over the grid of ``grids`` (``run``: executor, max_workers,
+    progress), workers loading scene ``sc`` by its reference."""
+    from ..scenes import scene_reference
+
+    fn = functools.partial(point, scene=scene_reference(sc), **fixed)
+    executor, max_workers, progress = run
     res = sweep(fn, grid(**{k: list(v) for k, v in grids.items()}), executor=executor, max_workers=max_workers,
-                progress=progress, label=label)
-    res.meta.update(meta)
+                progress=progress, label=f"{sc.name} {label}")
+    res.meta.update({"scene": sc.name, **meta})
     return res
 
 
@@ -102,18 +109,14 @@ def plant_mismatch(scene: str, *, controller: str = "C1", t_end=None, params=Non
     """A tracking scene's closed loop over plant mismatches: plant = reference model (``params``) with
     its parameters multiplied by the grid's factors, e.g. ``plant_mismatch("manipulator", m3=[1, 1.2],
     m2=[0.8, 1.2])`` (derived parameters follow)."""
-    from ..scenes import scene_reference
-
     sc = _load(scene, "tracking", "plant_mismatch")
     sc.require("simulate")
     model = sc.model(params)
     _known(factors, model.values, "plant_mismatch: give factors of the plant's parameters, e.g. m3=[1.0, 1.2]")
-    fn = functools.partial(mismatch_point, scene=scene_reference(sc), controller=controller, t_end=t_end,
-                           params=tuple(sorted(dict(params or {}).items())))
-    return _run_sweep(fn, factors, executor=executor, max_workers=max_workers, progress=progress,
-                      label=f"{sc.name} plant mismatch {controller}",
-                      meta={"study": "plant_mismatch", "scene": sc.name, "controller": controller,
-                            "labels": {k: f"{k} factor (plant / model)" for k in factors}})
+    return _run_sweep(mismatch_point, sc, factors, (executor, max_workers, progress), f"plant mismatch {controller}",
+                      {"study": "plant_mismatch", "controller": controller,
+                       "labels": {k: f"{k} factor (plant / model)" for k in factors}},
+                      controller=controller, t_end=t_end, params=tuple(sorted(dict(params or {}).items())))
 
 
 # ------------------------------------------------------------ switched (002)
@@ -140,17 +143,14 @@ def switched_lambda_map(scene: str, *, params=None, executor=None, max_workers: 
     """Lambda of a switched scene over a grid of two of its parameters (others: the scene's, updated by
     ``params``), e.g. ``switched_lambda_map("compliant_wrist", kt=[...], bt=[...])``; ``Lambda`` is NaN
     where a visible eigenvector exists (no rotation)."""
-    from ..scenes import scene_reference
-
     sc = _load(scene, "switched", "switched_lambda_map")
     _two(grids, "switched_lambda_map")
     unknown = sorted(set(grids) - set(sc.params))
     if unknown:
         raise ParameterError(f"{sc.name}: unknown parameter(s) {unknown}; known: {sorted(sc.params)}")
-    fn = functools.partial(lambda_map_point, scene=scene_reference(sc), params=tuple(sorted(dict(params or {}).items())))
-    return _run_sweep(fn, grids, executor=executor, max_workers=max_workers, progress=progress,
-                      label=f"{sc.name} Lambda map",
-                      meta={"study": "switched_lambda_map", "scene": sc.name, "labels": {k: k for k in grids}})
+    return _run_sweep(lambda_map_point, sc, grids, (executor, max_workers, progress), "Lambda map",
+                      {"study": "switched_lambda_map", "labels": {k: k for k in grids}},
+                      params=tuple(sorted(dict(params or {}).items())))
 
 
 # ----------------------------------------------------------------- contact
@@ -180,16 +180,11 @@ def contact_grid(scene: str, *, controller=None, t_end=None, base=None, executor
                  max_workers: int | None = None, progress: bool = True, **grids) -> SweepResult:
     """A contact scene's run over a grid of its parameters and settings, e.g.
     ``contact_grid("prismatic_clearance", e=[0, 0.5, 1], L=[0.1 + 1e-6, 0.11])``."""
-    from ..scenes import scene_reference
-
     sc = _load(scene, "contact", "contact_grid")
     _known(grids, {**sc.params, **sc.settings}, f"{sc.name}: give grids of parameters or settings")
-    fn = functools.partial(contact_point, scene=scene_reference(sc), controller=controller, t_end=t_end,
-                           base=tuple(sorted(dict(base or {}).items())))
-    return _run_sweep(fn, grids, executor=executor, max_workers=max_workers, progress=progress,
-                      label=f"{sc.name} grid",
-                      meta={"study": "contact_grid", "scene": sc.name, "controller": controller, "t_end": t_end,
-                            "labels": {k: k for k in grids}})
+    return _run_sweep(contact_point, sc, grids, (executor, max_workers, progress), "grid",
+                      {"study": "contact_grid", "controller": controller, "t_end": t_end, "labels": {k: k for k in grids}},
+                      controller=controller, t_end=t_end, base=tuple(sorted(dict(base or {}).items())))
 
 
 # ------------------------------------------------------------------- figure
@@ -201,7 +196,4 @@ def plot_sweep(res: SweepResult, keys: Sequence[str], path=None, *, log: Sequenc
     fig, axes = plt.subplots(1, len(keys), figsize=(5.2 * len(keys), 4.2), squeeze=False)
     for ax, key in zip(axes[0], keys):
         res.plot(key, ax=ax, log=key in log, contour=(contour or {}).get(key))
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig
+    return finish(fig, path)

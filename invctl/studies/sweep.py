@@ -20,7 +20,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import INTERRUPT_LIKE, is_interrupt
+from ..errors import INTERRUPT_LIKE, ParameterError, is_interrupt
 
 
 def grid(**axes: Sequence[float]) -> tuple[list[dict[str, float]], tuple[int, ...]]:
@@ -168,10 +168,34 @@ def _call(fn: Callable[..., Mapping[str, Any]], point: Mapping[str, Any]):
         return None, f"{type(exc).__name__}: {exc}"
 
 
-def _as_executor(executor):
-    if executor is not None and hasattr(executor, "get_executor") and not isinstance(executor, Executor):
-        return executor.get_executor(), False  # dask.distributed.Client
-    return executor, False
+def executor_slots(executor, max_workers) -> int:
+    """How many points run at once on ``executor`` (as :func:`open_executor` decides), without starting workers."""
+    if executor == "serial":
+        return 1
+    if executor is None:
+        return max(1, max_workers or os.cpu_count() or 1)
+    if hasattr(executor, "get_executor") and not isinstance(executor, Executor):  # dask.distributed.Client
+        try:
+            return max(1, sum(executor.nthreads().values()))
+        except Exception:
+            return os.cpu_count() or 1
+    return max(1, getattr(executor, "_max_workers", None) or os.cpu_count() or 1)
+
+
+def open_executor(executor, max_workers):
+    """``(executor, owned, slots)``: a process pool by default (``max_workers`` processes, default the CPU count),
+    a Dask client's executor, the given executor, or ``None`` (serial: ``"serial"`` or one process)."""
+    slots = executor_slots(executor, max_workers)
+    if executor == "serial" or (executor is None and slots <= 1):
+        return None, False, 1
+    if executor is None:
+        return ProcessPoolExecutor(max_workers=slots), True, slots
+    if hasattr(executor, "get_executor") and not isinstance(executor, Executor):  # dask.distributed.Client
+        return executor.get_executor(), False, slots
+    if not isinstance(executor, Executor):
+        raise ParameterError(f"executor must be a concurrent.futures.Executor, a dask.distributed.Client or "
+                             f"'serial', got {type(executor).__name__}")
+    return executor, False, slots
 
 
 def sweep(
@@ -192,7 +216,7 @@ def sweep(
     points : list of dict, or the ``(points, shape)`` pair from :func:`grid`
     executor : concurrent.futures.Executor or dask.distributed.Client, optional
         Where to run.  Default: a local process pool (``max_workers``
-        processes, default the CPU count); ``"serial"`` runs in this process.
+        processes, default the CPU count; one runs in this process); ``"serial"`` runs in this process.
     progress : bool
         Print ``label: done/total`` lines to stderr.
 
@@ -219,8 +243,9 @@ def sweep(
             print(f"{label}: {done}/{len(pts)} points ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
 
     finished = [False] * len(pts)
+    ex, owned, _ = open_executor(executor, max_workers)
     try:
-        if executor == "serial":
+        if ex is None:
             from ..errors import check_interrupt, watch_sigint
 
             for i, p in enumerate(pts):
@@ -232,10 +257,6 @@ def sweep(
                 finished[i] = True
                 report(i + 1)
         else:
-            owned = executor is None
-            ex, _ = _as_executor(executor)
-            if owned:
-                ex = ProcessPoolExecutor(max_workers=max_workers or os.cpu_count())
             futures = {}
             try:
                 futures = {ex.submit(_call, fn, p): i for i, p in enumerate(pts)}

@@ -13,6 +13,7 @@ from ..errors import OptionError, RunInterrupted, SceneError, StabilityError
 from ..scenes import CommandResult
 from . import pipeline
 from .pipeline import Step
+from .reports import write_run
 from .switched import (design_bf_min, design_bt_min, design_bt_visible, design_kt_max, effective_wall, error_system,
                        lambda_map, lambda_point, lambda_sweep, reduction_check, simulate_scenario)
 
@@ -76,8 +77,9 @@ def _figure(sim, red, path) -> None:
     import matplotlib.pyplot as plt
 
     from ..plot import save
+    from ..plot.switched import plot_simulation
 
-    fig = sim.plot() if red is None else _plot_fig7(sim, red)[0].figure
+    fig = sim.plot() if red is None else plot_simulation(sim, overlay=red, overlay_label="(reduced)")[0].figure
     save(fig, path)
     plt.close(fig)
 
@@ -89,44 +91,27 @@ def simulate(bound, *, controller=None, plant_params=None, t_end=None, out=None,
         raise SceneError(f"scene {bound.scene.name!r} has one controller, the switched law 002 (3); "
                          "--controller is not applicable (change its gains with --set kp=..., bf=...)")
     sim, red, text, data = _run(bound, t_end)
-    if out:
-        if str(out).lower().endswith(".csv"):
-            sim.to_csv(out)
-            written = out
-        else:
-            written = sim.to_npz(out)
-        data["out"] = str(written)
-        text += f"\n  trajectory written to {written}"
-    if plot:
-        _figure(sim, red, plot)
-        text += f"\n  figure written to {plot}"
-    return CommandResult(text, data, sim)
-
-
-def _plot_fig7(full, reduced):
-    from ..plot.switched import plot_simulation
-
-    return plot_simulation(full, overlay=reduced, overlay_label="(reduced)")
+    lines = [text]
+    write_run(lines, data, sim, out=out, plot=plot, what="trajectory", draw=lambda p: _figure(sim, red, p))
+    return CommandResult("\n".join(lines), data, sim)
 
 
 def design(bound, *, plot=None) -> CommandResult:
     """Smallest bt, largest kt (wrist) or smallest bf (rigid wall) with GUAS."""
     scene, p = bound.scene, bound.model.params
-    name = scene.name
-    data: dict = {}
-    lines = [f"scene {name}: design by Theorem 1 (002 Sect. 5.3)"]
+    q = lambda_point(p)
+    data: dict = {"Lambda": None if q.visible else q.Lambda, "visible_eigenvector": q.visible, "guas": q.guas,
+                  "bf": p["bf"]}
+    lines = [f"scene {scene.name}: design by Theorem 1 (002 Sect. 5.3)"]
     if not scene.switched.wrist:
         bf_min = design_bf_min(p)
         data["bf_min"] = bf_min
         data["bf_min_numerical"] = design_bf_min(p, method="numerical")
-        q = lambda_point(p)
-        data.update({"Lambda": None if q.visible else q.Lambda, "visible_eigenvector": q.visible,
-                     "guas": q.guas, "bf": p["bf"]})
         lines.append(f"  smallest controller damping bf with GUAS: {bf_min:.8g} Ns/m "
                      f"(numerical return map: {data['bf_min_numerical']:.8g})")
         lines.append(f"  at bf = {p['bf']:.6g}: " + ("visible eigenvector" if q.visible else
                                                      f"Lambda = {q.Lambda:.6g}") + f", GUAS {q.guas}")
-    if scene.switched.wrist:
+    else:
         bt_min = design_bt_min(p)
         data["bt_min"] = bt_min
         data["bt_min_numerical"] = design_bt_min(p, method="numerical")
@@ -136,9 +121,7 @@ def design(bound, *, plot=None) -> CommandResult:
             data["bt_visible"] = design_bt_visible(p)
         except StabilityError:
             data["bt_visible"] = None
-        q = lambda_point(p)
-        data.update({"Lambda": None if q.visible else q.Lambda, "visible_eigenvector": q.visible,
-                     "guas": q.guas, "kt": p["kt"], "bt": p["bt"], "bf": p["bf"]})
+        data.update({"kt": p["kt"], "bt": p["bt"]})
         bt_txt = (f"GUAS already at the lower end of the search, bt = {bt_min:.6g}" if bt_min <= 1.0 else
                   f"bt_min = {bt_min:.8g} Ns/m (numerical return map: {data['bt_min_numerical']:.8g})")
         kt_txt = (f"GUAS up to the end of the search, kt = {data['kt_max']:.6g} N/m" if data["kt_max"] >= 1e9 else
@@ -156,8 +139,7 @@ def design(bound, *, plot=None) -> CommandResult:
                                                       f"Lambda = {q.Lambda:.6g}") + f", GUAS {q.guas}",
         ]
     if plot:
-        import matplotlib.pyplot as plt
-
+        from ..plot import close, save
         from ..plot.switched import plot_lambda_curve, plot_lambda_map
 
         if scene.switched.wrist:
@@ -166,11 +148,9 @@ def design(bound, *, plot=None) -> CommandResult:
         else:
             sw = lambda_sweep(p, "bf", np.geomspace(1, 1e5, 120))
             ax = plot_lambda_curve(sw["values"], sw["Lambda"], sw["visible"])
-        from ..plot import save
-
         ax.figure.tight_layout()
         save(ax.figure, plot)
-        plt.close(ax.figure)
+        close(ax)
         lines.append(f"  figure written to {plot}")
     return CommandResult("\n".join(lines), data)
 

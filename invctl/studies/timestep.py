@@ -12,12 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-
-def fitted_slope(h, err) -> float:
-    """Least-squares slope of ``log(err)`` against ``log(h)``."""
-    h, err = np.asarray(h, float), np.asarray(err, float)
-    ok = err > 0
-    return float(np.polyfit(np.log(h[ok]), np.log(err[ok]), 1)[0]) if ok.sum() >= 2 else float("nan")
+from ..plot import finish
+from .tradeoff_specs import fitted_order
 
 
 @dataclass
@@ -61,10 +57,7 @@ class TimestepStudy:
         ax[2].set_title("compiled loop: steps/s")
         for a in ax:
             a.grid(True, which="both", alpha=0.3)
-        fig.tight_layout()
-        if path:
-            fig.savefig(path, dpi=120)
-        return fig
+        return finish(fig, path)
 
 
 def timestep_study(stepper, stepper_projected, q0, v0, t_end, hs, ref_times, ref_post, *, n_impacts: int = 3,
@@ -87,5 +80,5 @@ def timestep_study(stepper, stepper_projected, q0, v0, t_end, hs, ref_times, ref
         penp.append(stepper_projected.run(q0, v0, t_end, h, **run_kw).max_gap_violation
                     if stepper_projected is not None else np.nan)
     eta, eva = np.array(et), np.array(ev)
-    return TimestepStudy(hs, eta, eva, np.array(pen), np.array(penp), np.array(sps), fitted_slope(hs, eta),
-                         fitted_slope(hs, eva), reference)
+    return TimestepStudy(hs, eta, eva, np.array(pen), np.array(penp), np.array(sps), fitted_order(hs, eta),
+                         fitted_order(hs, eva), reference)

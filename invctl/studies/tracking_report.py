@@ -14,10 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import FunnelViolation
 from ..scenes import CommandResult
 from . import pipeline
 from .pipeline import Step
+from .reports import add_reports, write_run
 from .tracking import (CONTROLLERS, NEEDS_INVERSE, check_controller, compare_runs, design_configuration,
                        invert_tracking, run_controller, setup_tracking, tracking_linearization, tracking_model)
 
@@ -28,13 +28,6 @@ ANIMATION_FPS = 20
 def _fmt(M) -> str:
     M = np.atleast_2d(M)
     return "[" + "; ".join(" ".join(f"{v:10.5g}" for v in row) for row in M) + "]"
-
-
-def _reports(scene, model, params, settings, command, result=None, controller=None):
-    """Text and data of the scene's declared reports for ``command``."""
-    from .reports import run_reports
-
-    return run_reports(scene, model, params, settings, command, result=result, controller=controller)
 
 
 # ------------------------------------------------------------------ analyze
@@ -116,9 +109,7 @@ def analyze(bound, *, samples: int = 200) -> CommandResult:
             f"part {rep['min_eig_sym']:.3g}, at the design point {rep['min_eig_at_design_point']:.3g})")
     if res["eta2_ref0"] is not None:
         lines.append(f"  eta2_ref^0 by (43): {np.round(res['eta2_ref0'], 6).tolist()}")
-    rtext, rdata = _reports(scene, model, params, {}, "analyze")
-    if rtext:
-        lines.append(rtext)
+    rdata = add_reports(lines, scene, model, params, {}, "analyze")
     lines.append(f"analysis time {wall:.3f} s")
     data = {
         "scene": scene.name, "params": dict(model.values), "relative_degree": list(rd.r_aux), "r_hat": rd.r_hat,
@@ -158,9 +149,7 @@ def _analyze_flat(scene, model, ref, point, samples, t0) -> CommandResult:
         "internal dynamics: none (r_bar = 2n): the output is flat; the state and the input are algebraic "
         f"functions of y_ref and its first {rd.r_hat} derivatives (no pre- or post-actuation)",
     ]
-    rtext, rdata = _reports(scene, model, {}, {}, "analyze")
-    if rtext:
-        lines.append(rtext)
+    rdata = add_reports(lines, scene, model, {}, {}, "analyze")
     wall = time.perf_counter() - t0
     lines.append(f"analysis time {wall:.3f} s")
     data = {"scene": scene.name, "params": dict(model.values), "relative_degree": list(rd.r_aux), "r_hat": rd.r_hat,
@@ -204,9 +193,7 @@ def invert(bound, *, N=None, scheme=None, tol=None, backend=None, out=None,
         "max_output_error": fc["error"], "forward_check": {k: fc[k] for k in ("error", "t_worst", "window", "windows", "rate")},
         "residuals": res, "max_u_pre_actuation": pre, "params": dict(params or {}), "plan": d.get("plan"),
     }
-    if "meshes" in d:
-        data["meshes"] = d["meshes"]
-    for key in ("bounds", "tracking", "free_time"):
+    for key in ("meshes", "bounds", "tracking", "free_time"):
         if key in d:
             data[key] = d[key]
     if d.get("method") == "normal-form":
@@ -306,12 +293,9 @@ def design(bound, *, plot=None) -> CommandResult:
              "  " + d.describe().replace("\n", "\n  ")]
     data = d.to_dict()
     if plot:
-        from ..plot import close
         from ..plot.tracking import plot_funnels
 
-        close(plot_funnels(c, setup.t_end, plot))
-        data["plot"] = str(plot)
-        lines.append(f"  figure written to {plot}")
+        write_run(lines, data, None, plot=plot, draw=lambda p: plot_funnels(c, setup.t_end, p))
     return CommandResult("\n".join(lines), data, d)
 
 
@@ -367,23 +351,9 @@ def simulate(bound, *, controller=None, plant_params=None, t_end=None, out=None,
               f"  max constraint drift = {s['max_constraint_drift']:.3g}",
               f"  closed loop {s['wall_s']:.3f} s wall (setup {wall_total - s['wall_s']:.2f} s)"]
     data = {**s, "setup_timings": setup.timings, "total_wall_s": wall_total, "plant": plant_diff}
-    rtext, rdata = _reports(scene, setup.model, params, settings, "simulate", result=res, controller=name)
-    if rtext:
-        lines.append(rtext)
+    if rdata := add_reports(lines, scene, setup.model, params, settings, "simulate", result=res, controller=name):
         data["reports"] = rdata
-    if out:
-        if str(out).lower().endswith(".csv"):
-            res.to_csv(out)
-        else:
-            res.to_npz(out, meta={**setup.meta(), "controller": name})
-        data["out"] = str(out)
-        lines.append(f"  run written to {out}")
-    if plot:
-        from ..plot import close
-
-        close(res.plot(plot))
-        data["plot"] = str(plot)
-        lines.append(f"  figure written to {plot}")
+    write_run(lines, data, res, out=out, meta={**setup.meta(), "controller": name}, plot=plot)
     return CommandResult("\n".join(lines), data, res)
 
 
@@ -402,10 +372,7 @@ class Session(pipeline.Session):
     def run(self, name):
         if not self.quiet:
             print(f"simulating {name} ({CONTROLLERS.get(name, '?')}) ...", file=sys.stderr)
-        try:
-            res = run_controller(self.setup, name)
-        except FunnelViolation as exc:  # kept, truncated at the violation, and reported
-            res = exc.partial
+        res = run_controller(self.setup, name, raise_on_violation=False)  # kept, truncated at a violation
         return Step(res, [], res.summary())
 
     def meta(self, name):

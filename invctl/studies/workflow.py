@@ -255,19 +255,9 @@ _MEMORY_SHARE = 0.75
 def usable_memory() -> float:
     """Bytes a run may plan to use: 75 % of the available memory (``MemAvailable``), or
     ``INVCTL_MAX_MEMORY`` (bytes, e.g. ``4e9``) when that is smaller."""
-    avail = math.inf
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    avail = float(line.split()[1]) * 1024
-                    break
-    except OSError:
-        try:
-            avail = float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-        except (ValueError, OSError, AttributeError):
-            pass
-    limit = _MEMORY_SHARE * avail
+    from ..simulate.contact_record import available_memory
+
+    limit = _MEMORY_SHARE * available_memory()
     env = os.environ.get("INVCTL_MAX_MEMORY")
     if env:
         try:
