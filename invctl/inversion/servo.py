@@ -453,6 +453,9 @@ def _decoupling_scales(model, Q) -> np.ndarray:
     C = C.reshape(C.shape[0], K, n).transpose(1, 0, 2)
     W = W.reshape(n, K, -1).transpose(1, 0, 2)
     CMinvT = np.linalg.solve(M, C.transpose(0, 2, 1))
+    if CMinvT.shape == W.shape:  # both 2-norms from one batched SVD
+        sv = np.linalg.svd(np.concatenate([CMinvT, W]), compute_uv=False)[:, 0]
+        return sv[:K] * sv[K:]
     return np.linalg.norm(CMinvT, 2, axis=(1, 2)) * np.linalg.norm(W, 2, axis=(1, 2))
 
 
