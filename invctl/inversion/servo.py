@@ -174,8 +174,9 @@ class ServoModel:
         self.omega = float(omega)
         self.layout = Layout(model.n, model.ell, model.p, model.m)
 
-    @property
+    @cached_property
     def names(self) -> dict[str, list[str]]:
+        """Entry names per block (read by every selection and plan: built once; do not modify)."""
         md = self.model
         return {"q": list(md.q_names), "v": [f"{s}_dot" for s in md.q_names],
                 "lam": [f"lam{i + 1}" for i in range(md.ell)], "mu": [f"mu{i + 1}" for i in range(md.p)],

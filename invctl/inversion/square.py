@@ -196,7 +196,7 @@ def make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta, dX=No
         dX = sch.mesh_slopes(Xmesh, lambda: rhs(Xmesh, servo.reference_samples(reference, t_mesh), theta)[0])
     L = servo.layout
     return Inverse(sch.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
-                   reference.t0, reference.tf, servo.names, {}, y_ref_fn=reference)
+                   reference.t0, reference.tf, {k: list(v) for k, v in servo.names.items()}, {}, y_ref_fn=reference)
 
 
 def residuals(inv: Inverse, servo, reference, theta, samples_per_interval: int = 4, tr=None) -> dict:
