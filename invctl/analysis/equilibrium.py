@@ -43,6 +43,7 @@ class EquilibriumSolver:
         self._Fd = ca.Function("equilibrium_dense", [w, y, md.theta], [res, ca.densify(ca.jacobian(res, w))])
         self.sizes = (n, l, p, m)
         self._one = None  # _Fd through buffers (numpy in and out, no DM conversions)
+        self._maps: dict = {}  # _Fd mapped over K points through buffers, once per K (re-solves of a held inversion)
 
     def _at(self, K: int):
         """``_Fd`` at one point (``K = 0``) or mapped over ``K`` points (theta shared), called through
@@ -50,7 +51,9 @@ class EquilibriumSolver:
         from ..inversion.servo import Buffered, buffered_map
 
         if K:
-            return buffered_map(self._Fd, K, once=(2,))
+            if K not in self._maps:
+                self._maps[K] = buffered_map(self._Fd, K, once=(2,))
+            return self._maps[K]
         if self._one is None:
             self._one = Buffered(self._Fd)
         return self._one
