@@ -476,13 +476,13 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
     n, th = model.n, model.theta_values
     q0 = np.zeros(n) if q_guess is None else np.asarray(q_guess, float)
     # the quasi-static path (checks the decoupling matrix along it) and the equilibria
-    G = quasi_static_guess(model, reference, np.linspace(t0, tf, 41), q0, servo=servo, path=path)
+    statics: list = []
+    G = quasi_static_guess(model, reference, np.linspace(t0, tf, 41), q0, servo=servo, path=path, statics=statics)
     eq = _equilibrium_solver(model)
     E = []
     Ys = servo.reference_samples(reference, np.array([t0, tf]))
-    for k, t in ((0, t0), (-1, tf)):
-        X, _ = eq.solve(Ys[:reference.m, k], guess_w=np.concatenate([G[:n, k], G[2 * n:, k]]), theta=th,
-                        where=f" at t = {t:.6g}")
+    for k, t in ((0, t0), (-1, tf)):  # from the path's equilibria there (converged: one evaluation)
+        X, _ = eq.solve(Ys[:reference.m, k], guess_w=statics[0][:, k], theta=th, where=f" at t = {t:.6g}")
         E.append(X)
     E0, Ef = E
     A0, _, AT0 = tangent_dynamics(servo, E0, Ys[:, :1], th)
