@@ -40,8 +40,23 @@ class EquilibriumSolver:
             bal = bal + ca.mtimes(sub(md.J).T, mu)
         res = ca.vertcat(sub(md.g) if l else ca.SX(0, 1), sub(md.j) if p else ca.SX(0, 1), sub(md.h) - y, bal)
         self._F = ca.Function("equilibrium", [w, y, md.theta], [res, ca.jacobian(res, w)])
+        self._Fd = ca.Function("equilibrium_dense", [w, y, md.theta], [res, ca.densify(ca.jacobian(res, w))])
         self.sizes = (n, l, p, m)
-        self._maps: dict = {}  # F mapped over K points, built once per K (re-solves of a held inversion)
+        self._one = None  # _Fd through buffers (numpy in and out, no DM conversions)
+        self._maps: dict = {}  # _Fd mapped over K points through buffers, once per K (re-solves of a held inversion)
+
+    def _at(self, K: int):
+        """``_Fd`` at one point (``K = 0``) or mapped over ``K`` points (theta shared), called through
+        buffers: numpy in and out, no ``DM`` conversions (built once per ``K``)."""
+        from ..inversion.servo import Buffered, buffered_map
+
+        if K:
+            if K not in self._maps:
+                self._maps[K] = buffered_map(self._Fd, K, once=(2,))
+            return self._maps[K]
+        if self._one is None:
+            self._one = Buffered(self._Fd)
+        return self._one
 
     def solve(self, y, guess_q=None, guess_w=None, *, theta=None, tol: float = 1e-12, max_iter: int = 50,
               where: str = ""):
@@ -62,10 +77,12 @@ class EquilibriumSolver:
                 w[:n] = np.asarray(guess_q, float).ravel()
         y = np.asarray(y, float).ravel()
 
+        F = self._at(0)
+
         def evaluate(w):
-            r, Jm = self._F(w, y, th)
-            r = np.array(r).ravel()
-            return r, np.array(Jm), float(np.max(np.abs(r))) if r.size else 0.0
+            r, Jm = F(w, y, th)
+            r = r.ravel()
+            return r, Jm, float(np.max(np.abs(r))) if r.size else 0.0
 
         r, Jm, res = evaluate(w)
         for _ in range(max_iter):
@@ -74,7 +91,7 @@ class EquilibriumSolver:
             dw = np.linalg.lstsq(Jm, -r, rcond=None)[0]
             step = 1.0
             for _ in range(30):
-                r2 = np.array(self._F(w + step * dw, y, th)[0]).ravel()
+                r2 = F(w + step * dw, y, th)[0].ravel()
                 if np.max(np.abs(r2)) < (1 - 1e-4 * step) * res:
                     break
                 step *= 0.5
@@ -98,13 +115,11 @@ class EquilibriumSolver:
         Y = np.atleast_2d(np.asarray(Y, float))
         W = np.array(W0, float)
         nw, K = W.shape
-        F = self._maps.get(K)
-        if F is None:
-            F = self._maps[K] = self._F.map(K)
+        F = self._at(K)
 
         def evaluate(Wv):
             r, Jm = F(Wv, Y, th)
-            return np.array(r), np.array(Jm).reshape(nw, K, nw).transpose(1, 0, 2)
+            return r, Jm.reshape(nw, K, nw).transpose(1, 0, 2)
 
         r, Jm = evaluate(W)
         res = np.max(np.abs(r), axis=0)

@@ -122,6 +122,22 @@ def tangent_dynamics(servo, X, Y, theta):
     the constraint drift (``-omega`` with Baumgarte stabilization, ``0`` without).  The last few
     results are remembered (read-only arrays): the same point is linearized once.
     """
+    return _tangent(servo, X, Y, theta)[0]
+
+
+def tangent_spectra(servo, X, Y, theta):
+    """The eigenvalues of ``A`` and ``A_T`` of :func:`tangent_dynamics` (remembered with it: the plan
+    and the dichotomy check of its equilibria compute them once)."""
+    entry = _tangent(servo, X, Y, theta)
+    if entry[1] is None:
+        A, _T, AT = entry[0]
+        entry[1] = (np.linalg.eigvals(A), np.linalg.eigvals(AT))
+        for a in entry[1]:
+            a.flags.writeable = False
+    return entry[1]
+
+
+def _tangent(servo, X, Y, theta) -> list:
     import scipy.linalg as sla
 
     X, Y, theta = (np.asarray(a, float).ravel() for a in (X, Y, theta))
@@ -136,8 +152,9 @@ def tangent_dynamics(servo, X, Y, theta):
         a.flags.writeable = False
     if len(_TANGENT) >= 8:
         _TANGENT.pop(next(iter(_TANGENT)))
-    _TANGENT[key] = (servo, out)
-    return out
+    entry = [out, None]  # the linearization and, once asked for, its spectra
+    _TANGENT[key] = (servo, entry)
+    return entry
 
 
 def neutral_tolerance(eigenvalues, neutral: float = 1e-6) -> float:
@@ -183,8 +200,7 @@ def dichotomy(servo, selection: Selection, X0, Y0, Xf, Yf, theta, *, neutral: fl
     Sf = np.eye(nx)[list(selection.end)]
     A0, _T0, AT0 = tangent_dynamics(servo, X0, Y0, theta)
     Af, T, ATf = tangent_dynamics(servo, Xf, Yf, theta)
-    ev0, evf = np.linalg.eigvals(A0), np.linalg.eigvals(Af)
-    it0, itf = np.linalg.eigvals(AT0), np.linalg.eigvals(ATf)
+    (ev0, it0), (evf, itf) = tangent_spectra(servo, X0, Y0, theta), tangent_spectra(servo, Xf, Yf, theta)
     dec, grow = int(np.sum(ev0.real < -neutral)), int(np.sum(evf.real > neutral))
     neut = int(max(np.sum(np.abs(ev0.real) <= neutral), np.sum(np.abs(evf.real) <= neutral)))
     neut_int = int(max(np.sum(np.abs(it0.real) <= neutral_tolerance(it0)),

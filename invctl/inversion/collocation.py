@@ -22,6 +22,18 @@ from .schemes import Scheme
 from .servo import NUMERIC_SOLVES_NX, Buffered
 
 
+#: transcriptions whose missing pieces wait for :func:`start_deferred_compiles`
+DEFERRED: list = []
+
+
+def start_deferred_compiles() -> None:
+    """Start the background compiles deferred by transcriptions built since the last call: a forked
+    compile worker competes with the first solve for the CPU and its fork costs the caller ~20 ms, so
+    it starts when that solve has returned."""
+    while DEFERRED:
+        DEFERRED.pop().start_background_compile()
+
+
 class Transcription:
     """The NLP of one (servo model, selection, scheme, N); see module doc.
 
@@ -51,8 +63,9 @@ class Transcription:
             self._compile_request = False  # large models: numeric solves, nothing to look up in the cache
         self.compiled_pieces: tuple = ()
         self._pending: tuple = ()
+        self._compile_started = False
         if self._compile_request:
-            from .compiled import compile_cached, compile_in_background, is_cached
+            from .compiled import compile_cached, is_cached
 
             wanted = [rhs, interval, servo.rhs_jac, self.block_function(), servo.residuals]
             if self._compile_request is True:
@@ -60,9 +73,9 @@ class Transcription:
             else:  # "auto": what the disk cache has now; the rest compiles in the background
                 have = {f.name() for f in wanted if is_cached(f, key=cache_key)}
                 missing = [f for f in wanted if f.name() not in have]
-                if missing:
+                if missing:  # compiled in the background once the first solve has returned
                     self._pending = tuple((f, cache_key) for f in missing)
-                    compile_in_background(missing, key=cache_key)
+                    DEFERRED.append(self)
             self._c = lambda f: compile_cached(f, key=cache_key) if f.name() in have else f  # noqa: E731
             self.compiled = len(have) == len(wanted)
             if servo.rhs_jac.name() in have:  # the plan's and the dichotomy check's linearizations too
@@ -88,6 +101,14 @@ class Transcription:
         self._x, self._p = x, p
         self._solvers: dict = {}
         self.build_s = time.perf_counter() - t_build
+
+    def start_background_compile(self) -> None:
+        """Start compiling the pieces missing from the disk cache in the background (once)."""
+        if self._pending and not self._compile_started:
+            from .compiled import compile_in_background
+
+            self._compile_started = True
+            compile_in_background([f for f, _ in self._pending], key=self._pending[0][1])
 
     def upgradable(self) -> bool:
         """Whether pieces compiled in the background since this transcription was built are now in

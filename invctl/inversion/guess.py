@@ -8,12 +8,14 @@ from .cache import equilibrium_solver as _equilibrium_solver
 from .servo import buffered_map, check_decoupling
 
 
-def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: str = "", path=None) -> np.ndarray:
+def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: str = "", path=None,
+                       statics: list | None = None) -> np.ndarray:
     """Quasi-static inverses along ``y_ref``: equilibria at ``times`` (continued from
     ``q0``), with ``v`` and the multipliers/inputs made consistent with the motion.
 
     ``path``: an earlier result at the same ``times`` (other parameter values); its equilibria
-    start one batched Newton solve, and the continuation runs only if a point fails.
+    start one batched Newton solve, and the continuation runs only if a point fails.  ``statics``: a list
+    that receives the equilibria ``(q, lam, mu, u)`` at ``times`` (columns) before the motion corrections.
 
     Raises
     ------
@@ -54,6 +56,8 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
         for k in np.flatnonzero(res > 1e-9):  # rare: fall back to continuation from the previous point
             if k not in coarse:
                 W[:, k] = continuation([k], W[:, k - 1])[:, 0]
+    if statics is not None:
+        statics.append(W)
     Q = W[:n]
     V = np.gradient(Q, times, axis=1) if times.size > 2 else np.zeros_like(Q)
     if servo is None:

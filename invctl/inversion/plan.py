@@ -32,7 +32,8 @@ import scipy.linalg as sla
 
 from ..errors import (BoundaryConditionError, HorizonTooLongError, NoDichotomyError, ReferenceSignalError,
                       ReferenceSmoothnessError)
-from .boundary import BLOCKS, explain_no_dichotomy, neutral_tolerance, resolve_selection, tangent_dynamics
+from .boundary import (BLOCKS, explain_no_dichotomy, neutral_tolerance, resolve_selection, tangent_dynamics,
+                       tangent_spectra)
 from .cache import equilibrium_solver as _equilibrium_solver
 from .cache import servo_model
 from .guess import _split, quasi_static_guess
@@ -266,7 +267,7 @@ def _tail_span(M, tol: float, cap: float):
 
     Returns ``(s, rate, kappa)`` with ``kappa = ||exp(M s)|| exp(rate s)``; once the span exceeds
     ``cap`` the search stops and returns a lower bound (``ln(1/tol)/rate`` or the last span tried)."""
-    rate = float(-np.max(np.linalg.eigvals(M).real))
+    rate = float(-np.max(np.linalg.eigvals(M).real)) if M.shape != (1, 1) else -float(M[0, 0])
     s_lo = math.log(1.0 / tol) / rate
     if s_lo > cap:
         return s_lo, rate, 1.0
@@ -289,6 +290,9 @@ def _tail_span(M, tol: float, cap: float):
 def _expm_norm(M):
     """``s -> ||exp(M s)||_2``: by the eigendecomposition when it is well conditioned (the
     blocks are small; scipy's Pade expm costs ~10 ms per call here), else by ``expm``."""
+    if M.shape == (1, 1):  # one real mode: exp(m s)
+        m = float(M[0, 0])
+        return lambda s: math.exp(m * s)
     lam, V = np.linalg.eig(M)
     if np.linalg.cond(V) < 1e6:
         Vi = np.linalg.inv(V)
@@ -472,18 +476,18 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
     n, th = model.n, model.theta_values
     q0 = np.zeros(n) if q_guess is None else np.asarray(q_guess, float)
     # the quasi-static path (checks the decoupling matrix along it) and the equilibria
-    G = quasi_static_guess(model, reference, np.linspace(t0, tf, 41), q0, servo=servo, path=path)
+    statics: list = []
+    G = quasi_static_guess(model, reference, np.linspace(t0, tf, 41), q0, servo=servo, path=path, statics=statics)
     eq = _equilibrium_solver(model)
     E = []
     Ys = servo.reference_samples(reference, np.array([t0, tf]))
-    for k, t in ((0, t0), (-1, tf)):
-        X, _ = eq.solve(Ys[:reference.m, k], guess_w=np.concatenate([G[:n, k], G[2 * n:, k]]), theta=th,
-                        where=f" at t = {t:.6g}")
+    for k, t in ((0, t0), (-1, tf)):  # from the path's equilibria there (converged: one evaluation)
+        X, _ = eq.solve(Ys[:reference.m, k], guess_w=statics[0][:, k], theta=th, where=f" at t = {t:.6g}")
         E.append(X)
     E0, Ef = E
     A0, _, AT0 = tangent_dynamics(servo, E0, Ys[:, :1], th)
     Af, Tfb, ATf = tangent_dynamics(servo, Ef, Ys[:, 1:], th)
-    it0, itf = np.linalg.eigvals(AT0), np.linalg.eigvals(ATf)
+    (ev0, it0), (_, itf) = tangent_spectra(servo, E0, Ys[:, :1], th), tangent_spectra(servo, Ef, Ys[:, 1:], th)
     thr0, thrf = neutral_tolerance(it0, neutral), neutral_tolerance(itf, neutral)
     ku0, kuf = int(np.sum(it0.real > thr0)), int(np.sum(itf.real > thrf))
     if np.any(np.abs(it0.real) <= thr0) or np.any(np.abs(itf.real) <= thrf) or ku0 != kuf:
@@ -561,7 +565,7 @@ def plan_inversion(model, reference, *, tol: float = 1e-8, formulation: str = "b
         rowsf, condf, sensf = (sel.end, *_metrics(Vf, Wf, sel.end))
     pins0 = {sel.labels[i]: float(np.linalg.norm(U0[i])) for i in rows0}
     pinsf = {sel.labels[i]: float(np.linalg.norm(Wf[i])) for i in rowsf}
-    rest = list(np.linalg.eigvals(A0))
+    rest = list(ev0)
     for z in it0:
         rest.pop(int(np.argmin(np.abs(np.array(rest) - z))))
     drift_rate = float(-np.max(np.real(rest))) if rest else None

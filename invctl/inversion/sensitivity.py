@@ -247,7 +247,9 @@ class ParametricInverse:
     def transcription(self, compiled=None):
         """The collocation system (``compiled``: default :attr:`compiled`)."""
         compiled = self.compiled if compiled is None else compiled
-        return transcription(self.servo, self.selection, self.scheme, self.t_mesh.size - 1, 0.0, compiled=compiled)
+        tr = transcription(self.servo, self.selection, self.scheme, self.t_mesh.size - 1, 0.0, compiled=compiled)
+        tr.start_background_compile()
+        return tr
 
     def _w(self, E):
         n = self.model.n

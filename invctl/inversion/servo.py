@@ -174,8 +174,9 @@ class ServoModel:
         self.omega = float(omega)
         self.layout = Layout(model.n, model.ell, model.p, model.m)
 
-    @property
+    @cached_property
     def names(self) -> dict[str, list[str]]:
+        """Entry names per block (read by every selection and plan: built once; do not modify)."""
         md = self.model
         return {"q": list(md.q_names), "v": [f"{s}_dot" for s in md.q_names],
                 "lam": [f"lam{i + 1}" for i in range(md.ell)], "mu": [f"mu{i + 1}" for i in range(md.p)],
@@ -456,6 +457,9 @@ def _decoupling_scales(model, Q) -> np.ndarray:
     C = C.reshape(C.shape[0], K, n).transpose(1, 0, 2)
     W = W.reshape(n, K, -1).transpose(1, 0, 2)
     CMinvT = np.linalg.solve(M, C.transpose(0, 2, 1))
+    if CMinvT.shape == W.shape:  # both 2-norms from one batched SVD
+        sv = np.linalg.svd(np.concatenate([CMinvT, W]), compute_uv=False)[:, 0]
+        return sv[:K] * sv[K:]
     return np.linalg.norm(CMinvT, 2, axis=(1, 2)) * np.linalg.norm(W, 2, axis=(1, 2))
 
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvctlError, ParameterError
+from .collocation import start_deferred_compiles
 from .options import from_keywords
 from .problem import prepare, resolve_plan
 from .result import Inverse
@@ -96,6 +97,8 @@ class InversionSolver:
                 raise
             partial.diagnostics.update(success=False, error=f"{type(exc).__name__}: {exc}")
             return partial
+        finally:
+            start_deferred_compiles()  # after the solve: the worker does not compete with it
         inv.diagnostics["wall_s"] = time.perf_counter() - t_all
         self.last = inv
         return inv

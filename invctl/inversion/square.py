@@ -14,6 +14,7 @@ import numpy as np
 from ..errors import InversionFailed, RunInterrupted, WallTimeLimitError, check_interrupt, watch_sigint
 from .backends import _TIME_LIMIT, IPOPT_DEFAULTS, IPOPT_SQUARE_DEFAULTS, _newton, _progress_of
 from .cache import transcription
+from .collocation import start_deferred_compiles
 from .options import Options
 from .problem import Setup, prepare
 from .result import Inverse
@@ -25,7 +26,15 @@ def solve_square(model, reference, opts: Options, warm_start: Any = None, setup:
     """The square (or input-energy underdetermined) servo-constraint BVP on one mesh.
 
     ``tr``: the transcription to use (a held solver's; default: the cached one); ``x0``: the
-    initial decision vector (default: ``warm_start`` or the quasi-static guess on the mesh)."""
+    initial decision vector (default: ``warm_start`` or the quasi-static guess on the mesh).
+    Pieces missing from the compile cache start compiling in the background when it returns."""
+    try:
+        return _solve_square(model, reference, opts, warm_start, setup, tr, x0)
+    finally:
+        start_deferred_compiles()
+
+
+def _solve_square(model, reference, opts, warm_start, setup, tr, x0) -> Inverse:
     t_all = time.perf_counter()
     disc, slv = opts.discretization, opts.solver
     if setup is None:
@@ -187,7 +196,7 @@ def make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta, dX=No
         dX = sch.mesh_slopes(Xmesh, lambda: rhs(Xmesh, servo.reference_samples(reference, t_mesh), theta)[0])
     L = servo.layout
     return Inverse(sch.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
-                   reference.t0, reference.tf, servo.names, {}, y_ref_fn=reference)
+                   reference.t0, reference.tf, {k: list(v) for k, v in servo.names.items()}, {}, y_ref_fn=reference)
 
 
 def residuals(inv: Inverse, servo, reference, theta, samples_per_interval: int = 4, tr=None) -> dict:
