@@ -5,6 +5,7 @@ the same numbers whether a scene is shipped or given by path), with the numbers 
 tests elsewhere.
 """
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -23,7 +24,10 @@ def _json(capsys):
 def test_tracking_pipeline_on_a_scene_without_hand_picked_numerics(scene, animate, tmp_path, capsys):
     """No boundary selection, horizon, gains or funnels declared: all derived; C1 and C2 stay inside
     their funnels on the declared plant mismatch and the feedforward helps (C1 < C2 < C3). Animations only
-    with ``--animate``."""
+    with ``--animate``; the files listed are those this run wrote (not an earlier run's in the folder)."""
+    stale = tmp_path / "notes_of_an_earlier_run.txt"
+    stale.write_text("earlier")
+    os.utime(stale, (1e9, 1e9))
     assert main(["pipeline", scene, "--out-dir", str(tmp_path), "--quiet", "--json"] + ["--animate"] * animate) == 0
     data = _json(capsys)
     runs = data["runs"]
@@ -37,7 +41,8 @@ def test_tracking_pipeline_on_a_scene_without_hand_picked_numerics(scene, animat
     assert anims == (sorted(f"anim_{name}.gif" for name in runs) if animate else []) and len(runs) >= 3
     assert all(p.stat().st_size > 0 for p in tmp_path.glob("anim_*"))
     for fig in ("states", "errors", "inputs", "funnel"):
-        assert (tmp_path / f"{fig}.png").exists()
+        assert (tmp_path / f"{fig}.png").exists() and f"{fig}.png" in data["files"]
+    assert stale.name not in data["files"] and "run_C1.npz" in data["files"]
 
 
 def test_animate_a_saved_run(tmp_path, capsys):

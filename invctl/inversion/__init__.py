@@ -16,11 +16,12 @@ from .cache import servo_model
 from .guess import quasi_static_guess
 from .refine import interval_errors
 from .solver import InversionSolver, invert
-from .mintime import minimum_time, retime
+from .mintime import MinimumTimeSolver, minimum_time, retime
 from .verify import forward_check
 
 __all__ = [
-    "Bounds", "Discretization", "EquilibriumSolver", "Horizon", "Inverse", "InversionPlan", "InversionSolver", "NormalForm", "Objective",
+    "Bounds", "Discretization", "EquilibriumSolver", "Horizon", "Inverse", "InversionPlan", "InversionSolver", "MinimumTimeSolver",
+    "NormalForm", "Objective",
     "dichotomy", "Scheme", "Selection", "ServoModel", "SolverOptions", "Transcription", "check_reference",
     "forward_check", "get_scheme", "interval_errors", "invert", "invert_normal_form", "minimum_time", "normal_form",
     "plan_inversion", "quasi_static_guess", "resolve_selection", "retime", "servo_model",

@@ -62,7 +62,8 @@ from .contact_record import ChunkRecorder, ContactTrajectory, RowLayout, check_b
 
 #: default activation tolerance on the predicted gap (same units as the gaps)
 DEFAULT_ACTIVATION_TOL = 1e-12
-#: instruction count of one fused loop iteration above which fewer steps are fused and C is built at -O1
+#: instruction count of one fused loop iteration (VM) above which fewer steps are fused; of the C driver's step
+#: variants together above which C is built at -O1
 _LARGE_STEP = 20000
 #: contacts up to which the C driver has one compiled step per active set
 _MAX_SPECIALIZED = 3
@@ -319,8 +320,9 @@ class MoreauJean:
         runner: _CDriver | _VMChunks | None = None
         if backend == "c":
             try:
-                lib = compile_c(_driver_code(self), large=self.step.n_instructions() > _LARGE_STEP,
-                                verbose=self.verbose)
+                # -O1 when the file is long: the driver holds every step variant (with and without its row)
+                total = sum(f.n_instructions() for f in (self._pre, self._pick, *self._variants))
+                lib = compile_c(_driver_code(self), large=total > _LARGE_STEP, verbose=self.verbose)
                 runner = None if lib is None else _CDriver(self, lib, size)
             except (OSError, RuntimeError, subprocess.SubprocessError) as exc:
                 print(f"invctl: generated-C backend unavailable ({exc}); using the CasADi VM", file=sys.stderr)

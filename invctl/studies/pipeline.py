@@ -67,7 +67,7 @@ class Session:
 def run_pipeline(bound: BoundScene, session: Session, *, out_dir, animate: bool = False) -> CommandResult:
     """Run every controller of ``session`` and compare them, writing runs, figures and, with ``animate``, animations
     (of ``bound.model``) to ``out_dir``. Returns the report, its data and the runs by controller (each a :class:`~invctl.results.Trajectory`)."""
-    t0 = time.perf_counter()
+    t0, started = time.perf_counter(), time.time()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     lines, data = session.head(out)
@@ -96,7 +96,8 @@ def run_pipeline(bound: BoundScene, session: Session, *, out_dir, animate: bool 
         data["runs"][name] = step.data
     more, summary = session.finish(runs, out)
     data.update(summary)
-    files = sorted(p.name for p in out.iterdir())
+    # what this run wrote (an earlier run's files in the same folder, e.g. its animations, are not listed)
+    files = sorted(p.name for p in out.iterdir() if p.is_file() and p.stat().st_mtime >= started - 1.0)
     wall = time.perf_counter() - t0
     text = "\n".join(lines + more + [f"figures and data in {out}/ ({', '.join(files)}); total {wall:.1f} s"])
     return CommandResult(text, {**data, "out_dir": str(out), "files": files, "total_wall_s": wall}, runs)
