@@ -253,20 +253,14 @@ def test_gauss_newton_and_exact_hessians_reach_the_same_optimum(manip, manip_u2)
     assert np.max(np.abs(b.X_mesh - manip_u2.X_mesh)) < 1e-5 * np.max(np.abs(b.X_mesh))
 
 
-def test_exact_hessian_converges_on_a_coarse_mesh_and_through_the_elastic_problem(manip, monkeypatch):
-    # HS N = 20: with the adaptive barrier update the exact Hessian stalled at max_iter in the bounded
-    # problem and, with either update, in the elastic one; now both reach the Gauss-Newton optimum (an
-    # independent Hessian) to IPOPT's tolerance (same objective to 1e-6, states to 1e-5 relative), also when the
-    # first bounded solve is cut to one iteration and the elastic problem's feasible point restarts it
+def _cut_first_ipopt_run_short(monkeypatch) -> list:
+    """Make the first IPOPT run of a bounded inversion stop after one iteration; returns the list that
+    counts the runs."""
     import dataclasses
 
     from invctl.inversion import bounded
 
-    md, ref, q0 = manip
-    gn = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}))
-    ex = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}), hessian="exact")
-    assert ex.diagnostics["status"] == "Solve_Succeeded" and ex.diagnostics["restarted"] is None
-    calls = []
+    calls: list = []
     orig = bounded.solve_scaled
 
     def first_cut_short(tr, slv, x0, params, limits, **kw):
@@ -276,6 +270,19 @@ def test_exact_hessian_converges_on_a_coarse_mesh_and_through_the_elastic_proble
         return orig(tr, slv, x0, params, limits, **kw)
 
     monkeypatch.setattr(bounded, "solve_scaled", first_cut_short)
+    return calls
+
+
+def test_exact_hessian_converges_on_a_coarse_mesh_and_through_the_elastic_problem(manip, monkeypatch):
+    # HS N = 20: with the adaptive barrier update the exact Hessian stalled at max_iter in the bounded
+    # problem and, with either update, in the elastic one; now both reach the Gauss-Newton optimum (an
+    # independent Hessian) to IPOPT's tolerance (same objective to 1e-6, states to 1e-5 relative), also when the
+    # first bounded solve is cut to one iteration and the elastic problem's feasible point restarts it
+    md, ref, q0 = manip
+    gn = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}))
+    ex = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}), hessian="exact")
+    assert ex.diagnostics["status"] == "Solve_Succeeded" and ex.diagnostics["restarted"] is None
+    calls = _cut_first_ipopt_run_short(monkeypatch)
     el = invert(md, ref, q_guess=q0, N=20, bounds=Bounds(u={"u2": 8.0}), hessian="exact")
     assert len(calls) == 2 and "restarted from the elastic" in el.diagnostics["restarted"]
     for b in (ex, el):
@@ -534,20 +541,7 @@ def test_a_local_infeasibility_verdict_is_retried_from_the_elastic_point(dint, m
     # the min-energy problem above with its first IPOPT run cut to one iteration: it ends far from
     # feasible, the elastic problem then meets every bound without relaxing one, and the bounded
     # problem solved again from there reaches the closed-form optimum
-    import dataclasses
-
-    from invctl.inversion import bounded
-
-    calls = []
-    orig = bounded.solve_scaled
-
-    def first_cut_short(tr, slv, x0, params, limits, **kw):
-        calls.append(1)
-        if len(calls) == 1:
-            slv = dataclasses.replace(slv, max_iter=1)
-        return orig(tr, slv, x0, params, limits, **kw)
-
-    monkeypatch.setattr(bounded, "solve_scaled", first_cut_short)
+    calls = _cut_first_ipopt_run_short(monkeypatch)
     U, T = 1.0, 1.0
     D = 11 * U / 48
     inv = invert(dint, rest_to_rest(0.0, D, 0.0, T), bounds=Bounds(u=U),
