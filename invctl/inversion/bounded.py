@@ -38,6 +38,7 @@ from .cache import ocp_transcription, servo_model
 from .ocp import slack_scale
 from .options import Objective, Options
 from .problem import prepare, resolve_plan
+from .servo import mapped
 
 #: IPOPT options of the bounded problems: the adaptive barrier update (measured on the manipulator, |u2| <= 6 ... 9 N,
 #: HS N = 20, 40, 100, Gauss-Newton: 17-31 iterations, monotone 18-29; minimum time, exact Hessian, five
@@ -229,7 +230,8 @@ def output_error(inv, servo, reference, theta, samples_per_interval: int = 8) ->
     s = np.linspace(0.0, 1.0, samples_per_interval, endpoint=False)
     t = np.concatenate([(tm[:-1, None] + np.diff(tm)[:, None] * s[None, :]).ravel(), [tm[-1]]])
     X = inv.X(t)
-    e = np.array(servo.output.map(t.size)(X, servo.reference_samples(reference, t), theta)) - reference(t)
+    Ys = servo.reference_samples(reference, t)
+    e = np.array(mapped(servo.output, t.size)(X, Ys, theta)) - Ys[:reference.m]
     ea = np.abs(e)
     k = int(np.argmax(np.max(ea, axis=0)))
     rms = np.sqrt(np.trapezoid(e * e, t, axis=1) / (t[-1] - t[0]))
@@ -362,8 +364,15 @@ def _equilibrium_check(setup, rb):
     return bad
 
 
-def invert_bounded(model, reference, opts: Options, *, warm_start=None):
-    """The bounded inversion (module doc); called by :func:`invctl.inversion.invert` with ``bounds``."""
+def invert_bounded(model, reference, opts: Options, *, warm_start=None, hold=None, exact_solve=None,
+                   plan_result=None):
+    """The bounded inversion (module doc); called by :func:`invctl.inversion.invert` with ``bounds``.
+
+    A held solver (:class:`~invctl.inversion.InversionSolver`) passes ``plan_result`` (its re-plan),
+    ``exact_solve`` (``(options, warm_start) -> Inverse``: its held square solve, refined to ``tol`` if given)
+    and ``hold``, a dict where the last relaxed optimum (transcription, primal-dual point, objective
+    scale) is kept: the next relaxed solve on the same structure starts from it (:data:`IPOPT_WARM`)
+    and ``hold["info"]`` says what was reused or rebuilt."""
     from .square import make_inverse, residuals, solve_square
 
     t_all = time.perf_counter()
@@ -375,8 +384,13 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
         raise OptionError("invert_bounded: no bounds given; pass bounds=Bounds(...) (or call invert without bounds)")
     servo = servo_model(model, disc.formulation, disc.omega)
     rb = opts.bounds.resolve(servo)
-    plan_result = resolve_plan(model, reference, disc, hz)
+    if plan_result is None:
+        plan_result = resolve_plan(model, reference, disc, hz)
     T0p, Tfp = plan_result[0], plan_result[1]
+    last = None if hold is None else hold.get("last")
+    info: dict = {"reused": [], "rebuilt": None}
+    if hold is not None:
+        hold["info"] = info
     T0, Tf = T0p, Tfp
     rest_start = rb.max_pre_actuation is not None and reference.t0 - T0p > rb.max_pre_actuation + 1e-12
     rest_end = rb.max_post_actuation is not None and Tfp - reference.tf > rb.max_post_actuation + 1e-12
@@ -396,7 +410,11 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
     if square and (warm_start is None or not (rest_start or rest_end)):
         t0_ = time.perf_counter()
         exact_opts = replace(opts, horizon=hz_plan, bounds=None, objective=None)
-        if disc.tol is not None:
+        if exact_solve is not None:
+            exact = exact_solve(exact_opts, warm_start)
+            if disc.tol is not None:
+                disc = replace(disc, tol=None, mesh=None, N=exact.N)
+        elif disc.tol is not None:
             from .refine import refine
 
             exact = refine(model, reference, exact_opts, warm_start,
@@ -412,13 +430,15 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
                                            "describe": "exact tracking within the bounds (no bound active)"}
             exact.diagnostics["tracking"] = {"exact": True, "max_output_error": 0.0, "rms_output_error": 0.0}
             check_between_nodes(exact, rb, reference, "bounded inversion")
+            if hold is not None:
+                hold["last"] = None  # the next relaxed solve starts from its exact inverse, as a fresh one
             return exact
     elif disc.tol is not None:
         raise OptionError("invert: tol (mesh refinement) needs an exact inverse first (a square selection and no "
                           "warm start with a shortened pre-/post-actuation); give N instead")
     # 2. the relaxed problem
     setup = prepare(model, reference, disc, hz, T0=T0, Tf=Tf, rest_start=rest_start, rest_end=rest_end,
-                    plan_result=plan_result, any_count=True)
+                    plan_result=plan_result, any_count=True, ends=None if last is None else last["ends"])
     bad = _equilibrium_check(setup, rb)
     if bad:
         worst = bad[0]
@@ -431,12 +451,28 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
                                                                        "where": b["where"]} for b in bad}})
     sch, t_mesh, N = setup.scheme, setup.t_mesh, setup.t_mesh.size - 1
     t_build = time.perf_counter()
-    tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=True, bounded=rb.bounded, rated=rb.rated,
-                           compiled=disc.compiled)
+    held = last is not None and _same_structure(last["tr"], servo, setup.selection, N, rb)
+    if held:  # the last transcription (Legendre/Radau: with the interior rows if the last solve needed them)
+        tr = last["tr"]
+        info["reused"].append("transcription")
+    else:
+        tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=True, bounded=rb.bounded, rated=rb.rated,
+                               compiled=disc.compiled)
+        if last is not None:
+            info["rebuilt"] = _structure_change(last["tr"], servo, setup.selection, N, rb)
     build_s = setup.timings["build_s"] + time.perf_counter() - t_build
     guess = warm_start if warm_start is not None else exact
     tc = tr.collocation_times(t_mesh)
-    if guess is not None:
+    warm, scale0 = None, 1e3
+    if held:  # the last optimum, primal and dual (same layout); another mesh: its states there, the same slacks
+        if np.array_equal(last["t_mesh"], t_mesh):
+            x0 = last["x"]
+        else:
+            x0 = np.concatenate([tr.pack(last["inverse"].X(t_mesh), last["inverse"].X(tc) if tc.size else None)
+                                 [:tr.nXs], last["x"][tr.nXs:]])
+        warm, scale0 = (last["lam_x"], last["lam_g"]), last["scale"]
+        info["reused"].append("last optimum (primal-dual)")
+    elif guess is not None:
         x0 = tr.pack(guess.X(t_mesh), guess.X(tc) if tc.size else None)
     else:
         x0 = tr.pack(setup.initial_guess(t_mesh), setup.initial_guess(tc) if tc.size else None)
@@ -451,8 +487,9 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
     t_solve = time.perf_counter()
     hessian = _hessian(slv, "gauss-newton")
 
-    def run(start):
-        sol, st, scale = solve_scaled(tr, slv, start, params, (lbx, ubx, lbg, ubg), hessian=hessian)
+    def run(start, warm=None, scale=1e3):
+        sol, st, scale = solve_scaled(tr, slv, start, params, (lbx, ubx, lbg, ubg), hessian=hessian, scale=scale,
+                                      warm=warm)
         x, g = np.array(sol["x"]).ravel(), np.array(sol["g"]).ravel()
         viol = _violation(g, lbg, ubg, x, lbx, ubx)
         status = st.get("return_status", "?")
@@ -460,7 +497,7 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
         inv = _inverse(tr, servo, reference, sch, t_mesh, x, Y, theta, c, make_inverse)
         return sol, st, scale, x, g, viol, status, ok, inv
 
-    sol, st, scale, x, g, viol, status, ok, inv = run(x0)
+    sol, st, scale, x, g, viol, status, ok, inv = run(x0, warm, scale0)
     if ok and tr.interior is None and _beyond_tolerance(rb, between_nodes(inv, rb)):
         # Legendre/Radau: the polynomials leave the bounds between the collocation points; solve again
         # from here with their Bernstein coefficients bounded too (not by default: where no bound
@@ -539,7 +576,32 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None):
             f"residual_tol = {slv.residual_tol:.3g} at the mesh ({sch.name} N={N}); refine the mesh",
             partial=inv, diagnostics=inv.diagnostics)
     check_between_nodes(inv, rb, reference, f"bounded inversion ({sch.name} N={N})")
+    inv.diagnostics["held"] = held
+    if hold is not None:
+        hold["last"] = {"tr": tr, "x": x, "lam_x": sol["lam_x"], "lam_g": sol["lam_g"], "scale": scale,
+                        "t_mesh": t_mesh, "inverse": inv, "ends": (setup.E0, setup.Ef)}
     return inv
+
+
+def _same_structure(tr, servo, selection, N, rb) -> bool:
+    return (tr.servo is servo and tr.selection == selection and tr.N == N and tr.bounded == tuple(rb.bounded)
+            and tr.rated == tuple(rb.rated) and not tr.upgradable())
+
+
+def _structure_change(tr, servo, selection, N, rb) -> str:
+    """Why a held bounded solve builds another transcription (``info["rebuilt"]``)."""
+    if tr.servo is not servo:
+        return f"model structure ({tr.servo.model.name} -> {servo.model.name})"
+    if tr.selection != selection:
+        return f"boundary selection {tr.selection.describe()} -> {selection.describe()}"
+    if tr.N != N:
+        return f"N {tr.N} -> {N}"
+    if (tr.bounded, tr.rated) != (tuple(rb.bounded), tuple(rb.rated)):
+        names = list(rb.labels)
+        rnames = list(rb.rate_labels)
+        return (f"bounded entries {[names[i] for i in tr.bounded]} -> {[names[i] for i in rb.bounded]}, rate-bounded "
+                f"{[rnames[j] for j in tr.rated]} -> {[rnames[j] for j in rb.rated]}")
+    return "functions compiled in the background are ready"
 
 
 def _bound_size(rb, label) -> float:

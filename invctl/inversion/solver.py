@@ -49,6 +49,9 @@ class InversionSolver:
         self._tr = None
         self._x = None
         self._path = None
+        self._square_last = None  # the last exact inverse (the bounded route's first step)
+        self._bounded: dict = {}  # the last relaxed optimum of the bounded route (bounded.invert_bounded)
+        self._mesh = None  # the last refined mesh and the (T0, t0, tf, Tf) it ran on (tol)
 
     @property
     def transcription(self):
@@ -67,18 +70,23 @@ class InversionSolver:
         return model.with_params(**{k: float(v) for k, v in params.items()})
 
     def solve(self, *, warm: bool = True, warm_start: Any = None, reference=None, model=None, mesh=None,
-              throw: bool = True, **params) -> Inverse:
+              bounds=None, objective=None, throw: bool = True, **params) -> Inverse:
         """The inverse with the parameter values ``params`` (and ``reference`` if given).
 
         ``model``: solve this model instead (one of the same structure reuses the transcription);
         ``mesh``: the mesh of this solve, ``T0`` and ``Tf`` follow it (as many intervals reuses the
-        transcription); ``throw=False``: a failed solve returns its last iterate (``status`` FAILED,
+        transcription); ``bounds``, ``objective``: this solve's (a solver built with bounds keeps its
+        relaxed problem while only bound values and weights change); ``throw=False``: a failed solve returns its last iterate (``status`` FAILED,
         the error in ``diagnostics["error"]``) instead of raising, when there is one.
 
         Raises what :func:`~invctl.inversion.invert` raises; the solver keeps its last solution
         when a solve fails (``exc.partial`` is the failed iterate)."""
         t_all = time.perf_counter()
         opts = self.opts
+        if bounds is not None or objective is not None:
+            opts = from_keywords("InversionSolver.solve", discretization=opts.discretization, solver=opts.solver,
+                                 horizon=opts.horizon, bounds=opts.bounds if bounds is None else bounds,
+                                 objective=opts.objective if objective is None else objective)
         if mesh is not None:
             mesh = tuple(float(t) for t in np.ravel(mesh))
             opts = replace(opts, discretization=replace(opts.discretization, mesh=mesh),
@@ -87,8 +95,11 @@ class InversionSolver:
             model = self.model_with(params, model)
             ref = self.reference if reference is None else reference
             ws = warm_start if warm_start is not None else (self.last if warm else None)
-            if opts.bounds is not None or opts.discretization.tol is not None:
-                inv = self._solve_once(opts, model, ref, ws)
+            if opts.bounds is not None:
+                inv = self._solve_bounded(opts, model, ref, ws, reference is not None)
+            elif opts.discretization.tol is not None:
+                inv = self._refine(opts, model, ref, ws, reference is not None)
+                self.info = dict(inv.diagnostics["solver"], route="refine", meshes=len(inv.diagnostics["meshes"]))
             else:
                 inv = self._solve_square(opts, model, ref, ws, reference is not None)
         except InvctlError as exc:
@@ -104,23 +115,66 @@ class InversionSolver:
         return inv
 
     # ------------------------------------------------------------ paths
-    def _solve_once(self, opts, model, ref, ws) -> Inverse:
-        """Bounded problems and mesh refinement: the one-shot routes, warm-started (a bounded problem's
-        transcription depends on which bounds the exact inverse violates, a refinement's on the mesh it
-        reaches: each solve builds or fetches its own)."""
+    def _solve_bounded(self, opts, model, ref, ws, new_reference: bool) -> Inverse:
+        """Bounds: the held exact inverse first (:meth:`_solve_square`, refined if ``tol``), then the relaxed
+        problem held by :func:`~invctl.inversion.bounded.invert_bounded` (its last primal-dual optimum)."""
         from .bounded import invert_bounded
-        from .refine import refine
-        from .cache import servo_model
-        from .square import solve_square
 
-        self.info = {"held": False, "route": "bounded" if opts.bounds is not None else "refine"}
-        if opts.bounds is not None:
-            return invert_bounded(model, ref, opts, warm_start=ws)
-        T0, Tf, start, end, plan = resolve_plan(model, ref, opts.discretization, opts.horizon)
+        t0 = time.perf_counter()
+        plan_result = self._plan(opts, model, ref, new_reference)
+        if plan_result[4] is not None and plan_result[4].path is not None:
+            self._path = plan_result[4].path
+        exact_info: dict = {}
+
+        def exact(o, w):
+            w = self._square_last if w is not None else None  # the last exact inverse, not a bounded one
+            inv = (self._refine(o, model, ref, w, new_reference) if o.discretization.tol is not None
+                   else self._solve_square(o, model, ref, w, new_reference))
+            self._square_last = inv
+            exact_info.update(self.info)
+            return inv
+
+        setup_s = time.perf_counter() - t0
+        inv = invert_bounded(model, ref, opts, warm_start=ws, hold=self._bounded, exact_solve=exact,
+                             plan_result=plan_result)
+        info = dict(self._bounded.get("info", {}))
+        relaxed = not inv.diagnostics.get("tracking", {}).get("exact", False)
+        info = {"held": True, "route": "bounded", "first": self.last is None, "relaxed": relaxed,
+                "reused": info.get("reused", []) if relaxed else [], "remapped": exact_info.get("remapped"),
+                "rebuilt": info.get("rebuilt") if relaxed else None, "exact": exact_info or None, "setup_s": setup_s}
+        if relaxed and info["rebuilt"] is None and "transcription" not in info["reused"] and self.last is not None:
+            info["rebuilt"] = "the exact inverse left the bounds: the relaxed problem"
+        if not relaxed:
+            info["reused"] = list(exact_info.get("reused", []))
+            info["rebuilt"] = exact_info.get("rebuilt")
+        self.builds += int(relaxed and "transcription" not in info["reused"])
+        inv.diagnostics["solver"] = info
+        self.info = info
+        return inv
+
+    def _refine(self, opts, model, ref, ws, new_reference: bool) -> Inverse:
+        """Mesh refinement to ``tol``, starting on the last refined mesh (mapped onto this solve's
+        ``[T0, t0, tf, Tf]``): refined further only if its forward check misses ``tol``."""
+        from .cache import servo_model
+        from .refine import refine
+
+        disc = opts.discretization
+        T0, Tf, start, end, plan = self._plan(opts, model, ref, new_reference)
+        if plan is not None and plan.path is not None:
+            self._path = plan.path
         hz = replace(opts.horizon, T0=T0, Tf=Tf, start=start, end=end, plan=plan, plan_options=None)
-        o = replace(opts, horizon=hz)
-        servo = servo_model(model, o.discretization.formulation, o.discretization.omega)
-        return refine(model, ref, o, ws, lambda oo, w: solve_square(model, ref, oo, w), servo)
+        held_mesh = None
+        if self._mesh is not None and disc.mesh is None:
+            mesh, knots = self._mesh
+            held_mesh = np.interp(mesh, knots, [T0, ref.t0, ref.tf, Tf])
+            held_mesh[0], held_mesh[-1] = T0, Tf
+            disc = replace(disc, mesh=tuple(held_mesh))
+        o = replace(opts, horizon=hz, discretization=disc)
+        servo = servo_model(model, disc.formulation, disc.omega)
+        inv = refine(model, ref, o, ws, lambda oo, w: self._solve_square(oo, model, ref, w, new_reference), servo)
+        self._mesh = (inv.t_mesh.copy(), np.array([inv.T0, ref.t0, ref.tf, inv.Tf]))
+        inv.diagnostics["solver"] = dict(inv.diagnostics.get("solver", {}), held_mesh=held_mesh is not None)
+        return inv
 
     def _plan(self, opts, model, ref, new_reference: bool):
         """``resolve_plan`` for ``model``, started from the last quasi-static path when only the
@@ -179,7 +233,7 @@ class InversionSolver:
             info["remapped"] = {"T0": [old.T0, setup.T0], "Tf": [old.Tf, setup.Tf],
                                 "why": "the automatic horizon moved with the parameters or the reference"}
         x0 = None
-        if ws is not None and ws is self.last and self._x is not None and tr is self._tr \
+        if ws is not None and ws is self._square_last and self._x is not None and tr is self._tr \
                 and np.array_equal(old.t_mesh, setup.t_mesh):
             x0 = self._x  # same mesh: the last solution vector itself
             info["reused"].append("last solution")
@@ -194,6 +248,7 @@ class InversionSolver:
             self._x = None  # the next solve starts from ``last``, interpolated
             raise
         self._x = tr.pack(inv.X_mesh, inv.X_col)
+        self._square_last = inv
         inv.diagnostics["solver"] = info
         self.info = info
         return inv
