@@ -112,3 +112,66 @@ def test_held_refinement_starts_on_the_last_mesh(model, ref, q0):
     assert len(meshes) == 1  # which still meets tol: not refined further
     fc = forward_check(model.with_params(m3=0.51), inv, ref)
     assert fc["error"] <= tol
+
+
+@pytest.mark.parametrize("scheme", ["hermite-simpson", "legendre2"])
+@pytest.mark.parametrize("structure", [dict(relaxed=True, bounded=(13,)),
+                                       dict(relaxed=False, free_time=True, bounded=(13,), interior="points"),
+                                       dict(relaxed=True, bounded=(13,), rated=(1,), elastic=True)],
+                         ids=["relaxed", "free time", "elastic"])
+def test_compiled_derivative_assembly_equals_ad(model, scheme, structure, monkeypatch):
+    """With compiled pieces the objective gradient comes from the assembled residual Jacobian and the
+    Gauss-Newton Hessian from per-interval blocks; the same functions uncompiled (no C compiler needed)
+    against CasADi's reverse AD of the objective and the sparse product of the assembled Jacobian."""
+    from invctl.inversion.boundary import Selection
+    from invctl.inversion.cache import servo_model
+    from invctl.inversion.schemes import get_scheme
+
+    sv = servo_model(model)
+    nx = sv.layout.nx
+    sel = Selection(tuple(i for i in range(nx) if i != 8), (9,), tuple(str(i) for i in range(nx)))
+    plain = ocp.OCPTranscription(sv, sel, get_scheme(scheme), 5, compiled=False, **structure)
+    monkeypatch.setattr(ocp, "_compile", lambda f: f)  # the compiled route, evaluated in CasADi's virtual machine
+    comp = ocp.OCPTranscription(sv, sel, get_scheme(scheme), 5, compiled=True, **structure)
+    assert comp.compiled and not plain.compiled
+    rng = np.random.default_rng(1)
+    x, p, lam_g = rng.standard_normal(plain.nX), rng.random(plain.np), rng.standard_normal(plain.ng)
+    if plain.free_time:
+        x[plain.i_tau], p[plain._p_slices["tau_ref"]] = 1.2, 1.0
+    f_ad = ca.Function("f", [plain._x, plain._p], [plain.f, ca.gradient(plain.f, plain._x)])
+    f1, g1 = (np.array(v).ravel() for v in f_ad(x, p))
+    f2, g2 = (np.array(v).ravel() for v in comp._grad_f(x, p))
+    g3 = np.array(ca.Function("g", [comp._x, comp._p], [ca.gradient(comp.f, comp._x)])(x, p)).ravel()
+    H1 = np.array(plain._hess_gn(x, p, 0.7, lam_g))
+    H2 = np.array(comp._hess_gn(x, p, 0.7, lam_g))
+    assert np.max(np.abs(H1)) > 0 and np.max(np.abs(g1)) > 0
+    # the same sums in another order: round-off of the largest terms
+    assert f2 == pytest.approx(f1, rel=1e-13)
+    assert np.max(np.abs(g2 - g1)) <= 1e-11 * np.max(np.abs(g1))
+    assert np.max(np.abs(g3 - g1)) <= 1e-11 * np.max(np.abs(g1))  # AD through the compiled route's custom Jacobian
+    assert np.max(np.abs(H2 - H1)) <= 1e-12 * np.max(np.abs(H1))
+
+
+def test_ocp_pieces_compile_in_the_background_after_the_solve(model, monkeypatch):
+    """compiled="auto" with the pieces not in the disk cache: evaluated in the virtual machine, their
+    compile deferred until the solve has returned; once they are cached the transcription is upgradable
+    (a held solver rebuilds on it)."""
+    from invctl.inversion import collocation, compiled
+    from invctl.inversion.boundary import Selection
+    from invctl.inversion.cache import servo_model
+    from invctl.inversion.schemes import get_scheme
+
+    cached, started = set(), []
+    monkeypatch.setattr(compiled, "is_cached", lambda f, *a, **k: f.name() in cached)
+    monkeypatch.setattr(compiled, "compile_in_background", lambda fns, *a, **k: started.append([f.name() for f in fns]))
+    sv = servo_model(model)
+    nx = sv.layout.nx
+    sel = Selection(tuple(i for i in range(nx) if i != 8), (9,), tuple(str(i) for i in range(nx)))
+    tr = ocp.OCPTranscription(sv, sel, get_scheme("hermite-simpson"), 4, relaxed=True, bounded=(13,), compiled="auto")
+    assert not tr.compiled and started == [] and tr in collocation.DEFERRED
+    collocation.start_deferred_compiles()
+    names = started[0]
+    assert {"ocp_point", "ocp_point_jac", "ocp_gn_block"} <= set(names) and len(names) == 5
+    assert not tr.upgradable()
+    cached.update(names)
+    assert tr.upgradable()

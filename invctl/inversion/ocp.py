@@ -284,17 +284,24 @@ class OCPTranscription:
         # compiled derivative functions (never differentiated themselves: they feed the custom
         # Jacobian and Hessians); "auto": only when already in the disk cache
         self._compile_request = compiled
-        self.compiled = self._compile_request is True or (
-            self._compile_request == "auto" and _all_cached([pt_jac, iv_jac]))
+        # the Gauss-Newton block J_k^T J_k of an interval's residual Jacobian on its structural nonzeros (upper triangle
+        # when the interval's columns are in global order); compiled, cheaper than the sparse product of the assembled J_R
+        Jk = ca.SX.sym("JR", ca.sparsify(iv_jac.call(iv_jac.sx_in())[1]).sparsity())
+        JtJ_k = ca.mtimes(Jk.T, Jk)
+        ordered = bool(np.all(np.diff(iv_index, axis=1) > 0))
+        gn_blk = ca.Function("ocp_gn_block", [Jk], [ca.densify(ca.triu(JtJ_k) if ordered else JtJ_k)])
+        # the values too: with compiled pieces IPOPT gets the objective gradient from them (grad_f), never by AD
+        pieces = (pt_val, iv_val, pt_jac, iv_jac, gn_blk)
+        self.compiled = self._compile_request is True or (self._compile_request == "auto" and _all_cached(pieces))
         self._pending: tuple = ()
         self._compile_started = False
         if self.compiled:
-            pt_jac, iv_jac = _compile(pt_jac), _compile(iv_jac)
+            pt_val, iv_val, pt_jac, iv_jac, gn_blk = (_compile(f) for f in pieces)
         elif self._compile_request == "auto":  # compiled in the background once the first solve has returned
             from .collocation import DEFERRED
             from .compiled import is_cached
 
-            self._pending = tuple(f for f in (pt_jac, iv_jac) if not is_cached(f))
+            self._pending = tuple(f for f in pieces if not is_cached(f))
             DEFERRED.append(self)
         # ---------------------------------------------------------------- the MX graph
         x, p = ca.MX.sym("x", self.nX), ca.MX.sym("p", self.np)
@@ -384,8 +391,17 @@ class OCPTranscription:
             f = f + ca.dot(P["relax_w"], x[self.i_r:])
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.ng)
         ws = ca.substitute(weight, p, ps)
-        self._hess_gn = ca.Function("gauss_newton_hess_lag", [xs, ps, lam_f, lam_g],
-                                    [ca.triu(2 * lam_f * ws * ca.mtimes(JRs.T, JRs))],
+        if self.compiled:  # the sum of the intervals' blocks, upper triangle
+            count, nzl = iv_index.shape
+            _r, cols_h = _block_triplets(nzl, iv_index, 0)
+            rows_h = iv_index[np.repeat(np.arange(count), nzl * nzl), np.tile(np.arange(nzl), count * nzl)]
+            keep = rows_h <= cols_h
+            sp_h, S_h = _assembly(rows_h[keep], cols_h[keep], (self.nX, self.nX), summed=True)
+            blocks = ca.substitute([ca.vec(gn_blk.map(N)(JR_blk))], [x, p], [xs, ps])[0]
+            JtJ = ca.MX(sp_h, ca.mtimes(S_h, blocks[np.flatnonzero(keep).tolist()]))
+        else:
+            JtJ = ca.triu(ca.mtimes(JRs.T, JRs))
+        self._hess_gn = ca.Function("gauss_newton_hess_lag", [xs, ps, lam_f, lam_g], [2 * lam_f * ws * JtJ],
                                     ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
         # the gradient from the assembled residual Jacobian, for compiled pieces (HS N = 100: 5 against 10 ms by reverse AD)
         Rs, fs = ca.substitute([R, f], [x, p], [xs, ps])
@@ -394,8 +410,13 @@ class OCPTranscription:
             grad[self.i_tau] += ps[self._p_slices["fscale"]] * ps[self._p_slices["wT"]]
         if self.elastic:
             grad[self.i_r:] += ps[self._p_slices["relax_w"]]
-        self._grad_f = ca.Function("ocp_grad_f", [xs, ps], [fs, grad], ["x", "p"],
-                                   ["f", "grad_f_x"])
+        self._grad_f = ca.Function("ocp_grad_f", [xs, ps], [fs, grad], ["x", "p"], ["f", "grad_f_x"])
+        if self.compiled:  # compiled values have no derivatives: f's is the assembled one (as g's)
+            of = ca.MX.sym("out_f")
+            jac_f = ca.Function("jac_ocp_f", [xs, ps, of], [grad.T, ca.MX(1, self.np)], ["x", "p", "out_f"],
+                                ["jac_f_x", "jac_f_p"])
+            f = ca.Function("ocp_f", [xs, ps], [fs], ["x", "p"], ["f"],
+                            {"custom_jacobian": jac_f, "jac_penalty": 0})(x, p)
         self._residual_fn = ca.Function("ocp_residual", [x, p], [R])
 
         # the point outputs the exact Hessian needs, as expressions of (x, p)
