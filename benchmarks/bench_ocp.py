@@ -23,7 +23,11 @@ objective scaling invctl ended with).  Opti differentiates its graph by AD (exac
 on the built solver (nothing rebuilt).  invctl's first call clears its caches; its re-solve is the
 same ``invert``/``minimum_time`` call again.  Re-solves run in interleaved rounds (min and median).
 invctl's bounded least squares uses the Gauss-Newton Hessian by default; the row
-``hessian='exact'`` is the same call with the exact Hessian, Opti's choice.  Problem 2 adds invctl's held
+``hessian='exact'`` is the same call with the exact Hessian, Opti's choice.  Problem 1 adds what a user of a held
+solver does: re-solve after a parameter change (the bound 8.0 <-> 7.9 N, alternating), invctl's held
+``InversionSolver`` (from its last primal-dual optimum) against Opti re-solving on its built solver warm-started
+from its last primal-dual solution (``set_initial`` of the variables and of ``lam_g``, IPOPT
+``warm_start_init_point`` with invctl's warm options), both whole calls in interleaved rounds.  Problem 2 adds invctl's held
 solver (``MinimumTimeSolver``: its first call builds, its re-solve starts at its last optimum).  Reported: the optimum
 (objective, duration), the largest state difference, iterations, and the time ratios.
 
@@ -48,7 +52,8 @@ from invctl.errors import InversionFailed
 from invctl.inversion import Bounds, invert, servo_model
 from invctl.inversion import cache as _cache
 from invctl.inversion.backends import IPOPT_DEFAULTS
-from invctl.inversion.bounded import IPOPT_BOUNDED_DEFAULTS
+from invctl.inversion import InversionSolver
+from invctl.inversion.bounded import IPOPT_BOUNDED_DEFAULTS, IPOPT_WARM
 from invctl.inversion.mintime import MinimumTimeSolver, minimum_time
 from invctl.inversion.ocp import relaxed_rhs, slack_scale
 
@@ -118,9 +123,11 @@ def hs_opti(sv, t_mesh, Yn, Ym, *, relaxed: bool, tau_ref=None, mask=None):
 
 
 # ----------------------------------------------------------------------------- problem 1
-def opti_bounded(md, ref, inv, exact, *, expand: bool):
+def opti_bounded(md, ref, inv, exact, *, expand: bool, warm: bool = False):
     """The bounded least-squares inversion written in Opti (module doc); returns its first solve and a
-    call that re-solves with the same solver (nothing rebuilt)."""
+    call that re-solves with the same solver (nothing rebuilt).  ``warm``: IPOPT started from the last
+    primal-dual solution (``IPOPT_WARM``, invctl's options of a held re-solve), and the re-solve call takes
+    the bound (an Opti parameter)."""
     sv = servo_model(md)
     d = inv.diagnostics
     t_mesh = inv.t_mesh
@@ -143,25 +150,41 @@ def opti_bounded(md, ref, inv, exact, *, expand: bool):
     L = ca.Function("L", [Xs, Ys, ths, ss], [ca.sumsqr(sv.output(Xs, Ys, ths) - Ys[:m]) + rho * ca.sumsqr(ss)])
     Ln, Lm = L.map(N + 1)(X, Yn, p.th, p.S), L.map(N)(p.Xm, Ym, p.th, p.Sm)
     J = ca.sum2(p.H / 6 * (Ln[:, :N] + 4 * Lm + Ln[:, 1:]))
-    opti.subject_to(opti.bounded(-8.0, p.Xm[iu2, :], 8.0))
-    opti.subject_to(opti.bounded(-8.0, X[iu2, :], 8.0))
+    ub = opti.parameter()
+    opti.subject_to(opti.bounded(-ub, p.Xm[iu2, :], ub))
+    opti.subject_to(opti.bounded(-ub, X[iu2, :], ub))
     opti.subject_to(X[list(sel.start), 0] == E0[list(sel.start)])
     opti.subject_to(X[list(sel.end), N] == Ef[list(sel.end)])
     opti.minimize(J)
     opti.set_value(p.th, md.theta_values)
+    opti.set_value(ub, 8.0)
     opti.set_initial(X, exact.X(t_mesh))
     opti.solver("ipopt", {**ipopt_opts(d["objective_scale"]), "expand": expand})
     build = time.perf_counter() - t_build
+    last = {}
 
     def solve():
-        sol = opti.solve()
+        sol = last["sol"] = opti.solve()
         st = sol.stats()
         return {"objective": float(sol.value(J)), "X": np.array(sol.value(X)), "iterations": st["iter_count"],
                 "status": st["return_status"]}
 
     t0 = time.perf_counter()
     first = solve()
-    return {**first, "build_s": build, "first_solve_s": time.perf_counter() - t0}, solve
+    first = {**first, "build_s": build, "first_solve_s": time.perf_counter() - t0}
+    if not warm:
+        return first, solve
+    opti.solver("ipopt", {**ipopt_opts(d["objective_scale"]), **IPOPT_WARM, "expand": expand})
+
+    def warm_solve(bound):
+        sol = last["sol"]
+        opti.set_value(ub, bound)
+        opti.set_initial(sol.value_variables())
+        opti.set_initial(opti.lam_g, sol.value(opti.lam_g))
+        return solve()
+
+    warm_solve(8.0)  # builds the warm-started solver
+    return first, warm_solve
 
 
 def _rows_and_lines(lines, ours: dict, peers: dict, label, inv_value, X_ref, fmt):
@@ -219,8 +242,51 @@ def bench_bounded(lines):
                      f"{dx['objective']:.9e} (rel. diff {abs(dx['objective'] / d['objective'] - 1):.1e})")
         ours["invctl hessian='exact'"] = (time.perf_counter() - t0, lambda: invert(
             md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(u={"u2": 8.0}), hessian="exact"), dx["iterations"])
-    return _rows_and_lines(lines, ours, peers, "objective", d["objective"], inv.X_mesh,
+    rows = _rows_and_lines(lines, ours, peers, "objective", d["objective"], inv.X_mesh,
                            lambda r: f"{r['objective']:.9e}")
+    held_resolve(lines, md, ref, q0, inv, exact)
+    return rows
+
+
+def held_resolve(lines, md, ref, q0, inv, exact):
+    """What a user of a held solver does: re-solve after a parameter change (the bound 8.0 <-> 7.9 N, alternating),
+    invctl's held InversionSolver against Opti warm-started on its built solver from its last primal-dual solution."""
+    t0 = time.perf_counter()
+    held = InversionSolver(md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(u={"u2": 8.0}))
+    held.solve()
+    first = time.perf_counter() - t0
+    opti_first, opti_warm = opti_bounded(md, ref, inv, exact, expand=True, warm=True)
+    state = {"invctl": 8.0, "opti": 8.0}
+
+    def flip(who):
+        state[who] = 7.9 if state[who] == 8.0 else 8.0
+        return state[who]
+
+    def ours():
+        b = flip("invctl")
+        out = held.solve(bounds=Bounds(u={"u2": b}))
+        return {"objective": out.diagnostics["objective"], "X": out.X_mesh, "iterations": out.diagnostics["iterations"],
+                "bound": b}
+
+    def peer():
+        b = flip("opti")
+        return {**opti_warm(b), "bound": b}
+
+    timed = interleaved({"invctl held InversionSolver": ours, "Opti expand=True, warm": peer})
+    r_ours, r_peer = timed["invctl held InversionSolver"][2], timed["Opti expand=True, warm"][2]
+    fresh = invert(md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(u={"u2": r_ours["bound"]})).diagnostics
+    lines.append(f"   re-solve after a parameter change (|u2| bound 8.0 <-> 7.9 N, alternating; {ROUNDS} interleaved "
+                 "rounds, whole calls): a held solver against Opti re-solving on its built solver from its last "
+                 "primal-dual solution (IPOPT warm_start_init_point, invctl's warm options)")
+    lines.append(f"   last round (bound {r_ours['bound']:.1f}): invctl held {r_ours['iterations']} iterations, objective "
+                 f"rel. diff to a fresh invert {abs(r_ours['objective'] / fresh['objective'] - 1):.1e} (fresh: "
+                 f"{fresh['iterations']} iterations); Opti warm {r_peer['iterations']} iterations, {r_peer['status']}, "
+                 f"objective rel. diff {abs(r_peer['objective'] / fresh['objective'] - 1):.1e}; invctl held first call "
+                 f"{first:.2f} s, Opti warm build + first solve {opti_first['build_s'] + opti_first['first_solve_s']:.2f} s")
+    lines.append("   held re-solve                        min_s  median_s  min/invctl")
+    base = timed["invctl held InversionSolver"][0]
+    for name, (mn_, med, _r) in timed.items():
+        lines.append(f"   {name:34s} {mn_:7.3f} {med:9.3f} {mn_ / base:10.2f}x")
 
 
 # ----------------------------------------------------------------------------- problem 2

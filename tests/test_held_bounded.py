@@ -114,15 +114,40 @@ def test_held_refinement_starts_on_the_last_mesh(model, ref, q0):
     assert fc["error"] <= tol
 
 
+class _NoDerivatives(ca.Callback):
+    """``fn`` evaluated numerically, without derivatives: a compiled function as ``casadi.external`` loads it."""
+
+    def __init__(self, fn):
+        ca.Callback.__init__(self)
+        self.fn = fn
+        self.construct(fn.name() + "_numeric", {})
+
+    def get_n_in(self):
+        return self.fn.n_in()
+
+    def get_n_out(self):
+        return self.fn.n_out()
+
+    def get_sparsity_in(self, i):
+        return self.fn.sparsity_in(i)
+
+    def get_sparsity_out(self, i):
+        return self.fn.sparsity_out(i)
+
+    def eval(self, arg):
+        return self.fn.call(arg)
+
+
 @pytest.mark.parametrize("scheme", ["hermite-simpson", "legendre2"])
 @pytest.mark.parametrize("structure", [dict(relaxed=True, bounded=(13,)),
                                        dict(relaxed=False, free_time=True, bounded=(13,), interior="points"),
                                        dict(relaxed=True, bounded=(13,), rated=(1,), elastic=True)],
                          ids=["relaxed", "free time", "elastic"])
 def test_compiled_derivative_assembly_equals_ad(model, scheme, structure, monkeypatch):
-    """With compiled pieces the objective gradient comes from the assembled residual Jacobian and the
-    Gauss-Newton Hessian from per-interval blocks; the same functions uncompiled (no C compiler needed)
-    against CasADi's reverse AD of the objective and the sparse product of the assembled Jacobian."""
+    """With compiled pieces (here: numeric functions without derivatives, no C compiler needed) the objective
+    gradient comes from the assembled residual Jacobian and the Gauss-Newton Hessian from per-interval blocks:
+    against CasADi's reverse AD of the uncompiled objective and the sparse product of the assembled Jacobian;
+    the plain NLP (AD of the whole graph, hessian="ad") is still differentiable."""
     from invctl.inversion.boundary import Selection
     from invctl.inversion.cache import servo_model
     from invctl.inversion.schemes import get_scheme
@@ -131,7 +156,8 @@ def test_compiled_derivative_assembly_equals_ad(model, scheme, structure, monkey
     nx = sv.layout.nx
     sel = Selection(tuple(i for i in range(nx) if i != 8), (9,), tuple(str(i) for i in range(nx)))
     plain = ocp.OCPTranscription(sv, sel, get_scheme(scheme), 5, compiled=False, **structure)
-    monkeypatch.setattr(ocp, "_compile", lambda f: f)  # the compiled route, evaluated in CasADi's virtual machine
+    keep = []  # the callbacks must outlive the functions that call them
+    monkeypatch.setattr(ocp, "_compile", lambda f: keep.append(_NoDerivatives(f)) or keep[-1])
     comp = ocp.OCPTranscription(sv, sel, get_scheme(scheme), 5, compiled=True, **structure)
     assert comp.compiled and not plain.compiled
     rng = np.random.default_rng(1)
@@ -150,6 +176,9 @@ def test_compiled_derivative_assembly_equals_ad(model, scheme, structure, monkey
     assert np.max(np.abs(g2 - g1)) <= 1e-11 * np.max(np.abs(g1))
     assert np.max(np.abs(g3 - g1)) <= 1e-11 * np.max(np.abs(g1))  # AD through the compiled route's custom Jacobian
     assert np.max(np.abs(H2 - H1)) <= 1e-12 * np.max(np.abs(H1))
+    f_plain = comp._plain[0]
+    g4 = np.array(ca.Function("g", [comp._x, comp._p], [ca.gradient(f_plain, comp._x)])(x, p)).ravel()
+    assert np.max(np.abs(g4 - g1)) <= 1e-13 * np.max(np.abs(g1))
 
 
 def test_ocp_pieces_compile_in_the_background_after_the_solve(model, monkeypatch):
@@ -175,3 +204,22 @@ def test_ocp_pieces_compile_in_the_background_after_the_solve(model, monkeypatch
     assert not tr.upgradable()
     cached.update(names)
     assert tr.upgradable()
+
+
+@pytest.mark.parametrize("scheme", ["hermite-simpson", "legendre3"])
+def test_extrema_of_all_intervals_at_once_equal_np_roots_per_interval(model, ref, q0, scheme):
+    """:meth:`Inverse.extrema` (the bounds checks between the nodes) finds every interval's roots at once;
+    the same roots one interval at a time by ``np.roots``."""
+    inv = invert(model, ref, q_guess=q0, N=20, scheme=scheme, compiled=False)
+    h = np.diff(inv.t_mesh)
+    for row in range(inv.X_mesh.shape[0]):
+        for derivative in (False, True):
+            C = inv._scheme.coefficients(inv.X_mesh, inv.dX_mesh, inv.X_col, row, h)
+            want = []
+            for k in range(inv.N):
+                p = np.polyder(np.poly1d(C[:, k]), 2 if derivative else 1)
+                want += [inv.t_mesh[k] + z.real * h[k] for z in np.atleast_1d(p.roots)
+                         if abs(z.imag) < 1e-9 and 0 < z.real < 1]
+            got = inv.extrema(row, derivative)
+            assert got.size == len(want)
+            assert np.allclose(np.sort(got), np.sort(want), rtol=0, atol=1e-12)  # round-off of the eigenvalues

@@ -427,10 +427,21 @@ class OCPTranscription:
         self._build_exact_hessian = lambda: structured_hessian(self)
         self.g = self._gfun(x, p)
         self.f = f
-        self._plain = (f, g)  # the same NLP without custom derivatives (hessian="exact")
+        self._plain_fg = None if self.compiled else (f, g)  # the same NLP without custom derivatives (hessian="ad")
+        self._structure = dict(relaxed=relaxed, free_time=free_time, bounded=bounded, rated=rated, elastic=elastic,
+                               interior=interior)
         self._x, self._p = x, p
         self._solvers: dict = {}
         self.build_s = time.perf_counter() - t_build
+
+    @property
+    def _plain(self):
+        """``(f, g)`` of the NLP without custom derivatives, for AD of the whole graph (``hessian="ad"``, checks);
+        with compiled pieces (no derivatives) built from the SX functions, on the same symbols."""
+        if self._plain_fg is None:
+            other = OCPTranscription(self.servo, self.selection, self.scheme, self.N, compiled=False, **self._structure)
+            self._plain_fg = tuple(ca.substitute(list(other._plain), [other._x, other._p], [self._x, self._p]))
+        return self._plain_fg
 
     def start_background_compile(self) -> None:
         """Start compiling the derivative pieces missing from the disk cache in the background (once)."""

@@ -109,14 +109,25 @@ class Inverse(Animated):
         on every mesh interval: where a bound on it can be exceeded between the nodes."""
         h = np.diff(self.t_mesh)
         C = self._scheme.coefficients(self.X_mesh, self.dX_mesh, self.X_col, row, h)
-        out = []
-        for k in range(self.N):
-            p = np.polyder(np.poly1d(C[:, k]), 2 if derivative else 1)
-            if p.order < 1 and not p.coeffs.any():
-                continue
-            out += [self.t_mesh[k] + z.real * h[k] for z in np.atleast_1d(p.roots)
-                    if abs(z.imag) < 1e-9 and 0 < z.real < 1]
-        return np.array(out, float)
+        order = 2 if derivative else 1
+        n = C.shape[0] - 1 - order  # degree of the derivative (coefficients highest power first)
+        if n < 1:
+            return np.zeros(0)
+        powers = np.arange(C.shape[0] - 1, order - 1, -1)
+        D = C[:n + 1] * np.prod([powers - j for j in range(order)], axis=0)[:, None]
+        lead = D[0] != 0
+        roots = np.full((self.N, n), np.nan, complex)
+        if lead.any():  # all intervals at once: the eigenvalues of the companion matrices (as np.roots)
+            comp = np.zeros((int(lead.sum()), n, n))
+            comp[:, 0, :] = -(D[1:, lead] / D[0, lead]).T
+            comp[:, np.arange(1, n), np.arange(n - 1)] = 1.0
+            roots[lead] = np.linalg.eigvals(comp)
+        for k in np.flatnonzero(~lead):  # a lower degree on this interval
+            r = np.roots(D[:, k]) if D[:, k].any() else np.zeros(0)
+            roots[k, :r.size] = r
+        ok = (np.abs(roots.imag) < 1e-9) & (roots.real > 0) & (roots.real < 1)
+        k = np.nonzero(ok)[0]
+        return self.t_mesh[k] + roots.real[ok] * h[k]
 
     def _curve(self, block: str) -> Curve:
         return Curve(self.X_mesh[self._slice(block)], lambda t: self.X(t)[self._slice(block)])
