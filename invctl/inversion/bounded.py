@@ -387,7 +387,7 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None, hold=Non
     if plan_result is None:
         plan_result = resolve_plan(model, reference, disc, hz)
     T0p, Tfp = plan_result[0], plan_result[1]
-    last = None if hold is None else hold.get("last")
+    last: dict = {} if hold is None else (hold.get("last") or {})
     info: dict = {"reused": [], "rebuilt": None}
     if hold is not None:
         hold["info"] = info
@@ -438,7 +438,7 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None, hold=Non
                           "warm start with a shortened pre-/post-actuation); give N instead")
     # 2. the relaxed problem
     setup = prepare(model, reference, disc, hz, T0=T0, Tf=Tf, rest_start=rest_start, rest_end=rest_end,
-                    plan_result=plan_result, any_count=True, ends=None if last is None else last["ends"])
+                    plan_result=plan_result, any_count=True, ends=last.get("ends"))
     bad = _equilibrium_check(setup, rb)
     if bad:
         worst = bad[0]
@@ -451,14 +451,14 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None, hold=Non
                                                                        "where": b["where"]} for b in bad}})
     sch, t_mesh, N = setup.scheme, setup.t_mesh, setup.t_mesh.size - 1
     t_build = time.perf_counter()
-    held = last is not None and _same_structure(last["tr"], servo, setup.selection, N, rb)
+    held = bool(last) and _same_structure(last["tr"], servo, setup.selection, N, rb)
     if held:  # the last transcription (Legendre/Radau: with the interior rows if the last solve needed them)
         tr = last["tr"]
         info["reused"].append("transcription")
     else:
         tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=True, bounded=rb.bounded, rated=rb.rated,
                                compiled=disc.compiled)
-        if last is not None:
+        if last:
             info["rebuilt"] = _structure_change(last["tr"], servo, setup.selection, N, rb)
     build_s = setup.timings["build_s"] + time.perf_counter() - t_build
     guess = warm_start if warm_start is not None else exact

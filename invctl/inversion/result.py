@@ -126,8 +126,8 @@ class Inverse(Animated):
             r = np.roots(D[:, k]) if D[:, k].any() else np.zeros(0)
             roots[k, :r.size] = r
         ok = (np.abs(roots.imag) < 1e-9) & (roots.real > 0) & (roots.real < 1)
-        k = np.nonzero(ok)[0]
-        return self.t_mesh[k] + roots.real[ok] * h[k]
+        at = np.nonzero(ok)[0]
+        return self.t_mesh[at] + roots.real[ok] * h[at]
 
     def _curve(self, block: str) -> Curve:
         return Curve(self.X_mesh[self._slice(block)], lambda t: self.X(t)[self._slice(block)])
