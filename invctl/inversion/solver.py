@@ -125,9 +125,12 @@ class InversionSolver:
         if plan_result[4] is not None and plan_result[4].path is not None:
             self._path = plan_result[4].path
         exact_info: dict = {}
+        if ws is None or ws is not self.last:  # warm=False or another start: not from the last optimum
+            self._bounded["last"] = None
 
         def exact(o, w):
-            w = self._square_last if w is not None else None  # the last exact inverse, not a bounded one
+            if w is not None and w is self.last:
+                w = self._square_last  # the last exact inverse, not a bounded one
             inv = (self._refine(o, model, ref, w, new_reference) if o.discretization.tol is not None
                    else self._solve_square(o, model, ref, w, new_reference))
             self._square_last = inv
@@ -137,16 +140,11 @@ class InversionSolver:
         setup_s = time.perf_counter() - t0
         inv = invert_bounded(model, ref, opts, warm_start=ws, hold=self._bounded, exact_solve=exact,
                              plan_result=plan_result)
-        info = dict(self._bounded.get("info", {}))
         relaxed = not inv.diagnostics.get("tracking", {}).get("exact", False)
+        src = self._bounded.get("info", {}) if relaxed else exact_info  # what the returned solution's solve did
         info = {"held": True, "route": "bounded", "first": self.last is None, "relaxed": relaxed,
-                "reused": info.get("reused", []) if relaxed else [], "remapped": exact_info.get("remapped"),
-                "rebuilt": info.get("rebuilt") if relaxed else None, "exact": exact_info or None, "setup_s": setup_s}
-        if relaxed and info["rebuilt"] is None and "transcription" not in info["reused"] and self.last is not None:
-            info["rebuilt"] = "the exact inverse left the bounds: the relaxed problem"
-        if not relaxed:
-            info["reused"] = list(exact_info.get("reused", []))
-            info["rebuilt"] = exact_info.get("rebuilt")
+                "reused": list(src.get("reused", [])), "remapped": exact_info.get("remapped"),
+                "rebuilt": src.get("rebuilt"), "exact": exact_info or None, "setup_s": setup_s}
         self.builds += int(relaxed and "transcription" not in info["reused"])
         inv.diagnostics["solver"] = info
         self.info = info
