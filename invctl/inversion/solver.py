@@ -142,10 +142,11 @@ class InversionSolver:
                              plan_result=plan_result)
         relaxed = not inv.diagnostics.get("tracking", {}).get("exact", False)
         src = self._bounded.get("info", {}) if relaxed else exact_info  # what the returned solution's solve did
-        info = {"held": True, "route": "bounded", "first": self.last is None, "relaxed": relaxed,
-                "reused": list(src.get("reused", [])), "remapped": exact_info.get("remapped"),
-                "rebuilt": src.get("rebuilt"), "exact": exact_info or None, "setup_s": setup_s}
-        self.builds += int(relaxed and "transcription" not in info["reused"])
+        reused = list(src.get("reused", []))
+        info: dict[str, Any] = {"held": True, "route": "bounded", "first": self.last is None, "relaxed": relaxed,
+                                "reused": reused, "remapped": exact_info.get("remapped"), "rebuilt": src.get("rebuilt"),
+                                "exact": exact_info or None, "setup_s": setup_s}
+        self.builds += int(relaxed and "transcription" not in reused)
         inv.diagnostics["solver"] = info
         self.info = info
         return inv
