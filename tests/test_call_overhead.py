@@ -1,0 +1,86 @@
+"""Per-call overhead of the inversion: what a library point builds, the map memos (least recently used
+entry evicted, not the whole memo), and the fast paths against their plain forms."""
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from invctl.inversion import servo as servo_mod
+from invctl.studies import library
+from invctl.studies.library import generate
+
+
+def _scalar_functions(k):
+    x = ca.SX.sym("x")
+    return [ca.Function(f"f{i}", [x], [x * (i + 1)]) for i in range(k)]
+
+
+@pytest.mark.parametrize("memo, limit, get", [
+    ("_MAPS", "MAPS_KEPT", lambda f: servo_mod.mapped(f, 3)),
+    ("_BUFFERED", "BUFFERED_KEPT", lambda f: servo_mod.buffered_map(f, 3))], ids=["mapped", "buffered_map"])
+def test_map_memos_evict_the_least_recently_used_entry(monkeypatch, memo, limit, get):
+    monkeypatch.setattr(servo_mod, memo, OrderedDict())
+    monkeypatch.setattr(servo_mod, limit, 3)
+    f0, f1, f2, f3 = _scalar_functions(4)
+    first = [get(f) for f in (f0, f1, f2)]
+    assert get(f0) is first[0]  # f0 used again: f1 is now the least recently used
+    get(f3)  # one entry too many: f1 goes, f0 and f2 stay (the whole memo was cleared before)
+    assert get(f0) is first[0] and get(f2) is first[2]
+    assert get(f1) is not first[1]
+    assert len(getattr(servo_mod, memo)) == 3
+
+
+def test_buffered_map_equals_the_plain_map():
+    """Dense outputs are mapped as they are (shared inputs by the map's reduced inputs); sparse ones through
+    the densifying wrapper: the values of the plain map either way."""
+    x, p = ca.SX.sym("x", 2), ca.SX.sym("p", 2)
+    dense = ca.Function("dense", [x, p], [ca.vertcat(x[0] * p[0], x[1] + p[1]), ca.densify(ca.jacobian(x * x[0], x))])
+    sparse = ca.Function("sparse", [x, p], [ca.jacobian(x * p[0], x)])
+    rng = np.random.default_rng(0)
+    X, P = rng.normal(size=(2, 5)), rng.normal(size=2)
+    for fn in (dense, sparse):
+        plain = [np.array(ca.densify(o)) for o in fn.map(5).call([X, np.tile(P[:, None], 5)])]
+        got = servo_mod.buffered_map(fn, 5, once=(1,))(X, P)
+        for a, b in zip(got, plain):
+            assert np.array_equal(a, b)
+
+
+def test_a_library_point_builds_only_its_reference(monkeypatch):
+    """A warm-started library point builds one CasADi Function and one map: its new reference's derivatives
+    and their map over the sample times (the held transcription, equilibria, checks and result reuse what the
+    first points built)."""
+    grid = {"rf[0]": [0.88, 0.89, 0.9, 0.91, 0.92]}
+    kw = dict(executor="serial", N=60, verify="none", progress=False)
+    generate("manipulator", grid, **kw)  # the sizes of this grid seen once
+    built: list = []
+    init, fmap = ca.Function.__init__, ca.Function.map
+    point = library.solve_point
+    on = [False]
+
+    def counting_init(self, *args, **kwargs):
+        if on[0]:
+            built.append(("Function", str(args[0]) if args else ""))
+        init(self, *args, **kwargs)
+
+    def counting_map(self, *args, **kwargs):
+        if on[0]:
+            built.append(("map", self.name()))
+        return fmap(self, *args, **kwargs)
+
+    def counting_point(*args, **kwargs):
+        on[0] = True
+        try:
+            return point(*args, **kwargs)
+        finally:
+            on[0] = False
+
+    monkeypatch.setattr(ca.Function, "__init__", counting_init)
+    monkeypatch.setattr(ca.Function, "map", counting_map)
+    monkeypatch.setattr(library, "solve_point", counting_point)
+    lib = generate("manipulator", grid, **kw)
+    assert lib.counts()["solved"] == 5 and set(lib.stats["initial_guess"]) == {"continuation"}
+    P = len(lib.status)
+    assert sorted(built) == sorted([("Function", "y_ref_d3")] * P + [("map", "y_ref_d3")] * P)
