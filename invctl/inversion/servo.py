@@ -124,10 +124,11 @@ def buffered_map(fn: ca.Function, k: int, once: tuple = ()) -> Buffered:
     one column, the same at every point), called through buffers (:class:`Buffered`), memoized per
     function object like :func:`mapped`.  A function with dense outputs is mapped as it is (the map of
     :func:`mapped` when no input is shared); otherwise through a wrapper that densifies them."""
-    return _remember(_BUFFERED, (id(fn), k, once), fn, lambda: Buffered(_dense_map(fn, k, once)), BUFFERED_KEPT)
+    return _remember(_BUFFERED, (id(fn), k, once), fn, lambda: Buffered(dense_map(fn, k, once)), BUFFERED_KEPT)
 
 
-def _dense_map(fn: ca.Function, k: int, once: tuple) -> ca.Function:
+def dense_map(fn: ca.Function, k: int, once: tuple) -> ca.Function:
+    """``fn`` at ``k`` points (inputs numbered in ``once`` shared) with dense outputs."""
     if all(fn.sparsity_out(i).is_dense() for i in range(fn.n_out())):
         return fn.map(f"{fn.name()}_at_{k}", "serial", k, list(once), []) if once else mapped(fn, k)
     ins = [ca.MX.sym(fn.name_in(i), fn.size1_in(i), 1 if i in once else k) for i in range(fn.n_in())]
