@@ -84,3 +84,33 @@ def test_a_library_point_builds_only_its_reference(monkeypatch):
     assert lib.counts()["solved"] == 5 and set(lib.stats["initial_guess"]) == {"continuation"}
     P = len(lib.status)
     assert sorted(built) == sorted([("Function", "y_ref_d3")] * P + [("map", "y_ref_d3")] * P)
+
+
+def test_pieces_in_the_disk_cache_are_loaded_without_building_their_sx_functions(monkeypatch):
+    """A piece the disk cache has is loaded by its name: the transcription does not build the SX block function
+    (which inlines the right-hand side Jacobian) to look it up, and evaluates with the loaded piece."""
+    import invctl_scenes.manipulator as scene
+    from invctl.inversion import collocation, compiled
+    from invctl.inversion.boundary import resolve_selection
+    from invctl.inversion.cache import servo_model
+    from invctl.inversion.schemes import get_scheme
+
+    model = scene.build()
+    sv = servo_model(model)
+    sel = resolve_selection(sv, scene.BOUNDARY["start"], scene.BOUNDARY["end"])
+    hs = get_scheme("hermite-simpson")
+    plain = collocation.Transcription(sv, sel, hs, 12)  # CasADi's virtual machine: builds its block function
+    on_disk = {hs.block_name: plain.block_function()}  # a stand-in for the compiled block function
+    monkeypatch.setattr(compiled, "load_cached", lambda name, key, flags=("-O2",): on_disk.get(name))
+    monkeypatch.setattr(compiled, "compile_in_background", lambda *a, **k: None)
+    blocks = []
+    real = type(hs).bvp_blocks
+    monkeypatch.setattr(type(hs), "bvp_blocks", lambda self, tr: blocks.append(tr) or real(self, tr))
+    tr = collocation.Transcription(sv, sel, hs, 12, compiled="auto", cache_key="test")
+    assert tr.compiled_pieces == (hs.block_name,) and not tr.compiled
+    rng = np.random.default_rng(0)
+    x, p = rng.normal(size=tr.nX), np.abs(rng.normal(size=tr.np))
+    g, J = tr.evaluators(buffered=True)[1](x, p)
+    assert blocks == []  # looked up and evaluated without building it
+    g0, J0 = plain.evaluators(buffered=True)[1](x, p)
+    assert np.array_equal(g, g0) and abs(J - J0).max() <= 1e-14 * abs(J0).max()
