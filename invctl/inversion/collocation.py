@@ -67,14 +67,12 @@ class Transcription:
         self._pieces: dict = {}
         self._key = cache_key
         if self._compile_request:
-            from .compiled import load_cached
-
             # the pieces by name: one found in the disk cache is loaded without building its SX function
             makers = {"servo_rhs": lambda: servo.rhs, interval.name(): lambda: interval,
                       "servo_rhs_jac": lambda: servo.rhs_jac, scheme.block_name: self.block_function,
                       "servo_residuals": lambda: servo.residuals}
             for name in makers:
-                found = load_cached(name, cache_key) if cache_key is not None else None
+                found = servo.disk_piece(name, cache_key) if cache_key is not None else None
                 if found is not None:
                     self._pieces[name] = found
             if self._compile_request is True:
@@ -88,8 +86,8 @@ class Transcription:
             self._have = have
             self._makers = makers
             self.compiled = len(have) == len(makers)
-            if "servo_rhs_jac" in have:  # the plan's and the dichotomy check's linearizations too
-                servo.use_compiled(self.piece("servo_rhs_jac"))
+            # the plan's and the dichotomy check's linearizations, the quasi-static path's checks too
+            servo.use_compiled(*(self.piece(nm) if nm in have else None for nm in ("servo_rhs_jac", "servo_residuals")))
             self.compiled_pieces = tuple(name for name in makers if name in have)
         self.interval_sx = interval  # the SX form (parameter derivatives, sensitivity.py)
         self.interval = interval = self._c(interval)

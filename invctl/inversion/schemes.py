@@ -138,6 +138,15 @@ class HermiteSimpson(Scheme):
 
     # ------------------------------------------------------------ the transcription's pieces
     @staticmethod
+    def _ends(A, w: int = 1):
+        """``(A[:, :-w], A[:, w:])`` of an MX with ``N + 1`` column blocks of width ``w`` (the blocks at the
+        start and at the end of every interval) by one split and two concatenations: a column slice
+        builds an index of every nonzero (~5 ms for the right-hand side Jacobians of N = 200)."""
+        n = A.shape[1]
+        first, middle, last = ca.horzsplit(A, [0, w, n - w, n])
+        return ca.horzcat(first, middle), ca.horzcat(middle, last)
+
+    @staticmethod
     def _midpoint(Xa, Xb, Fa, Fb, h):
         return 0.5 * (Xa + Xb) + h / 8 * (Fa - Fb)
 
@@ -157,7 +166,7 @@ class HermiteSimpson(Scheme):
         """Mapped ``(defect, energy)`` of all intervals (MX)."""
         N = tr.N
         Fn = rhs.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
-        return interval.map(N)(Xmesh[:, :N], Xmesh[:, 1:], Fn[:, :N], Fn[:, 1:], h, Y[:, N + 1:], theta)
+        return interval.map(N)(*self._ends(Xmesh), *self._ends(Fn), h, Y[:, N + 1:], theta)
 
     def bvp_blocks(self, tr) -> ca.Function:
         """SX function of the Jacobian blocks ``(Da^T, Db^T)`` of one interval."""
@@ -194,8 +203,7 @@ class HermiteSimpson(Scheme):
         else:
             blk = tr.piece(self.block_name, tr.block_function)
             F, JF = rj.map(N + 1)(Xmesh, Y[:, :N + 1], theta)
-            DaT, DbT = blk.map(N)(Xmesh[:, :N], Xmesh[:, 1:], F[:, :N], F[:, 1:], JF[:, :nx * N], JF[:, nx:],
-                                  h, Y[:, N + 1:], theta)
+            DaT, DbT = blk.map(N)(*self._ends(Xmesh), *self._ends(F), *self._ends(JF, nx), h, Y[:, N + 1:], theta)
         return [ca.vec(DaT), ca.vec(DbT)]
 
     def bvp_pattern(self, tr):

@@ -361,9 +361,31 @@ class ServoModel:
             made["vm"] = (None, self._linearization(self.jacobian_evaluator))
         return made["vm"][1]
 
-    def use_compiled(self, rhs_jac: ca.Function) -> None:
-        """Evaluate :attr:`linearization` with ``rhs_jac``, the compiled equivalent of :attr:`rhs_jac`."""
-        self.__dict__["_compiled_rhs_jac"] = rhs_jac
+    def use_compiled(self, rhs_jac: ca.Function | None = None, residuals: ca.Function | None = None) -> None:
+        """Evaluate :attr:`linearization` with ``rhs_jac``, the compiled equivalent of :attr:`rhs_jac`, and
+        :meth:`evaluator` ``("residuals")`` with ``residuals``, that of :attr:`residuals`."""
+        if rhs_jac is not None:
+            self.__dict__["_compiled_rhs_jac"] = rhs_jac
+        if residuals is not None:
+            self.__dict__["_compiled_residuals"] = residuals
+
+    def evaluator(self, name: str) -> ca.Function:
+        """``residuals`` for numeric evaluation: its compiled equivalent once set (:meth:`use_compiled`)."""
+        return self.__dict__.get(f"_compiled_{name}") or getattr(self, name)
+
+    def disk_piece(self, name: str, key: str) -> ca.Function | None:
+        """The compiled function ``name`` of this model from the disk cache (cache key ``key``), loaded once;
+        ``None`` while it is not there."""
+        from .compiled import cache_dir, load_cached
+
+        memo = self.__dict__.setdefault("_disk_pieces", {})
+        where = (name, key, str(cache_dir()))
+        hit = memo.get(where)
+        if hit is None:
+            hit = load_cached(name, key)
+            if hit is not None:
+                memo[where] = hit
+        return hit
 
     def _linearization(self, jac: ca.Function) -> Buffered:
         X, Y, th = (ca.MX.sym(k, *s) for k, s in (("X", (self.layout.nx, 1)), ("Y", (4 * self.layout.m, 1)),
