@@ -114,3 +114,33 @@ def test_pieces_in_the_disk_cache_are_loaded_without_building_their_sx_functions
     assert blocks == []  # looked up and evaluated without building it
     g0, J0 = plain.evaluators(buffered=True)[1](x, p)
     assert np.array_equal(g, g0) and abs(J - J0).max() <= 1e-14 * abs(J0).max()
+
+
+def test_a_first_solve_with_the_pieces_on_disk_builds_no_sx_jacobian_or_residuals(monkeypatch):
+    """The plan linearizes and the quasi-static path is checked through the pieces the disk cache has (as the
+    transcription then solves with them): a first solve builds neither the SX right-hand side Jacobian nor
+    the residuals, and equals the solve in CasADi's virtual machine."""
+    import invctl_scenes.manipulator as scene
+    from invctl.inversion import cache, collocation, compiled, invert
+    from invctl.inversion.boundary import resolve_selection
+    from invctl.inversion.schemes import get_scheme
+
+    model = scene.build()
+    ref = scene.reference(model)
+    kw = dict(N=20, backend="newton", q_guess=scene.initial_configuration(model))
+    vm = invert(model, ref, compiled=False, **kw)
+    other = servo_mod.ServoModel(model, "baumgarte", 10.0)  # stand-ins for the compiled pieces
+    hs = get_scheme("hermite-simpson")
+    sel = resolve_selection(other, vm.diagnostics["plan"]["start"], vm.diagnostics["plan"]["end"])
+    on_disk = {"servo_rhs_jac": other.rhs_jac, "servo_residuals": other.residuals,
+               hs.block_name: collocation.Transcription(other, sel, hs, 20).block_function()}
+    monkeypatch.setattr(compiled, "load_cached", lambda name, key, flags=("-O2",): on_disk.get(name))
+    monkeypatch.setattr(compiled, "compile_in_background", lambda *a, **k: None)
+    for memo in ("_SERVO_CACHE", "_TRANS_CACHE"):  # a fresh servo model and transcription
+        monkeypatch.setattr(cache, memo, {})
+    inv = invert(model, ref, compiled="auto", **kw)
+    fresh = cache.servo_model(model)
+    assert "rhs_jac" not in fresh.__dict__ and "residuals" not in fresh.__dict__
+    assert set(inv.diagnostics["compiled_pieces"]) == set(on_disk)
+    assert np.array_equal(inv.t_mesh, vm.t_mesh)
+    assert np.max(np.abs(inv.X_mesh - vm.X_mesh)) <= 1e-10 * np.max(np.abs(vm.X_mesh))
