@@ -144,3 +144,25 @@ def test_a_first_solve_with_the_pieces_on_disk_builds_no_sx_jacobian_or_residual
     assert set(inv.diagnostics["compiled_pieces"]) == set(on_disk)
     assert np.array_equal(inv.t_mesh, vm.t_mesh)
     assert np.max(np.abs(inv.X_mesh - vm.X_mesh)) <= 1e-10 * np.max(np.abs(vm.X_mesh))
+
+
+def test_a_tracking_inversion_builds_one_equilibrium_solver(monkeypatch):
+    """The scene's design configuration uses the inversion's equilibrium solver of the model's structure (at the
+    model's own parameter values), not a second one."""
+    import invctl_scenes.manipulator as scene
+    from invctl.analysis import equilibrium
+    from invctl.inversion import cache
+    from invctl.studies.tracking import equilibrium_configuration, invert_tracking
+
+    model = scene.build()
+    ref = scene.reference(model)
+    monkeypatch.setattr(cache, "_EQ_CACHE", {})
+    made = []
+    real = equilibrium.EquilibriumSolver.__init__
+    monkeypatch.setattr(equilibrium.EquilibriumSolver, "__init__", lambda self, md: made.append(md) or real(self, md))
+    invert_tracking(scene.SCENE, model, ref, N=20, backend="newton", compiled=False)
+    assert len(made) == 1
+    other = model.with_params(m3=0.7 * model.values["m3"], L2=1.1 * model.values["L2"])  # the cached solver's model
+    y = ref(ref.t0)                                                                       # has other values
+    fresh = equilibrium.EquilibriumSolver(other).solve(np.ravel(y), guess_q=scene.initial_configuration(other))[0]
+    assert np.max(np.abs(equilibrium_configuration(scene.SCENE, other, y) - fresh[:other.n])) < 1e-10
