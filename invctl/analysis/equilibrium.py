@@ -39,7 +39,6 @@ class EquilibriumSolver:
         if p:
             bal = bal + ca.mtimes(sub(md.J).T, mu)
         res = ca.vertcat(sub(md.g) if l else ca.SX(0, 1), sub(md.j) if p else ca.SX(0, 1), sub(md.h) - y, bal)
-        self._F = ca.Function("equilibrium", [w, y, md.theta], [res, ca.jacobian(res, w)])
         self._Fd = ca.Function("equilibrium_dense", [w, y, md.theta], [res, ca.densify(ca.jacobian(res, w))])
         self.sizes = (n, l, p, m)
         self._one = None  # _Fd through buffers (numpy in and out, no DM conversions)
@@ -235,7 +234,7 @@ def operating_points(model, reference, count: int = 5, *, guess_q=None, tol: flo
     sel[l + p:l + p + m] = np.eye(m)        # d residual / d y = -sel
     for k in range(count):
         if k:
-            Jw = np.array(solver._F(w, Y[k - 1], th)[1])
+            Jw = solver._at(0)(w, Y[k - 1], th)[1]
             w = w + np.linalg.lstsq(Jw, sel @ (Y[k] - Y[k - 1]), rcond=None)[0]
         try:
             X, r = solver.solve(Y[k], guess_w=w, theta=th, tol=tol,

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .schemes import Scheme
-from .servo import NUMERIC_SOLVES_NX, Buffered
+from .servo import NUMERIC_SOLVES_NX, Buffered, dense_map
 
 
 #: transcriptions whose missing pieces wait for :func:`start_deferred_compiles`
@@ -47,7 +47,6 @@ class Transcription:
         t_build = time.perf_counter()
         if compiled is True and objective:
             raise ValueError("compiled evaluation has no derivatives: use it for square systems (no objective)")
-        self._c = lambda f: f  # noqa: E731
         self.compiled = False
         self._compile_request = compiled if not objective else False
         self.servo, self.selection, self.scheme, self.N = servo, selection, scheme, int(N)
@@ -64,23 +63,32 @@ class Transcription:
         self.compiled_pieces: tuple = ()
         self._pending: tuple = ()
         self._compile_started = False
+        self._have: set = set()
+        self._pieces: dict = {}
+        self._key = cache_key
         if self._compile_request:
-            from .compiled import compile_cached, is_cached
-
-            wanted = [rhs, interval, servo.rhs_jac, self.block_function(), servo.residuals]
+            # the pieces by name: one found in the disk cache is loaded without building its SX function
+            makers = {"servo_rhs": lambda: servo.rhs, interval.name(): lambda: interval,
+                      "servo_rhs_jac": lambda: servo.rhs_jac, scheme.block_name: self.block_function,
+                      "servo_residuals": lambda: servo.residuals}
+            for name in makers:
+                found = servo.disk_piece(name, cache_key) if cache_key is not None else None
+                if found is not None:
+                    self._pieces[name] = found
             if self._compile_request is True:
-                have = {f.name() for f in wanted}
+                have = set(makers)
             else:  # "auto": what the disk cache has now; the rest compiles in the background
-                have = {f.name() for f in wanted if is_cached(f, key=cache_key)}
-                missing = [f for f in wanted if f.name() not in have]
+                have = set(self._pieces)
+                missing = [make() for name, make in makers.items() if name not in have]
                 if missing:  # compiled in the background once the first solve has returned
                     self._pending = tuple((f, cache_key) for f in missing)
                     DEFERRED.append(self)
-            self._c = lambda f: compile_cached(f, key=cache_key) if f.name() in have else f  # noqa: E731
-            self.compiled = len(have) == len(wanted)
-            if servo.rhs_jac.name() in have:  # the plan's and the dichotomy check's linearizations too
-                servo.use_compiled(self._c(servo.rhs_jac))
-            self.compiled_pieces = tuple(f.name() for f in wanted if f.name() in have)
+            self._have = have
+            self._makers = makers
+            self.compiled = len(have) == len(makers)
+            # the plan's and the dichotomy check's linearizations, the quasi-static path's checks too
+            servo.use_compiled(*(self.piece(nm) if nm in have else None for nm in ("servo_rhs_jac", "servo_residuals")))
+            self.compiled_pieces = tuple(name for name in makers if name in have)
         self.interval_sx = interval  # the SX form (parameter derivatives, sensitivity.py)
         self.interval = interval = self._c(interval)
         rhs = self._c(rhs)
@@ -101,6 +109,25 @@ class Transcription:
         self._x, self._p = x, p
         self._solvers: dict = {}
         self.build_s = time.perf_counter() - t_build
+
+    def _c(self, f: ca.Function) -> ca.Function:
+        """The compiled equivalent of the piece ``f`` when this transcription evaluates it in C, else ``f``."""
+        return self.piece(f.name(), lambda: f)
+
+    def piece(self, name: str, make=None) -> ca.Function:
+        """The piece called ``name`` (``servo_rhs``, ``servo_rhs_jac``, ``servo_residuals``, the interval or the
+        block function): compiled when this transcription evaluates it in C (loaded once), else the SX function
+        ``make()`` (built only then)."""
+        hit = self._pieces.get(name)
+        if hit is not None:
+            return hit
+        make = make or self.__dict__.get("_makers", {})[name]
+        if name in self._have:
+            from .compiled import compile_cached
+
+            hit = self._pieces[name] = compile_cached(make(), key=self._key)
+            return hit
+        return make()
 
     def start_background_compile(self) -> None:
         """Start compiling the pieces missing from the disk cache in the background (once)."""
@@ -167,15 +194,17 @@ class Transcription:
                             np.asarray(indices, np.int64).tolist())
         return ca.MX(spars, self._jacobian_nz(x, p))
 
-    def _jacobian_nz(self, x, p):
-        """The nonzeros of the Jacobian of ``g`` in CSC order of :meth:`_pattern` (MX column)."""
+    def _jacobian_nz(self, x, p, csc: bool = True):
+        """The nonzeros of the Jacobian of ``g`` in CSC order of :meth:`_pattern` (MX column; ``csc=False``:
+        in block order, ``[perm]`` puts them in CSC order)."""
         nx, N = self.nx, self.N
         indices, indptr, perm, s0, sf = self._pattern()
         Xmesh = ca.reshape(x[:nx * (N + 1)], nx, N + 1)
         h, Y, theta, _E0, _Ef = self._split_p(p)
-        vals = self.scheme.bvp_jacobian_values(self, x, Xmesh, h, Y, theta, self._c(self.servo.rhs_jac))
+        vals = self.scheme.bvp_jacobian_values(self, x, Xmesh, h, Y, theta,
+                                               self.piece("servo_rhs_jac", lambda: self.servo.rhs_jac))
         vals.append(ca.DM.ones(s0.size + sf.size))
-        return ca.vertcat(*vals)[np.asarray(perm, np.int64).tolist()]
+        return ca.vertcat(*vals)[np.asarray(perm, np.int64).tolist()] if csc else ca.vertcat(*vals)
 
     def _jacobian_function(self) -> ca.Function:
         """``(x, p) -> dg/dx`` (the assembled sparse Jacobian), built once."""
@@ -269,10 +298,12 @@ class Transcription:
         if getattr(self, "_evals", None) is None:
             import threading
 
-            indices, indptr = self._pattern()[:2]
+            indices, indptr, perm = self._pattern()[:3]
             x, p = self._x, self._p
             fg = ca.Function("servo_g_only", [x, p], [self.g])
-            fgj = ca.Function("servo_g_jac", [x, p], [self.g, self._jacobian_nz(x, p)])
+            # the nonzeros in block order, put in CSC order by numpy (an MX index of every nonzero costs more
+            # to build than the permutation costs in all the calls)
+            fgj = ca.Function("servo_g_jac", [x, p], [self.g, self._jacobian_nz(x, p, csc=False)])
             xin, pin = np.zeros(self.nX), np.zeros(self.np)
             g1, g2, jnz = np.zeros(self.ng), np.zeros(self.ng), np.zeros(indices.size)
             lock = threading.Lock()
@@ -302,7 +333,7 @@ class Transcription:
                     np.copyto(xin, np.ravel(xv))
                     np.copyto(pin, np.ravel(pv))
                     run_gj()
-                    return g2.copy(), sp.csc_matrix((jnz.copy(), indices, indptr), shape=shape)
+                    return g2.copy(), sp.csc_matrix((jnz[perm], indices, indptr), shape=shape)
 
             self._evals = (residual, residual_and_jacobian, keep)
         return self._evals[:2]
@@ -356,24 +387,21 @@ class Transcription:
     def _rhs_map(self, k: int) -> ca.Function:
         cache = self.__dict__.setdefault("_rm", {})
         if k not in cache:
-            cache[k] = self._c(self.servo.rhs).map(k)
+            cache[k] = self.piece("servo_rhs", lambda: self.servo.rhs).map(k)
         return cache[k]
 
     def mapped_call(self, name: str, k: int) -> "Buffered":
-        """``servo.<name>`` (``rhs`` or ``residuals``) at ``k`` points ``(X, Y, theta)``, compiled when the
+        """``servo.<name>`` (``rhs``, ``rhs_jac`` or ``residuals``) at ``k`` points ``(X, Y, theta)``, compiled when the
         transcription is, called through buffers (:class:`Buffered`); built once per ``k``: the slopes
         of a solution and its checks at the mesh and between the nodes."""
         cache = self.__dict__.setdefault("_calls", {})
         if (name, k) not in cache:
-            fn = self._c(getattr(self.servo, name))
-            X, Y, th = ca.MX.sym("X", self.nx, k), ca.MX.sym("Y", self.m4, k), ca.MX.sym("theta", self.ntheta)
-            out = fn.map(k)(X, Y, th)
-            outs = [ca.densify(o) for o in (out if isinstance(out, (list, tuple)) else [out])]
-            cache[name, k] = Buffered(ca.Function(f"{fn.name()}_at_{k}", [X, Y, th], outs))
+            fn = self.piece(f"servo_{name}", lambda: getattr(self.servo, name))
+            cache[name, k] = Buffered(dense_map(fn, k, (2,)))
         return cache[name, k]
 
     def _rhs_jac_map(self, k: int) -> ca.Function:
         cache = self.__dict__.setdefault("_rjm", {})
         if k not in cache:
-            cache[k] = self._c(self.servo.rhs_jac).map(k)
+            cache[k] = self.piece("servo_rhs_jac", lambda: self.servo.rhs_jac).map(k)
         return cache[k]

@@ -53,8 +53,7 @@ def _name(fn: ca.Function, flags, key: str | None = None) -> str:
     given, else from the serialization of ``fn`` (memoized per function object:
     serializing the right-hand-side Jacobian costs ~10 ms)."""
     if key is not None:
-        text = "|".join([key, fn.name(), " ".join(flags), str(getattr(ca, "__version__", ""))])
-        return f"{fn.name()}_{hashlib.sha1(text.encode()).hexdigest()[:16]}"
+        return keyed_name(fn.name(), flags, key)
     hit = _NAMES.get((id(fn), tuple(flags)))
     if hit is not None and hit[0] is fn:
         return hit[1]
@@ -64,6 +63,21 @@ def _name(fn: ca.Function, flags, key: str | None = None) -> str:
         _NAMES.clear()
     _NAMES[(id(fn), tuple(flags))] = (fn, name)
     return name
+
+
+def keyed_name(name: str, flags, key: str) -> str:
+    """Cache name of the function called ``name`` built from what ``key`` describes (:func:`_name`)."""
+    text = "|".join([key, name, " ".join(flags), str(getattr(ca, "__version__", ""))])
+    return f"{name}_{hashlib.sha1(text.encode()).hexdigest()[:16]}"
+
+
+def load_cached(name: str, key: str, flags: tuple[str, ...] = ("-O2",)) -> ca.Function | None:
+    """The compiled function called ``name`` with cache key ``key`` from the disk cache, without building
+    its SX function (``None`` when it is not there or there is no compiler)."""
+    _reap()
+    full = keyed_name(name, flags, key)
+    so = cache_dir() / f"{full}.so"
+    return ca.external(full, str(so)) if compiler() is not None and so.exists() else None
 
 
 def is_cached(fn: ca.Function, flags: tuple[str, ...] = ("-O2",), key: str | None = None) -> bool:

@@ -66,7 +66,7 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     X = np.vstack([Q, V, np.zeros((l + p + m, times.size))])
     Y = servo.reference_samples(reference, times)
     th = model.theta_values
-    _pos, _vel, acc = buffered_map(servo.residuals, times.size, once=(2,))(X, Y, th)
+    _pos, _vel, acc = buffered_map(servo.evaluator("residuals"), times.size, once=(2,))(X, Y, th)
     Az = buffered_map(servo.decoupling, times.size, once=(2,))(X, Y, th)[0].reshape(
         l + p + m, l + p + m, times.size, order="F")
     check_decoupling(model, Az, times, Q)

@@ -12,9 +12,10 @@ import numpy as np
 from ..errors import BoundaryConditionError, NoDichotomyError, OptionError, ReferenceSignalError
 from .boundary import (BLOCKS, Selection, _resolve, dichotomy, explain_dichotomy, explain_no_dichotomy,
                        resolve_selection)
-from .cache import _QS_LAST, equilibrium_solver, servo_model
+from .cache import _QS_LAST, compiled_key, equilibrium_solver, servo_model
 from .schemes import Scheme, get_scheme
 from .guess import default_mesh, quasi_static_guess
+from .servo import NUMERIC_SOLVES_NX
 
 
 @dataclass
@@ -55,6 +56,8 @@ def resolve_plan(model, reference, discretization, horizon):
     if plan is None and (horizon.plan_options is not None or not horizon.complete):
         from .plan import plan_inversion
 
+        use_cached_pieces(model, discretization)
+
         plan = plan_inversion(model, reference, start=start, end=end, T0=T0, Tf=Tf,
                               formulation=discretization.formulation, omega=discretization.omega,
                               q_guess=horizon.q_guess, **dict(horizon.plan_options or {}))
@@ -67,6 +70,18 @@ def resolve_plan(model, reference, discretization, horizon):
         start = plan.start if start is None else start
         end = plan.end if end is None else end
     return T0, Tf, start, end, plan
+
+
+def use_cached_pieces(model, discretization) -> None:
+    """The plan's linearizations and the quasi-static path's checks through the compiled right-hand side
+    Jacobian and residuals when the disk cache has them (those the transcription will load; unless
+    ``compiled=False``): their SX functions are not built for the plan."""
+    servo = servo_model(model, discretization.formulation, discretization.omega)
+    if discretization.compiled is False or "_compiled_rhs_jac" in servo.__dict__ or (
+            discretization.compiled == "auto" and servo.layout.nx > NUMERIC_SOLVES_NX):
+        return
+    key = compiled_key(servo, get_scheme(discretization.scheme))
+    servo.use_compiled(servo.disk_piece("servo_rhs_jac", key), servo.disk_piece("servo_residuals", key))
 
 
 def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest_start: bool = False,

@@ -364,23 +364,22 @@ class ParametricInverse:
     def _mode_counts(self, servo, E0, Ef, yends, th):
         Yend = np.zeros((4 * servo.layout.m, 2))
         Yend[:servo.layout.m] = yends
-        counts = []
-        for E, Ye, side in ((E0, Yend[:, 0], 0), (Ef, Yend[:, 1], 1)):
-            key = (side, E.tobytes(), Ye.tobytes(), th.tobytes())
-            hit = self._modes.get(key)
-            if hit is None:
-                ev = np.linalg.eigvals(np.array(servo.rhs_jac(E, Ye, th)[1]))
-                hit = (int(np.sum(ev.real < -1e-3)), int(np.sum(ev.real > 1e-3)))
-                if len(self._modes) > 64:
-                    self._modes.clear()
-                self._modes[key] = hit
-            counts.append(hit)
+        keys = [(side, E.tobytes(), Yend[:, side].tobytes(), th.tobytes()) for side, E in ((0, E0), (1, Ef))]
+        if any(key not in self._modes for key in keys):  # both Jacobians in one buffered (compiled) call
+            nx = servo.layout.nx
+            J = self.transcription().mapped_call("rhs_jac", 2)(np.column_stack([E0, Ef]), Yend, th)[1]
+            ev = np.linalg.eigvals(J.reshape(nx, 2, nx).transpose(1, 0, 2))
+            if len(self._modes) > 64:
+                self._modes.clear()
+            for key, e in zip(keys, ev):
+                self._modes[key] = (int(np.sum(e.real < -1e-3)), int(np.sum(e.real > 1e-3)))
+        counts = [self._modes[key] for key in keys]
         return {"decaying": counts[0][0], "growing": counts[1][1]}, Yend
 
     def _make_inverse(self, servo, reference, tr, t_mesh, x, Y, th) -> Inverse:
         Xmesh, Xcol = tr.unpack(x)
         N = t_mesh.size - 1  # slopes: the transcription's (possibly compiled) right-hand side at the mesh
-        dX = self.scheme.mesh_slopes(Xmesh, lambda: tr._rhs_map(N + 1)(Xmesh, Y[:, :N + 1], th))
+        dX = self.scheme.mesh_slopes(Xmesh, lambda: tr.mapped_call("rhs", N + 1)(Xmesh, Y[:, :N + 1], th)[0])
         return make_inverse(self.model, reference, servo, self.scheme, t_mesh, Xmesh, Xcol, th, dX=dX)
 
     def _position_residual(self, servo, tr, inv, Y, th) -> float:
@@ -390,7 +389,7 @@ class ParametricInverse:
         N = inv.t_mesh.size - 1
         inner = self.scheme.interior_samples(N)
         ts, Y = ts[inner], Y[:, inner]
-        pos = np.array(servo.residuals.map(ts.size)(inv.X(ts), Y, th)[0])
+        pos = tr.mapped_call("residuals", ts.size)(inv.X(ts), Y, th)[0]
         return float(np.max(np.abs(pos))) if pos.size else 0.0
 
     # ------------------------------------------------------------ sensitivities

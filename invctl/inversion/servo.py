@@ -42,6 +42,7 @@ unknowns the same formulas are evaluated with numeric solves (:attr:`ServoModel.
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -60,20 +61,31 @@ LINSOL = "ldl"
 NUMERIC_SOLVES_NX = 20
 
 
-_MAPS: dict = {}
+#: memo sizes of :func:`mapped` and :func:`buffered_map`; past them the least recently used entry goes
+MAPS_KEPT = 512
+BUFFERED_KEPT = 64
+_MAPS: OrderedDict = OrderedDict()
+
+
+def _remember(memo: OrderedDict, key, fn, make, limit: int):
+    """``make()`` memoized in ``memo`` under ``key`` while ``fn`` is alive (the entry holds it); past
+    ``limit`` entries the least recently used one is evicted."""
+    hit = memo.get(key)
+    if hit is not None and hit[0] is fn:
+        memo.move_to_end(key)
+        return hit[1]
+    out = make()
+    memo[key] = (fn, out)
+    memo.move_to_end(key)
+    while len(memo) > limit:
+        memo.popitem(last=False)
+    return out
 
 
 def mapped(fn: ca.Function, k: int) -> ca.Function:
     """``fn.map(k)``, memoized per function object (building a map costs ~0.4 ms, more than
     evaluating it on a mesh of a few hundred nodes)."""
-    hit = _MAPS.get((id(fn), k))
-    if hit is not None and hit[0] is fn:
-        return hit[1]
-    if len(_MAPS) > 512:
-        _MAPS.clear()
-    out = fn.map(k)
-    _MAPS[(id(fn), k)] = (fn, out)
-    return out
+    return _remember(_MAPS, (id(fn), k), fn, lambda: fn.map(k), MAPS_KEPT)
 
 
 class Buffered:
@@ -104,24 +116,26 @@ class Buffered:
 
 
 
-_BUFFERED: dict = {}
+_BUFFERED: OrderedDict = OrderedDict()
 
 
 def buffered_map(fn: ca.Function, k: int, once: tuple = ()) -> Buffered:
     """``fn`` (one-column inputs) at ``k`` points (inputs of ``k`` columns, those numbered in ``once`` of
     one column, the same at every point), called through buffers (:class:`Buffered`), memoized per
-    function object like :func:`mapped`."""
-    hit = _BUFFERED.get((id(fn), k, once))
-    if hit is not None and hit[0] is fn:
-        return hit[1]
-    if len(_BUFFERED) > 64:
-        _BUFFERED.clear()
+    function object like :func:`mapped`.  A function with dense outputs is mapped as it is (the map of
+    :func:`mapped` when no input is shared); otherwise through a wrapper that densifies them."""
+    return _remember(_BUFFERED, (id(fn), k, once), fn, lambda: Buffered(dense_map(fn, k, once)), BUFFERED_KEPT)
+
+
+def dense_map(fn: ca.Function, k: int, once: tuple) -> ca.Function:
+    """``fn`` at ``k`` points (inputs numbered in ``once`` shared) with dense outputs."""
+    if all(fn.sparsity_out(i).is_dense() for i in range(fn.n_out())):
+        return fn.map(f"{fn.name()}_at_{k}", "serial", k, list(once), []) if once else mapped(fn, k)
     ins = [ca.MX.sym(fn.name_in(i), fn.size1_in(i), 1 if i in once else k) for i in range(fn.n_in())]
     out = fn.map(k)(*ins)
     outs = [ca.densify(o) for o in (out if isinstance(out, (list, tuple)) else [out])]
-    b = Buffered(ca.Function(f"{fn.name()}_at_{k}", ins, outs))
-    _BUFFERED[(id(fn), k, once)] = (fn, b)
-    return b
+    return ca.Function(f"{fn.name()}_at_{k}", ins, outs)
+
 
 @dataclass(frozen=True)
 class Layout:
@@ -347,9 +361,31 @@ class ServoModel:
             made["vm"] = (None, self._linearization(self.jacobian_evaluator))
         return made["vm"][1]
 
-    def use_compiled(self, rhs_jac: ca.Function) -> None:
-        """Evaluate :attr:`linearization` with ``rhs_jac``, the compiled equivalent of :attr:`rhs_jac`."""
-        self.__dict__["_compiled_rhs_jac"] = rhs_jac
+    def use_compiled(self, rhs_jac: ca.Function | None = None, residuals: ca.Function | None = None) -> None:
+        """Evaluate :attr:`linearization` with ``rhs_jac``, the compiled equivalent of :attr:`rhs_jac`, and
+        :meth:`evaluator` ``("residuals")`` with ``residuals``, that of :attr:`residuals`."""
+        if rhs_jac is not None:
+            self.__dict__["_compiled_rhs_jac"] = rhs_jac
+        if residuals is not None:
+            self.__dict__["_compiled_residuals"] = residuals
+
+    def evaluator(self, name: str) -> ca.Function:
+        """``residuals`` for numeric evaluation: its compiled equivalent once set (:meth:`use_compiled`)."""
+        return self.__dict__.get(f"_compiled_{name}") or getattr(self, name)
+
+    def disk_piece(self, name: str, key: str) -> ca.Function | None:
+        """The compiled function ``name`` of this model from the disk cache (cache key ``key``), loaded once;
+        ``None`` while it is not there."""
+        from .compiled import cache_dir, load_cached
+
+        memo = self.__dict__.setdefault("_disk_pieces", {})
+        where = (name, key, str(cache_dir()))
+        hit = memo.get(where)
+        if hit is None:
+            hit = load_cached(name, key)
+            if hit is not None:
+                memo[where] = hit
+        return hit
 
     def _linearization(self, jac: ca.Function) -> Buffered:
         X, Y, th = (ca.MX.sym(k, *s) for k, s in (("X", (self.layout.nx, 1)), ("Y", (4 * self.layout.m, 1)),
@@ -407,14 +443,16 @@ class ServoModel:
         if not (before.any() or after.any()):
             return sample(t).copy()
         tau = tf - t0
-        rest = sample(np.array([t0 - 2 * tau, t0 - tau, tf + tau, tf + 2 * tau]))
+        inside = ~(before | after)
+        # the probes and the times inside in one evaluation (one map for a reference sampled once)
+        both = sample(np.r_[t0 - 2 * tau, t0 - tau, tf + tau, tf + 2 * tau, t[inside]])
+        rest = both[:, :4]
         m = reference.m
         if not (np.array_equal(rest[:, 0], rest[:, 1]) and np.array_equal(rest[:, 2], rest[:, 3])
                 and not np.any(rest[m:])):  # at rest there: equal values and zero derivatives at both probes
             return sample(t).copy()
-        inside = ~(before | after)
         Y = np.empty((4 * reference.m, t.size))
-        Y[:, inside] = sample(t[inside])
+        Y[:, inside] = both[:, 4:]
         Y[:, before] = rest[:, 1:2]
         Y[:, after] = rest[:, 2:3]
         return Y

@@ -97,12 +97,13 @@ def tracking_model(scene, params=None, *, model=None):
 def equilibrium_configuration(scene, model, y, guess=None) -> np.ndarray:
     """The configuration ``q`` of the static equilibrium with ``h(q) = y`` (servo constraints at rest),
     continued from the scene's ``initial_configuration`` (or ``guess``)."""
-    from ..analysis.equilibrium import EquilibriumSolver
+    from ..inversion.cache import equilibrium_solver
 
     if guess is None and scene.tracking.initial_configuration is not None:
         guess = scene.tracking.initial_configuration(model)
-    X, _ = EquilibriumSolver(model).solve(np.asarray(y, float).ravel(), guess_q=guess,
-                                          where=f" (scene {scene.name})")
+    # the solver of the model's structure the inversion uses (built once), at this model's parameter values
+    X, _ = equilibrium_solver(model).solve(np.asarray(y, float).ravel(), guess_q=guess, theta=model.theta_values,
+                                           where=f" (scene {scene.name})")
     return X[:model.n]
 
 
