@@ -97,7 +97,7 @@ def compile_c(code: str, *, large: bool = False, verbose: bool = False) -> Path 
     # -O1 for very long straight-line code: -O3 takes minutes there and runs no faster (measured)
     opt = "-O1" if large else "-O3"
     # -fno-semantic-interposition: calls between the generated functions may be inlined
-    extra = ["-march=native", "-fno-semantic-interposition"]
+    extra = ["-march=native", "-fno-semantic-interposition", "-fschedule-insns", "-fsched-pressure"]
     flags = [opt, *extra, "-ffp-contract=off", "-fPIC", "-shared"]
     key = hashlib.sha256(code.encode() + " ".join(flags).encode()).hexdigest()[:20]
     lib = cache_dir() / f"mj_{key}.so"

@@ -286,12 +286,20 @@ class MoreauJean:
         C = ca.vertcat(*csym) if csym else ca.SX(0, 1)
         self._pre = ca.Function("mj_pre", [Pr], [ca.vertcat(*cexpr) if cexpr else ca.SX(0, 1)], ["p"], ["c"])
         self._pick = ca.Function("mj_pick", [X, C], [outs[0]], ["x", "c"], ["variant"])
-        # each variant with its row (recorded steps) and without (the others: less work)
-        self._variants = []
+        # each variant with its row (recorded steps) and without (the others: less work); and without its row
+        # after a step of the same variant ("steady"): the state entries the variant sets to constants (its
+        # active set, the loaded flags of its inactive contacts) hold those constants, which fold
+        self._variants, self._steady = [], []
         for i in range(len(variants)):
             Xv, Yv, fl = (ca.densify(e) for e in outs[1 + 3 * i:4 + 3 * i])  # the driver writes dense rows
             self._variants += [ca.Function(f"mj_row{i}", [X, C], [Xv, Yv, fl], ["x", "c"], ["x_next", "y", "flags"]),
                                ca.Function(f"mj_fast{i}", [X, C], [Xv, fl], ["x", "c"], ["x_next", "flags"])]
+            Xs = ca.SX(X)
+            for j in range(self.nx):
+                if Xv[j].is_constant():
+                    Xs[j] = Xv[j]
+            self._steady.append(ca.Function(f"mj_steady{i}", [X, C], ca.substitute([Xv, fl], [X], [Xs]),
+                                            ["x", "c"], ["x_next", "flags"]))
 
     def _substeps(self) -> int:
         s = self.substeps
@@ -320,9 +328,11 @@ class MoreauJean:
         runner: _CDriver | _VMChunks | None = None
         if backend == "c":
             try:
-                # -O1 when the file is long: the driver holds every step variant (with and without its row)
+                # -O1 when the file is long: the driver holds every step variant (with and without its row);
+                # the loops with the state in local variables only for short steps (they fit the registers)
                 total = sum(f.n_instructions() for f in (self._pre, self._pick, *self._variants))
-                lib = compile_c(_driver_code(self), large=total > _LARGE_STEP, verbose=self.verbose)
+                lib = compile_c(_driver_code(self, local_loops=total <= _LARGE_STEP), large=total > _LARGE_STEP,
+                                verbose=self.verbose)
                 runner = None if lib is None else _CDriver(self, lib, size)
             except (OSError, RuntimeError, subprocess.SubprocessError) as exc:
                 print(f"invctl: generated-C backend unavailable ({exc}); using the CasADi VM", file=sys.stderr)
@@ -674,32 +684,101 @@ class _VMChunks:
         return Y, None, use, status, x_after
 
 
-def _driver_code(mj: MoreauJean) -> str:
+def _scalar_body(code: str, name: str, outs: tuple[str, ...]) -> str | None:
+    """The body of the generated function ``name`` with its state input ``arg[0][i]`` read from the
+    local variable ``x_i``, its constants ``arg[1][i]`` from ``c[i]`` and its outputs ``res[k][i]``
+    written to the local variables ``<outs[k]>i``; None when it uses anything else (work vectors,
+    calls)."""
+    impl = re.search(r"CASADI_SYMBOL_EXPORT int %s\(const casadi_real\*\* arg[^{]*\{\n  return (\w+)\(" % name, code)
+    m = impl and re.search(r"\nstatic int %s\(const casadi_real\*\* arg[^{]*\{\n(.*?)\n  return 0;\n\}"
+                           % impl.group(1), code, re.S)
+    if not m:
+        return None
+    body = re.sub(r"arg\[1\]\[(\d+)\]", r"c[\1]", re.sub(r"arg\[0\]\[(\d+)\]", r"x_\1", m.group(1)))
+    for k, o in enumerate(outs):
+        body = re.sub(rf"res\[{k}\]\[(\d+)\]", rf"{o}\1", body)
+    return None if re.search(r"\b(arg|res|iw|w)\b|casadi_f\d", body) else body
+
+
+def _local_loop(mj: MoreauJean, code: str, i: int) -> str | None:
+    """C of ``mj_loop<i>``: up to ``m`` unrecorded steps of variant ``i`` with the state in local
+    variables (the compiler keeps the values of the dependency chain in registers), the first step
+    by ``mj_fast<i>``, the next ones by ``mj_steady<i>``.  It stops before a step whose LCP flag is 0
+    (``*st = 1``) or, with ``ke``, an event step (``*st = 3``), after a step that leaves a non-finite
+    ``(q, v)`` (``*st = 2``) or changes the variant; returns the steps done, leaves the state in ``x``
+    and the variant of the next step in ``fl[2]``."""
+    fast = _scalar_body(code, f"mj_fast{i}", ("xn_", "fl_"))
+    steady = _scalar_body(code, f"mj_steady{i}", ("xn_", "fl_"))
+    if fast is None or steady is None:
+        return None
+    nx, nqv = mj.nx, mj._lay["v"].stop
+    return f"""
+static MJ_NOINLINE long long mj_loop{i}(const casadi_real* c, casadi_real* x, long long m, int ke,
+                                         casadi_real* fl, int* st) {{
+  casadi_real {", ".join(f"x_{k} = x[{k}]" for k in range(nx))};
+  casadi_real {", ".join(f"xn_{k}" for k in range(nx))};
+  casadi_real fl_0, fl_1, fl_2, s, vnext = {i};
+  long long k;
+  *st = 0;
+  for (k = 0; k < m; ++k) {{
+    if (k) {{
+{steady}
+    }} else {{
+{fast}
+    }}
+    if (!(fl_0 > 0.5)) {{ *st = 1; break; }}
+    if (ke && fl_1 > 0.5) {{ *st = 3; break; }}
+    s = {" + ".join(f"xn_{k}" for k in range(nqv))};
+    {" ".join(f"x_{k} = xn_{k};" for k in range(nx))}
+    vnext = fl_2;
+    if (!(s - s == 0)) {{ *st = 2; ++k; break; }}
+    if (fl_2 != {i}) {{ ++k; break; }}
+  }}
+  {" ".join(f"x[{k}] = x_{k};" for k in range(nx))}
+  fl[2] = vnext;
+  return k;
+}}
+"""
+
+
+def _driver_code(mj: MoreauJean, local_loops: bool = True) -> str:
     """C of the step (``mj_pre``: the parametric part; ``mj_pick``: the variant of a state;
     ``mj_row<i>``/``mj_fast<i>``: variant ``i`` with/without its row) and of the loop around it:
     ``mj_drive`` computes the parametric part once, then runs up to ``n`` steps, keeping the rows of
     every ``every``-th step (global index) and, with ``keep_events``, of the event steps and the
     steps after them; it stops when ``cap`` rows are kept, before a step whose LCP flag is 0 and
-    after a step that leaves a non-finite ``(q, v)``."""
+    after a step that leaves a non-finite ``(q, v)``.  With ``local_loops`` the steps between two
+    kept rows run in ``mj_loop<i>`` (:func:`_local_loop`, the state in local variables)."""
     fns = (mj._pre, mj._pick, *mj._variants)
     nv = len(mj._variants) // 2
     sz = {k: max(getattr(f, f"sz_{k}")() for f in fns) for k in ("arg", "res", "iw", "w")}
     row_case = "\n".join(f"      case {i}: mj_row{i}(arg, res, iw, w, 0); break;" for i in range(nv))
     fast_case = "\n".join(f"      case {i}: mj_fast{i}(arg, res, iw, w, 0); break;" for i in range(nv))
-    code = generate_c(*fns)
+    code = generate_c(*fns, *(mj._steady if local_loops else ()))
     # fmin/fmax with C99's semantics (a NaN operand loses), inlined instead of libm calls
     for name, op in (("fmin", "<"), ("fmax", ">")):
         code = code.replace(f"return {name}(x, y);", f"return x {op} y ? x : (y == y ? y : x);")
     # the driver passes every argument and result: no null-pointer test per value
     code = re.sub(r"arg\[(\d+)\]\? arg\[\1\]\[(\d+)\] : 0", r"arg[\1][\2]", code)
     code = re.sub(r"if \(res\[(\d+)\]!=0\) res\[\1\]", r"res[\1]", code)
+    loops = [_local_loop(mj, code, i) for i in range(nv)] if local_loops else []
+    if not all(loops):
+        loops = []
+    loop_case = "\n".join(f"        case {i}: k = mj_loop{i}(c, xc, m, keep_events, fl, &st); break;"
+                          for i in range(len(loops)))
     return code + f"""
 #include <string.h>
 #define MJ_NX {mj.nx}
 #define MJ_NY {mj.ny}
 #define MJ_NC {max(1, mj._pre.nnz_out(0))}
 #define MJ_NQV {mj._lay["v"].stop}
-
+#define MJ_LOCAL_LOOPS {int(bool(loops))}
+#if defined(__GNUC__)
+#define MJ_NOINLINE __attribute__((noinline))
+#else
+#define MJ_NOINLINE
+#endif
+{"".join(loops)}
 static void mj_row(int v, const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w) {{
     switch (v) {{
 {row_case}
@@ -714,16 +793,28 @@ CASADI_SYMBOL_EXPORT int mj_drive(const casadi_real* p, casadi_real* x, casadi_r
   casadi_int iw[{sz["iw"] + 1}];
   casadi_real w[{sz["w"] + 1}], c[MJ_NC], xb[MJ_NX], fl[3], s;
   casadi_real *xc = x, *xn = xb, *xt;
-  long long j, r = 0, cnt = (every - base % every) % every;
-  int i, v, rec, ev, prev_ev = 0, status = 0;
+  long long j = 0, k, m, r = 0, cnt = (every - base % every) % every;
+  int i, v, rec, ev, prev_ev = 0, force = 0, st, status = 0;
   arg[0] = p; res[0] = c;
   if (mj_pre(arg, res, iw, w, 0)) return 1;
   arg[1] = c;
   arg[0] = x; res[0] = fl + 2;
   mj_pick(arg, res, iw, w, 0);
-  for (j = 0; j < n && r < cap; ++j) {{
+  while (j < n && r < cap) {{
     v = (int)fl[2];
-    rec = cnt == 0 || prev_ev;
+    rec = cnt == 0 || prev_ev || force;
+    if (MJ_LOCAL_LOOPS && !rec) {{  /* the steps before the next kept row */
+      m = n - j < cnt ? n - j : cnt;
+      k = 0; st = 0;
+      switch (v) {{
+{loop_case}
+      }}
+      j += k; cnt -= k;
+      if (st == 1 || st == 2) {{ status = st; break; }}
+      force = st == 3;  /* an event step: its row */
+      continue;
+    }}
+    force = 0;
     arg[0] = xc; res[0] = xn;
     if (rec) {{
       res[1] = Y + r * MJ_NY; res[2] = fl;
@@ -747,7 +838,8 @@ CASADI_SYMBOL_EXPORT int mj_drive(const casadi_real* p, casadi_real* x, casadi_r
     s = 0;
     for (i = 0; i < MJ_NQV; ++i) s += xn[i];
     xt = xc; xc = xn; xn = xt;
-    if (!(s - s == 0)) {{ status = 2; ++j; break; }}
+    ++j;
+    if (!(s - s == 0)) {{ status = 2; break; }}
   }}
   if (xc != x) memcpy(x, xc, MJ_NX * sizeof(casadi_real));
   out[0] = j; out[1] = r; out[2] = status;
