@@ -135,6 +135,7 @@ class MoreauJean:
             backend = "c" if c_compiler() else "vm"
         self.backend = backend
         self._loops: dict = {}
+        self._post_eval: tuple | None = None
 
     # ----------------------------------------------------------------- build
     def _solve_lcp(self, A, b):
@@ -382,7 +383,7 @@ class MoreauJean:
         for name, val in (("th", th), ("thc", thc), ("kappa", kap), ("h", h), ("thm", theta),
                           ("tol", activation_tol), ("t0", t0), ("vtol", impact_vel_tol), ("rtol", rtol)):
             p[play[name]] = val
-        gap, U, E, V, _ = (np.array(a, float).ravel() for a in self._post(x, p))
+        gap, U, E, V, _ = self._post_values(x, p)
         if not (np.all(np.isfinite(gap)) and np.all(np.isfinite(U)) and np.isfinite(E[0]) and np.isfinite(V[0])):
             raise ParameterError(f"the initial state gives non-finite gaps/energy/V (gaps {gap.tolist()}, E {E[0]}, "
                                  f"V {V[0]}); check q0, v0 and the parameters")
@@ -441,10 +442,29 @@ class MoreauJean:
             x = np.array(self.step(x, p)[0], float).ravel()
         return x
 
+    def _post_values(self, x, p) -> tuple[np.ndarray, ...]:
+        """``gap, U, E, V, u`` at the loop state ``x`` (run numbers ``p``): ``mj_post`` evaluated
+        through a buffer (a plain call converts its arguments and results: most of a short run's time)."""
+        if self._post_eval is None:
+            X, Pr = ca.SX.sym("x", self.nx), ca.SX.sym("p", self.np_)
+            f = ca.Function("mj_post_dense", [X, Pr], [ca.densify(e) for e in self._post(X, Pr)])
+            ins = [np.zeros(self.nx), np.zeros(self.np_)]
+            outs = [np.zeros(f.numel_out(i)) for i in range(f.n_out())]
+            buf, call = f.buffer()
+            for i, a in enumerate(ins):
+                buf.set_arg(i, memoryview(a))  # type: ignore[arg-type, call-arg]
+            for i, a in enumerate(outs):
+                buf.set_res(i, memoryview(a))  # type: ignore[arg-type, call-arg]
+            self._post_eval = (buf, call, ins, outs)
+        _, call, ins, outs = self._post_eval
+        ins[0][:], ins[1][:] = x, p
+        call()
+        return tuple(o.copy() for o in outs)
+
     def _final_row(self, x, p) -> np.ndarray:
         lay, L = self._lay, self.rows
         row = np.zeros(L.ncols)
-        gap, U, E, V, u = (np.array(a, float).ravel() for a in self._post(x, p))
+        gap, U, E, V, u = self._post_values(x, p)
         for name, val in (("q", x[lay["q"]]), ("v", x[lay["v"]]), ("t", x[lay["t"]]), ("gap", x[lay["gap"]]),
                           ("U", x[lay["U"]]), ("E", x[lay["E"]]), ("V", x[lay["V"]]), ("u", u)):
             row[L.sl(name)] = val
