@@ -732,28 +732,34 @@ def _local_loop(mj: MoreauJean, code: str, i: int) -> str | None:
     if fast is None or steady is None:
         return None
     nx, nqv = mj.nx, mj._lay["v"].stop
+
+    def step(body):
+        return f"""  {{
+{body}
+  }}
+  if (!(fl_0 > 0.5)) {{ *st = 1; goto done; }}
+  if (ke && fl_1 > 0.5) {{ *st = 3; goto done; }}
+  s = {" + ".join(f"xn_{k}" for k in range(nqv))};
+  {" ".join(f"x_{k} = xn_{k};" for k in range(nx))}
+  vnext = fl_2;
+  ++k;
+  if (!(s - s == 0)) {{ *st = 2; goto done; }}
+  if (fl_2 != {i}) goto done;
+"""
     return f"""
 static MJ_NOINLINE long long mj_loop{i}(const casadi_real* c, casadi_real* x, long long m, int ke,
                                          casadi_real* fl, int* st) {{
   casadi_real {", ".join(f"x_{k} = x[{k}]" for k in range(nx))};
   casadi_real {", ".join(f"xn_{k}" for k in range(nx))};
   casadi_real fl_0, fl_1, fl_2, s, vnext = {i};
-  long long k;
+  long long k = 0;
   *st = 0;
-  for (k = 0; k < m; ++k) {{
-    if (k) {{
-{steady}
-    }} else {{
-{fast}
-    }}
-    if (!(fl_0 > 0.5)) {{ *st = 1; break; }}
-    if (ke && fl_1 > 0.5) {{ *st = 3; break; }}
-    s = {" + ".join(f"xn_{k}" for k in range(nqv))};
-    {" ".join(f"x_{k} = xn_{k};" for k in range(nx))}
-    vnext = fl_2;
-    if (!(s - s == 0)) {{ *st = 2; ++k; break; }}
-    if (fl_2 != {i}) {{ ++k; break; }}
+  if (m < 1) goto done;
+{step(fast)}
+  while (k < m) {{
+{step(steady)}
   }}
+done:
   {" ".join(f"x[{k}] = x_{k};" for k in range(nx))}
   fl[2] = vnext;
   return k;
