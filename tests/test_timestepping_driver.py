@@ -11,7 +11,7 @@ import invctl_scenes.prismatic_clearance as prism
 from invctl.control.pdplus import pd_gravity
 from invctl.errors import ContactError, SimulationFailed
 from invctl.model import Gap, Model, ParamSet
-from invctl.simulate.timestepping import MoreauJean, c_compiler
+from invctl.simulate.timestepping import MoreauJean, _driver_code, c_compiler
 
 pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on this machine")
 Q0, V0 = [0.0, 0.055], [0.0, 0.3]
@@ -53,6 +53,21 @@ def test_driver_equals_vm_bit_for_bit(prism_pair, record, every):
     a = vm.run(Q0, V0, 0.3, 1e-4, record=record, record_every=every)
     b = c.run(Q0, V0, 0.3, 1e-4, record=record, record_every=every)
     assert b.stats["backend"] == "c" and a.stats["n_impacts"] >= 3
+    _same_run(a, b)
+
+
+@pytest.mark.parametrize("record", ["steps", "events"])
+def test_local_loops_equal_the_vm(prism_pair, record):
+    """Between two kept rows the driver runs one loop per active-set variant with the state in local
+    variables (its first step by the variant, the next ones by the variant's steady form): over
+    1000-step stretches with impacts and active-set changes inside them, the records (every 1000th
+    step, with the event rows) and every statistic equal the VM's to the last bit."""
+    vm, c = prism_pair
+    assert "#define MJ_LOCAL_LOOPS 1" in _driver_code(c)
+    assert "#define MJ_LOCAL_LOOPS 0" in _driver_code(c, local_loops=False)
+    a = vm.run(Q0, V0, 0.45, 1e-4, record=record, record_every=1000)
+    b = c.run(Q0, V0, 0.45, 1e-4, record=record, record_every=1000)
+    assert a.stats["n_impacts"] >= 3 and a.stats["n_changes"] >= 6
     _same_run(a, b)
 
 

@@ -287,20 +287,25 @@ class MoreauJean:
         C = ca.vertcat(*csym) if csym else ca.SX(0, 1)
         self._pre = ca.Function("mj_pre", [Pr], [ca.vertcat(*cexpr) if cexpr else ca.SX(0, 1)], ["p"], ["c"])
         self._pick = ca.Function("mj_pick", [X, C], [outs[0]], ["x", "c"], ["variant"])
-        # each variant with its row (recorded steps) and without (the others: less work); and without its row
-        # after a step of the same variant ("steady"): the state entries the variant sets to constants (its
-        # active set, the loaded flags of its inactive contacts) hold those constants, which fold
-        self._variants, self._steady = [], []
+        # each variant with its row (recorded steps) and without (the others: less work)
+        self._variants = []
         for i in range(len(variants)):
             Xv, Yv, fl = (ca.densify(e) for e in outs[1 + 3 * i:4 + 3 * i])  # the driver writes dense rows
             self._variants += [ca.Function(f"mj_row{i}", [X, C], [Xv, Yv, fl], ["x", "c"], ["x_next", "y", "flags"]),
                                ca.Function(f"mj_fast{i}", [X, C], [Xv, fl], ["x", "c"], ["x_next", "flags"])]
-            Xs = ca.SX(X)
-            for j in range(self.nx):
-                if Xv[j].is_constant():
-                    Xs[j] = Xv[j]
-            self._steady.append(ca.Function(f"mj_steady{i}", [X, C], ca.substitute([Xv, fl], [X], [Xs]),
-                                            ["x", "c"], ["x_next", "flags"]))
+
+    def _steady(self, i: int) -> ca.Function:
+        """Variant ``i`` without its row after a step of the same variant: the state entries the variant
+        sets to constants (its active set, the loaded flags of its inactive contacts) hold those
+        constants, which fold (the same numbers as ``mj_fast<i>`` on such a state)."""
+        fast = self._variants[2 * i + 1]
+        X, C = ca.SX.sym("x", self.nx), ca.SX.sym("c", fast.size1_in(1))
+        Xv, fl = fast(X, C)
+        Xs = ca.SX(X)
+        for j in range(self.nx):
+            if Xv[j].is_constant():
+                Xs[j] = Xv[j]
+        return ca.Function(f"mj_steady{i}", [X, C], ca.substitute([Xv, fl], [X], [Xs]), ["x", "c"], ["x_next", "flags"])
 
     def _substeps(self) -> int:
         s = self.substeps
@@ -780,16 +785,15 @@ def _driver_code(mj: MoreauJean, local_loops: bool = True) -> str:
     sz = {k: max(getattr(f, f"sz_{k}")() for f in fns) for k in ("arg", "res", "iw", "w")}
     row_case = "\n".join(f"      case {i}: mj_row{i}(arg, res, iw, w, 0); break;" for i in range(nv))
     fast_case = "\n".join(f"      case {i}: mj_fast{i}(arg, res, iw, w, 0); break;" for i in range(nv))
-    code = generate_c(*fns, *(mj._steady if local_loops else ()))
+    code = generate_c(*fns, *(mj._steady(i) for i in range(nv if local_loops else 0)))
     # fmin/fmax with C99's semantics (a NaN operand loses), inlined instead of libm calls
     for name, op in (("fmin", "<"), ("fmax", ">")):
         code = code.replace(f"return {name}(x, y);", f"return x {op} y ? x : (y == y ? y : x);")
     # the driver passes every argument and result: no null-pointer test per value
     code = re.sub(r"arg\[(\d+)\]\? arg\[\1\]\[(\d+)\] : 0", r"arg[\1][\2]", code)
     code = re.sub(r"if \(res\[(\d+)\]!=0\) res\[\1\]", r"res[\1]", code)
-    loops = [_local_loop(mj, code, i) for i in range(nv)] if local_loops else []
-    if not all(loops):
-        loops = []
+    found = [_local_loop(mj, code, i) for i in range(nv)] if local_loops else []
+    loops = [lp for lp in found if lp is not None] if None not in found else []
     loop_case = "\n".join(f"        case {i}: k = mj_loop{i}(c, xc, m, keep_events, fl, &st); break;"
                           for i in range(len(loops)))
     return code + f"""
