@@ -774,6 +774,15 @@ done:
 """
 
 
+def _tidy_c(code: str) -> str:
+    """Generated C with ``fmin``/``fmax`` inlined with C99's semantics (a NaN operand loses; libm calls
+    before) and without the null-pointer test per value (the driver passes every argument and result)."""
+    for name, op in (("fmin", "<"), ("fmax", ">")):
+        code = code.replace(f"return {name}(x, y);", f"return x {op} y ? x : (y == y ? y : x);")
+    code = re.sub(r"arg\[(\d+)\]\? arg\[\1\]\[(\d+)\] : 0", r"arg[\1][\2]", code)
+    return re.sub(r"if \(res\[(\d+)\]!=0\) res\[\1\]", r"res[\1]", code)
+
+
 def _driver_code(mj: MoreauJean, local_loops: bool = True) -> str:
     """C of the step (``mj_pre``: the parametric part; ``mj_pick``: the variant of a state;
     ``mj_row<i>``/``mj_fast<i>``: variant ``i`` with/without its row) and of the loop around it:
@@ -786,16 +795,17 @@ def _driver_code(mj: MoreauJean, local_loops: bool = True) -> str:
     nv = len(mj._variants) // 2
     sz = {k: max(getattr(f, f"sz_{k}")() for f in fns) for k in ("arg", "res", "iw", "w")}
     row_case = "\n".join(f"      case {i}: mj_row{i}(arg, res, iw, w, 0); break;" for i in range(nv))
-    fast_case = "\n".join(f"      case {i}: mj_fast{i}(arg, res, iw, w, 0); break;" for i in range(nv))
-    code = generate_c(*fns, *(mj._steady(i) for i in range(nv if local_loops else 0)))
-    # fmin/fmax with C99's semantics (a NaN operand loses), inlined instead of libm calls
-    for name, op in (("fmin", "<"), ("fmax", ">")):
-        code = code.replace(f"return {name}(x, y);", f"return x {op} y ? x : (y == y ? y : x);")
-    # the driver passes every argument and result: no null-pointer test per value
-    code = re.sub(r"arg\[(\d+)\]\? arg\[\1\]\[(\d+)\] : 0", r"arg[\1][\2]", code)
-    code = re.sub(r"if \(res\[(\d+)\]!=0\) res\[\1\]", r"res[\1]", code)
-    found = [_local_loop(mj, code, i) for i in range(nv)] if local_loops else []
-    loops = [lp for lp in found if lp is not None] if None not in found else []
+    loops: list[str] = []
+    if local_loops:  # the loops hold the variants without their row: those are not compiled on their own
+        bodies = _tidy_c(generate_c(*mj._variants[1::2], *(mj._steady(i) for i in range(nv))))
+        found = [_local_loop(mj, bodies, i) for i in range(nv)]
+        loops = [lp for lp in found if lp is not None] if None not in found else []
+    code = _tidy_c(generate_c(*(fns if not loops else (mj._pre, mj._pick, *mj._variants[0::2]))))
+    if any(f"#define {name} " not in code for lp in loops for name in set(re.findall(r"\b(casadi_\w+)\(", lp))):
+        # a helper (fmin, fabs, ...) only the variants without their row use: compile them too
+        code = _tidy_c(generate_c(*fns))
+    fast_case = "" if loops else "\n".join(f"      case {i}: mj_fast{i}(arg, res, iw, w, 0); break;"
+                                             for i in range(nv))
     loop_case = "\n".join(f"        case {i}: k = mj_loop{i}(c, xc, m, keep_events, fl, &st); break;"
                           for i in range(len(loops)))
     return code + f"""
