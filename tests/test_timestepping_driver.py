@@ -12,7 +12,7 @@ from invctl.control.pdplus import pd_gravity
 from invctl.errors import ContactError, SimulationFailed
 from invctl.model import Gap, Model, ParamSet
 from invctl.simulate.codegen import compile_c
-from invctl.simulate.timestepping import _LCP_FAILED, MoreauJean, _CDriver, _driver_code, c_compiler
+from invctl.simulate.timestepping import _LCP_FAILED, _NONFINITE, MoreauJean, _CDriver, _driver_code, c_compiler
 
 pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on this machine")
 Q0, V0 = [0.0, 0.055], [0.0, 0.3]
@@ -175,6 +175,12 @@ def test_non_finite_state_stops_the_driver_with_the_prefix():
     assert out["c"].diagnostics["step"] == out["vm"].diagnostics["step"]
     np.testing.assert_array_equal(out["c"].partial.q, out["vm"].partial.q)
     assert np.all(np.isfinite(out["c"].partial.q))
+    # without the event rows a local loop itself stops after the step: as the driver without local loops
+    c = MoreauJean(model, backend="c", chunk=64, substeps=1)
+    x, p = c.initial_state([1.0], [0.0], h=1e-3)
+    runs = [_CDriver(c, compile_c(_driver_code(c, local_loops=ll)), 64)(x, p, 0, 2000, 1000, 0) for ll in (1, 0)]
+    assert runs[0][3] == runs[1][3] == _NONFINITE and runs[0][2] == runs[1][2] == out["c"].diagnostics["step"]
+    np.testing.assert_array_equal(runs[0][4], runs[1][4])
 
 
 def test_unconverged_lcp_steps_in_the_driver():
