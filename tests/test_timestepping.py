@@ -392,6 +392,17 @@ def test_symbolic_small_solve_matches_numpy(n):
     np.testing.assert_allclose(np.array(X), np.linalg.solve(A, B), rtol=1e-12, atol=1e-12)
 
 
+def test_small_solve_of_a_diagonal_matrix_divides_each_row():
+    """A structurally diagonal A (the 2-DoF clearance's W_hat under PD on one body): each row of B divided
+    by its diagonal entry: numpy's division to the last bit (the adjugate formula rounds three times)."""
+    from invctl.simulate.codegen import small_solve
+
+    d, B = np.array([1.7, 0.3, 2.9]), np.random.default_rng(0).standard_normal((3, 2))
+    ds, Bs = ca.SX.sym("d", 3), ca.SX.sym("B", 3, 2)
+    f = ca.Function("x", [ds, Bs], [small_solve(ca.diag(ds), Bs)])
+    np.testing.assert_array_equal(np.array(f(d, B)), B / d[:, None])
+
+
 def test_active_set_changes_counted_in_the_loop_equal_the_record(ball):
     """stats['n_changes'] (accumulated in the compiled loop) equals the steps whose active or loaded set differs
     from the previous step's, counted on the complete record (starting from nothing active)."""

@@ -11,7 +11,8 @@ import invctl_scenes.prismatic_clearance as prism
 from invctl.control.pdplus import pd_gravity
 from invctl.errors import ContactError, SimulationFailed
 from invctl.model import Gap, Model, ParamSet
-from invctl.simulate.timestepping import MoreauJean, c_compiler
+from invctl.simulate.codegen import compile_c
+from invctl.simulate.timestepping import _LCP_FAILED, _NONFINITE, MoreauJean, _CDriver, _driver_code, c_compiler
 
 pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on this machine")
 Q0, V0 = [0.0, 0.055], [0.0, 0.3]
@@ -54,6 +55,44 @@ def test_driver_equals_vm_bit_for_bit(prism_pair, record, every):
     b = c.run(Q0, V0, 0.3, 1e-4, record=record, record_every=every)
     assert b.stats["backend"] == "c" and a.stats["n_impacts"] >= 3
     _same_run(a, b)
+
+
+@pytest.mark.parametrize("record", ["steps", "events"])
+def test_local_loops_equal_the_vm(prism_pair, record):
+    """Between two kept rows the driver runs one loop per active-set variant with the state in local
+    variables (its first step by the variant, the next ones by the variant's steady form): over
+    1000-step stretches with impacts and active-set changes inside them, the records (every 1000th
+    step, with the event rows) and every statistic equal the VM's to the last bit."""
+    vm, c = prism_pair
+    assert "#define MJ_LOCAL_LOOPS 1" in _driver_code(c)
+    assert "#define MJ_LOCAL_LOOPS 0" in _driver_code(c, local_loops=False)
+    a = vm.run(Q0, V0, 0.45, 1e-4, record=record, record_every=1000)
+    b = c.run(Q0, V0, 0.45, 1e-4, record=record, record_every=1000)
+    assert a.stats["n_impacts"] >= 3 and a.stats["n_changes"] >= 6
+    _same_run(a, b)
+
+
+def test_unconverged_lcp_steps_inside_the_local_loops():
+    """A one-pivot Lemke budget on the piled-up 2-block chain (short steps: the unrecorded ones run in
+    the local loops): a loop stops before each flagged step, which is recomputed exactly; the C run
+    equals the VM run to the last bit."""
+    from test_lcp_compiled import _bench, _piled_up
+
+    model, law, U = _bench().chain(2)
+    q0, v0 = _piled_up(2)
+    kw = dict(potential=U, lcp="lemke", lcp_iters=1, chunk=128)
+    vm, c = MoreauJean(model, law, backend="vm", **kw), MoreauJean(model, law, backend="c", **kw)
+    assert "#define MJ_LOCAL_LOOPS 1" in _driver_code(c)
+    a = vm.run(q0, v0, 0.3, 1e-3, record_every=50)
+    b = c.run(q0, v0, 0.3, 1e-3, record_every=50)
+    assert b.stats["lcp_recomputed"] == a.stats["lcp_recomputed"] >= 3
+    _same_run(a, b)
+    # without the event rows (their steps go through the driver's own path) a local loop itself stops
+    # before the flagged step: the same step and state as the driver without local loops
+    x, p = c.initial_state(q0, v0, h=1e-3)
+    out = [_CDriver(c, compile_c(_driver_code(c, local_loops=ll)), 128)(x, p, 0, 300, 50, 0) for ll in (1, 0)]
+    assert out[0][3] == out[1][3] == _LCP_FAILED and out[0][2] == out[1][2] >= 1
+    np.testing.assert_array_equal(out[0][4], out[1][4])
 
 
 @pytest.mark.parametrize("n_walls", [2, 4])
@@ -136,6 +175,12 @@ def test_non_finite_state_stops_the_driver_with_the_prefix():
     assert out["c"].diagnostics["step"] == out["vm"].diagnostics["step"]
     np.testing.assert_array_equal(out["c"].partial.q, out["vm"].partial.q)
     assert np.all(np.isfinite(out["c"].partial.q))
+    # without the event rows a local loop itself stops after the step: as the driver without local loops
+    c = MoreauJean(model, backend="c", chunk=64, substeps=1)
+    x, p = c.initial_state([1.0], [0.0], h=1e-3)
+    runs = [_CDriver(c, compile_c(_driver_code(c, local_loops=ll)), 64)(x, p, 0, 2000, 1000, 0) for ll in (1, 0)]
+    assert runs[0][3] == runs[1][3] == _NONFINITE and runs[0][2] == runs[1][2] == out["c"].diagnostics["step"]
+    np.testing.assert_array_equal(runs[0][4], runs[1][4])
 
 
 def test_unconverged_lcp_steps_in_the_driver():
