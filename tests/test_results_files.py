@@ -1,0 +1,80 @@
+"""Result files written before the save/load path was merged (committed in ``tests/data/``) still load, as
+the same objects; the merged writer writes the same entries."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import invctl
+from invctl.simulate.closed_loop import ClosedLoopResult
+from invctl.simulate.contact_record import ContactTrajectory
+from invctl.simulate.switched import SwitchedSimulation
+
+DATA = Path(__file__).parent / "data"
+META = {"scene": "demo", "params": {"a": 1.5}}
+
+
+def small_results() -> dict:
+    """One small hand-made result of each kind (non-square shapes, every field set)."""
+    K = 5
+    t = np.linspace(0.0, 0.4, K)
+    r = np.arange(3 * K, dtype=float).reshape(3, K) / 7.0
+    closed = ClosedLoopResult(
+        t=t, q=r[:2], v=-r[:2], z=np.zeros((0, K)), u=r[:1] + 1, u_ff=r[:1], u_fb=np.ones((1, K)), y=r[1:2],
+        y_ref=r[2:3], ratios=r[:2] / 10, e_bar=r[:1] / 3, phi_bar=np.full(K, 2.0), drift_g=np.full(K, 1e-9),
+        drift_Gv=np.full(K, 2e-9), cumulative_errors={"output": 0.25, "tip": 0.5}, wall_s=1.25,
+        signals={"tip": r[:2] * 2}, signals_ref={"tip": r[:2] * 3}, controller="C1", status="left_region",
+        message="left the model's region", ratio_names=["y1 level 0", "bar"], q_names=["x", "th"], y_names=["x"],
+        u_names=["F"], stats={"left_region": {"t": 0.3, "coordinates": "th", "region": "|th| < 1"}, "n": 3})
+    contact = ContactTrajectory(
+        t=t, q=r[:2], v=r[1:3], P=np.abs(r[:2, :-1]), active=r[:2, :-1] > 0.5, gaps=r[:2] - 0.5, energy=r[0],
+        V=r[1], h=0.1, names={"q": ["x", "y"], "gaps": ["g1", "g2"]},
+        stats={"Un": -r[:2], "u": r[:1], "steps": 4, "backend": "vm", "dV_max": 0.0, "partial": True,
+               "step_index": np.arange(K)}, impact_vel_tol=1e-7, status="failed", message="LCP failed")
+    switched = SwitchedSimulation(
+        t=t, x=r[0], v=r[1], xt=np.zeros(0), vt=np.zeros(0), xd=r[2], xd_dot=-r[2], Fd=r[0] + 1, Fd_desired=r[0],
+        Fe=r[1] * 2, Fc=r[2] * 2, wall=np.array([0, 1, 1, 0, 0], bool), ctrl=np.array([0, 0, 1, 1, 0], bool),
+        intended=np.array([0, 1, 1, 1, 0], bool), event_t=np.array([0.1, 0.3]), event_surface=np.array([0, 0]),
+        event_kind=np.array([1, -1]), peak_force=3.5, contact_phases=1, bounces=2, force_rms_error=0.125,
+        wall_time=0.01, label="demo run", status="ok", message="", stats={"modes": 3})
+    return {"closed_loop": closed, "contact": contact, "switched": switched}
+
+
+def _same(a, b):
+    assert type(a) is type(b)
+    for k, x in vars(a).items():
+        y = vars(b)[k]
+        if isinstance(x, np.ndarray):
+            assert x.shape == y.shape and x.dtype.kind == np.asarray(y).dtype.kind, k
+            np.testing.assert_array_equal(x, y, err_msg=k)
+        elif isinstance(x, dict):
+            assert set(x) == set(y), k
+            for kk in x:
+                np.testing.assert_array_equal(x[kk], y[kk], err_msg=f"{k}[{kk!r}]")
+        else:
+            assert x == y, k
+
+
+@pytest.mark.parametrize("name", ["closed_loop", "contact", "switched"])
+def test_files_of_the_earlier_writer_load_as_the_same_object(name):
+    expected = small_results()[name]
+    expected.meta = dict(META)
+    _same(invctl.load(DATA / f"{name}.npz"), expected)
+
+
+@pytest.mark.parametrize("name", ["closed_loop", "contact", "switched"])
+def test_writer_keeps_the_file_layout(name, tmp_path):
+    """Same entries (names, shapes, dtypes) and the same JSON info as the committed file, and a round trip."""
+    res = small_results()[name]
+    path = res.to_npz(tmp_path / name, meta=META)
+    with np.load(path) as new, np.load(DATA / f"{name}.npz") as old:
+        assert sorted(new.files) == sorted(old.files)
+        for k in old.files:
+            if k == "__invctl__":
+                assert json.loads(str(new[k])) == json.loads(str(old[k]))
+            else:
+                assert new[k].shape == old[k].shape and new[k].dtype == old[k].dtype, k
+                np.testing.assert_array_equal(new[k], old[k], err_msg=k)
+    res.meta = dict(META)
+    _same(invctl.load(path), res)
