@@ -17,15 +17,13 @@ from __future__ import annotations
 
 import re
 import time
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
 
 from ..errors import (FunnelViolation, OptionError, ParameterError, RunInterrupted, SimulationFailed, check_interrupt,
                       INTERRUPT_LIKE, is_interrupt, watch_sigint)
-from ..io import file_loader
 from ..results import Animated, Status
 
 #: a level counts as outside the funnel at this ratio (the law clips 1 - phi^2 e^2 at 1e-6)
@@ -76,6 +74,11 @@ class ClosedLoopResult(Animated):
     u_names: list = field(default_factory=list)
     stats: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
+
+    _KIND = "ClosedLoopResult"
+    _ARRAYS = ("t", "q", "v", "z", "u", "u_ff", "u_fb", "y", "y_ref", "ratios", "e_bar", "phi_bar", "drift_g",
+               "drift_Gv", "wall_s", "controller", "status", "message", "ratio_names", "q_names", "y_names", "u_names")
+    _PREFIXED = {"signals": "signal:", "signals_ref": "signal_ref:"}
 
     def __post_init__(self):
         self.status = Status.of(self.status)
@@ -134,19 +137,6 @@ class ClosedLoopResult(Animated):
                 "left_region": self.stats.get("left_region"),
                 "wall_s": self.wall_s}
 
-    def to_npz(self, path, meta: dict | None = None):
-        """Write all arrays and scalars to ``.npz`` (load with :meth:`load`); ``meta`` (JSON-able)
-        records where the run came from (scene, parameters) for ``invctl animate``. Returns the path."""
-        from ..io import save_npz
-
-        data = {f.name: getattr(self, f.name) for f in fields(self)
-                if f.name not in ("signals", "signals_ref", "cumulative_errors", "stats", "meta")}
-        for name, arr in self.signals.items():
-            data[f"signal:{name}"] = arr
-            data[f"signal_ref:{name}"] = self.signals_ref[name]
-        info = {"cumulative_errors": self.cumulative_errors, "stats": self.stats, **self.meta, **(meta or {})}
-        return save_npz(path, "ClosedLoopResult", data, info)
-
     def to_csv(self, path) -> None:
         """Time series (t, q, v, u, u_ff, u_fb, y, y_ref, signals, funnel ratios) as CSV with a header."""
         cols = [("t", self.t[None, :])]
@@ -166,37 +156,11 @@ class ClosedLoopResult(Animated):
         np.savetxt(path, data, delimiter=",", header=",".join(str(c[0]) for c in cols), comments="")
 
     @classmethod
-    @file_loader
-    def load(cls, path) -> "ClosedLoopResult":
-        """Read a run written by :meth:`save` (format and version checked)."""
-        from ..io import load_npz, require_finite
-
-        arrays, info = load_npz(path, "ClosedLoopResult")
-        require_finite(path, arrays, ("t", "q", "v"))
-        kw: dict[str, Any] = {"signals": {}, "signals_ref": {}, "cumulative_errors": dict(info.get("cumulative_errors", {})),
-              "stats": dict(info.get("stats", {})),
-              "meta": {k: v for k, v in info.items() if k not in ("cumulative_errors", "stats")}}
-        for key, a in arrays.items():
-            if key.startswith("signal:"):
-                kw["signals"][key[7:]] = a
-            elif key.startswith("signal_ref:"):
-                kw["signals_ref"][key[11:]] = a
-            else:
-                kw[key] = a
-        for f in fields(cls):
-            if f.name not in kw:
-                from ..errors import ResultFileError
-
-                raise ResultFileError(f"{path}: not a complete closed-loop run (missing {f.name!r})")
-        kw["wall_s"] = float(kw["wall_s"])
-        for k in ("controller", "status", "message"):
-            kw[k] = str(kw[k])
-        for k in ("ratio_names", "q_names", "y_names", "u_names"):
-            kw[k] = [str(x) for x in np.atleast_1d(kw[k])] if np.size(kw[k]) else []
+    def _read(cls, path, kw: dict, version: int) -> dict:
         exit_ = kw["stats"].get("left_region")
         if kw["status"] == "ok" and exit_:   # written before such runs had their own status
             kw["status"], kw["message"] = "left_region", _left_region_message(exit_)
-        return cls(**kw)
+        return kw
 
     def plot(self, ax=None, *, path=None, **options):
         """Outputs, errors, inputs and funnel (one figure; with ``ax``, the generic panels of

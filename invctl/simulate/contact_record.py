@@ -14,12 +14,10 @@ import math
 import os
 from dataclasses import dataclass, field
 from functools import cached_property
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import ParameterError, RecordingError, ResourceLimitError, ResultFileError, SimulationFailed
-from ..io import file_loader, load_npz_versioned, require_finite, save_npz
 from ..results import Animated, Status
 
 #: format version of the ContactTrajectory files written now (3: time along the last axis); files
@@ -121,7 +119,9 @@ class ContactTrajectory(Animated):
     status: str = "ok"
     message: str = ""
 
+    _KIND, _VERSION, _OLDER = "ContactTrajectory", CONTACT_FORMAT_VERSION, _TIME_FIRST_VERSIONS
     _ARRAYS = ("t", "q", "v", "P", "active", "gaps", "energy", "V")
+    _PREFIXED = {"stats": "stats:"}
 
     def __post_init__(self):
         self.status = Status.of(self.status)
@@ -249,43 +249,16 @@ class ContactTrajectory(Animated):
         return float(self.t[bad[-1] + 1])
 
     # ------------------------------------------------------------ save / plot
-    def to_npz(self, path, meta: dict | None = None) -> Path:
-        """Write to ``.npz`` (read back with :meth:`load`); ``meta`` (JSON-able) records where the run
-        came from (scene, parameters) for ``invctl animate``. Returns the path written."""
-        arrays = {k: getattr(self, k) for k in self._ARRAYS}
-        stats = {}
-        for k, v in self.stats.items():
-            if isinstance(v, np.ndarray) and v.dtype != object:
-                arrays[f"stats:{k}"] = v
-            elif isinstance(v, (int, float, str, bool, np.floating, np.integer, np.bool_)) or v is None:
-                stats[k] = v
-        info = {"h": self.h, "impact_vel_tol": self.impact_vel_tol, "names": self.names, "stats": stats,
-                "status": self.status, "message": self.message, **self.meta, **(meta or {})}
-        return save_npz(path, "ContactTrajectory", arrays, info, version=CONTACT_FORMAT_VERSION)
-
     @classmethod
-    @file_loader
-    def load(cls, path) -> "ContactTrajectory":
-        """Read a file written by :meth:`to_npz` (format and version checked; files of format
-        version 2, with time along the first axis, are transposed to the time-last layout)."""
-        d, info, version = load_npz_versioned(path, "ContactTrajectory", version=CONTACT_FORMAT_VERSION,
-                                              older=_TIME_FIRST_VERSIONS)
-        missing = [k for k in cls._ARRAYS if k not in d] + [k for k in ("h", "stats") if k not in info]
-        if missing:
-            raise ResultFileError(f"{path}: incomplete contact trajectory (missing {missing})")
+    def _read(cls, path, kw: dict, version: int) -> dict:
+        """Files of format version 2 (time along the first axis) transposed to the time-last layout; shapes checked."""
         if version in _TIME_FIRST_VERSIONS:
-            for k in ("q", "v", "P", "active", "gaps", *(f"stats:{s}" for s in _TIMED_STATS)):
-                if k in d and d[k].ndim == 2:
-                    d[k] = np.ascontiguousarray(d[k].T)
-        cls._check_shapes(path, d)
-        require_finite(path, d, ("t", "q", "v"))
-        stats = dict(info["stats"])
-        stats.update({k[6:]: v for k, v in d.items() if k.startswith("stats:")})
-        meta = {k: v for k, v in info.items()
-                if k not in ("h", "impact_vel_tol", "names", "stats", "status", "message")}
-        return cls(**{k: d[k] for k in cls._ARRAYS}, h=float(info["h"]), names=dict(info.get("names", {})),
-                   stats=stats, impact_vel_tol=float(info.get("impact_vel_tol", 1e-8)), meta=meta,
-                   status=str(info.get("status", "ok")), message=str(info.get("message", "")))
+            for d, keys in ((kw, ("q", "v", "P", "active", "gaps")), (kw["stats"], _TIMED_STATS)):
+                for k in keys:
+                    if k in d and np.ndim(d[k]) == 2:
+                        d[k] = np.ascontiguousarray(d[k].T)
+        cls._check_shapes(path, kw)
+        return kw
 
     @staticmethod
     def _check_shapes(path, d: dict) -> None:
