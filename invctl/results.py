@@ -176,12 +176,10 @@ class Trajectory:
             a.legend(fontsize=7, loc="best")
         axes[-1].set_xlabel("time t [s]")
         axes[0].set_title(f"{type(self).__name__}: {Status.of(getattr(self, 'status', 'ok')).value}")
-        fig = axes[0].figure
-        if path:
-            from .plot import save
+        from .plot import save
 
-            save(fig, path)
-        return fig
+        save(axes[0].figure, path)
+        return axes[0].figure
 
     def plot(self, ax=None, *, path=None, **options):
         """The result's figure (subclasses draw their own kind's panels); ``ax``: axes to draw in, ``path``: save

@@ -52,8 +52,7 @@ def plot_run(res, path=None, units=None):
     else:
         ax[1, 1].axis("off")
         ax[1, 1].text(0.1, 0.5, "no feedback: no funnel", transform=ax[1, 1].transAxes)
-    if path:
-        save(fig, path)
+    save(fig, path)
     return fig
 
 
@@ -261,6 +260,5 @@ def plot_funnels(controller, t_end: float, path=None):
     ax.semilogy(t, np.ravel(controller.phi_bar.boundary(t)), "k", lw=1.5, label="e_bar")
     ax.set(title="funnel boundaries 1/phi(t)", xlabel="t [s]", ylabel="1/phi (units of the error level)")
     ax.legend(fontsize=8, ncol=2)
-    if path:
-        save(fig, path)
+    save(fig, path)
     return fig

@@ -298,20 +298,17 @@ class ClosedLoop:
         self.dae = dae  # the closed loop's right-hand side (``p`` = theta, start time of the chunk)
         grid = np.linspace(0.0, self.per_chunk * self.dt, self.per_chunk + 1)[1:]
         opts = {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": self.max_num_steps,
-                "linear_solver": "csparse", "print_stats": False, "disable_internal_warnings": True, "expand": True}
-        compiled = _compiled_dae(dae)
+                "linear_solver": "csparse", "print_stats": False, "disable_internal_warnings": True}
+        compiled = _compiled_dae(dae)  # generated C of the right-hand side and its Jacobian (disk cache), or None
         self.rhs_backend = "vm" if compiled is None else "c"
-        if compiled is not None:  # generated C of the right-hand side and its Jacobian (disk cache)
-            opts.pop("expand")
-            self.integrator = ca.integrator("closed_loop", "cvodes", compiled, 0.0, grid, opts)
-            self.step_integrator = ca.integrator("closed_loop_step", "cvodes", compiled, 0.0, [self.dt], opts)
-        else:
-            try:  # the right-hand side and its Jacobian as SX (one flat instruction list, no MX call overhead)
-                self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
-            except RuntimeError:  # a graph that does not expand
-                opts["expand"] = False
-                self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
-            self.step_integrator = ca.integrator("closed_loop_step", "cvodes", dae, 0.0, [self.dt], opts)
+        rhs = dae if compiled is None else compiled
+        opts["expand"] = compiled is None  # the graph as SX: one flat instruction list, no MX call overhead
+        try:
+            self.integrator = ca.integrator("closed_loop", "cvodes", rhs, 0.0, grid, opts)
+        except RuntimeError:  # a graph that does not expand
+            opts["expand"] = False
+            self.integrator = ca.integrator("closed_loop", "cvodes", rhs, 0.0, grid, opts)
+        self.step_integrator = ca.integrator("closed_loop_step", "cvodes", rhs, 0.0, [self.dt], opts)
         G = plant.function("G")(q, theta)
         mon = ca.Function("monitor", [t, t_start, x, theta],
                           [u, uff, ufb, h, yref, ca.vertcat(*sig) if sig else ca.MX(0, 1),
@@ -629,12 +626,6 @@ def _compiled_dae(dae, wait: bool = False):
 def _stack(mons):
     """The monitor's outputs of consecutive pieces joined along time."""
     return [np.hstack(p) for p in zip(*mons)]
-
-
-def simulate_closed_loop(plant, reference, q0, v0=None, **options) -> ClosedLoopResult:
-    """One-call form: ``ClosedLoop(plant, reference, **options).run(q0, v0)``."""
-    label = options.pop("controller_label", None)
-    return ClosedLoop(plant, reference, **options).run(q0, v0, controller_label=label)
 
 
 def scipy_reference_run(loop: ClosedLoop, q0, v0=None, theta=None, *, method="LSODA", rtol=1e-8, atol=1e-10,

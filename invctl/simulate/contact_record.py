@@ -78,29 +78,19 @@ def _fmt_bytes(b: float) -> str:
 
 @dataclass
 class ContactTrajectory(Animated):
-    """Result of a time-stepping (or event-driven) contact simulation.
+    """Result of a time-stepping (or event-driven) contact simulation, time along the last axis: ``q``, ``v``
+    ``(n, len(t))`` from ``t[0]`` on; ``gaps`` ``(m_u, len(t))``; ``P`` (the impulses of each step, ``P/h``
+    estimates the contact force) and ``active`` (the active-set flags) ``(m_u, len(t) - 1)`` for a finished run
+    (one column per step); ``energy`` (mechanical) and ``V`` (the law's Lyapunov function) ``(len(t),)``;
+    ``stats["Un"]`` (normal velocities) ``(m_u, len(t))``, ``stats["u"]`` (inputs) ``(m, len(t))``; the impact
+    table ``stats["impact_v_plus"]`` is ``(n_impacts, n)``, one row per impact.
 
-    Arrays have time along the last axis, like :class:`~invctl.simulate.closed_loop.ClosedLoopResult`
-    and :class:`~invctl.inversion.result.Inverse`: ``q``, ``v`` are
-    ``(n, len(t))`` and include ``t[0]``; ``gaps`` is ``(m_u, len(t))``;
-    ``P`` (the impulses of each step, ``P/h`` estimates the contact force)
-    and ``active`` (the active-set flags) are ``(m_u, len(t) - 1)`` for a
-    finished run (one column per step); ``energy`` (the mechanical energy)
-    and ``V`` (the Lyapunov function of the law) are ``(len(t),)``.
-    ``stats["Un"]`` (normal velocities, ``(m_u, len(t))``) and
-    ``stats["u"]`` (inputs, ``(m, len(t))``) are time-last too; the impact
-    table (``stats["impact_v_plus"]``, ``(n_impacts, n)``) has one row per
-    impact.
-
-    A decimated or event record (``run(..., record_every=k)`` or
-    ``record="events"``) holds the recorded steps only: column ``j`` is the
-    state at step ``stats["step_index"][j]`` and ``P[:, j]``,
-    ``active[:, j]`` are the impulse and active set of that step; the last
-    column is the final state.  Its statistics (:attr:`max_gap_violation`,
-    :attr:`max_V_increase`, :attr:`max_energy_increase`, :meth:`impacts`,
-    :meth:`rest_time`) come from the exact accumulators of the run, which
-    see every step; :meth:`impact_mask` needs every step and raises
-    :class:`~invctl.errors.RecordingError`.
+    A decimated or event record (``run(..., record_every=k)`` or ``record="events"``) holds the recorded steps
+    only: column ``j`` is the state at step ``stats["step_index"][j]`` and ``P[:, j]``, ``active[:, j]`` the
+    impulse and active set of that step; the last column is the final state.  Its statistics
+    (:attr:`max_gap_violation`, :attr:`max_V_increase`, :attr:`max_energy_increase`, :meth:`impacts`,
+    :meth:`rest_time`) come from the exact accumulators of the run, which see every step; :meth:`impact_mask`
+    needs every step and raises :class:`~invctl.errors.RecordingError`.
     """
 
     t: np.ndarray
@@ -263,24 +253,15 @@ class ContactTrajectory(Animated):
     @staticmethod
     def _check_shapes(path, d: dict) -> None:
         """Raise :class:`ResultFileError` unless the arrays have the time-last shapes."""
-        t = d["t"]
-        if t.ndim != 1:
-            raise ResultFileError(f"{path}: malformed ContactTrajectory file (t has shape {t.shape}, expected 1-D)")
-        N = t.size
-        for k in ("q", "v", "gaps", "P", "active"):
-            a = d[k]
-            ok = a.ndim == 2 and (a.shape[1] == N if k in ("q", "v", "gaps") else a.shape[1] in (N - 1, N))
-            if ok and k == "v":
-                ok = a.shape == d["q"].shape
-            if ok and k in ("P", "active"):
-                ok = a.shape[0] == d["gaps"].shape[0] and d["P"].shape == d["active"].shape
-            if not ok:
-                raise ResultFileError(f"{path}: malformed ContactTrajectory file ({k} has shape {a.shape} for "
-                                      f"{N} times; expected time along the last axis)")
-        for k in ("energy", "V"):
-            if d[k].shape != (N,):
-                raise ResultFileError(f"{path}: malformed ContactTrajectory file ({k} has shape {d[k].shape}, "
-                                      f"expected ({N},))")
+        q, gaps, P, N = d["q"], d["gaps"], d["P"], d["t"].size
+        rows = lambda a: a.shape[0] if a.ndim == 2 else -1  # noqa: E731
+        steps = P.shape[1] if P.ndim == 2 and P.shape[1] in (N - 1, N) else -1  # one column per step (or sample)
+        want = {"t": (N,), "q": (rows(q), N), "v": q.shape, "gaps": (rows(gaps), N), "P": (rows(gaps), steps),
+                "active": (rows(gaps), steps), "energy": (N,), "V": (N,)}
+        for k, shape in want.items():
+            if d[k].shape != shape:
+                raise ResultFileError(f"{path}: malformed ContactTrajectory file ({k} has shape {d[k].shape} for "
+                                      f"{N} times, expected {shape}: time along the last axis)")
 
     def plot(self, ax=None, *, path=None, **options):
         """Phase portrait, gaps, impulses, energy and V (see :mod:`invctl.plot.contact`; with ``ax``, the

@@ -145,15 +145,13 @@ class SwitchedSimulation(Trajectory):
     def plot(self, ax=None, *, path=None, title: str | None = None, **options):
         """Position and force against desired force, contact phases shaded (``ax``: two axes to draw in;
         ``path``: save the figure there too). Returns the figure."""
+        from ..plot import save
         from ..plot.switched import plot_simulation
         from ..results import plot_target
 
         ax, path = plot_target(ax, path)
         fig = plot_simulation(self, axes=ax, title=title)[0].figure
-        if path:
-            from ..plot import save
-
-            save(fig, path)
+        save(fig, path)
         return fig
 
 

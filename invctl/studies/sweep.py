@@ -9,7 +9,6 @@ dropped.
 """
 from __future__ import annotations
 
-import csv
 import itertools
 import os
 import sys
@@ -21,6 +20,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..errors import INTERRUPT_LIKE, ParameterError, is_interrupt
+from ..io import write_rows
 
 
 def grid(**axes: Sequence[float]) -> tuple[list[dict[str, float]], tuple[int, ...]]:
@@ -82,14 +82,7 @@ class SweepResult:
         return rows
 
     def to_csv(self, path: str | os.PathLike) -> None:
-        rows = self.rows()
-        keys: list[str] = []
-        for r in rows:
-            keys.extend(k for k in r if k not in keys)
-        with open(path, "w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=keys)
-            writer.writeheader()
-            writer.writerows(rows)
+        write_rows(path, self.rows())
 
     @property
     def failed_mask(self) -> np.ndarray:

@@ -530,14 +530,17 @@ class TrackingStudy:
                 "extension_reductions": self.extension_reductions, "info": self.info,
                 "comparison": self.comparison().to_dict() if self.runs else {}}
 
-    def save(self, directory, meta: dict | None = None) -> None:
-        d = Path(directory)
-        d.mkdir(parents=True, exist_ok=True)
-        for name, r in self.runs.items():
-            r.to_npz(d / f"run_{name}.npz", meta=meta)
+    def save(self, directory, meta: dict | None = None, *, runs: bool = True) -> Path:
+        """Write ``study.json`` (the summary) and, with ``runs``, ``run_<name>.npz`` to ``directory``; returns
+        the path of ``study.json``."""
         from ..scenes import jsonable
 
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        for name, r in self.runs.items() if runs else ():
+            r.to_npz(d / f"run_{name}.npz", meta=meta)
         (d / "study.json").write_text(json.dumps(jsonable(self.to_dict()), indent=1))
+        return d / "study.json"
 
     @classmethod
     @file_loader

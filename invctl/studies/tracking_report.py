@@ -6,10 +6,8 @@ command's options (already checked by :mod:`invctl.studies.commands` and the wor
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -383,18 +381,14 @@ class Session(pipeline.Session):
 
     def finish(self, runs, out):
         from ..plot import close
-        from ..scenes import jsonable
 
         study = compare_runs(self.scene, self.params, self.setup, runs)
-        (Path(out) / "study.json").write_text(json.dumps(jsonable(study.to_dict()), indent=1))
+        study.save(out, runs=False)  # the runs are written already
         close(study.plot(out))
         return [study.table()], study.to_dict()
 
     def interrupted(self, runs, out, note):
         """The complete runs as a study (``study.json``, loadable with ``invctl.load``), marked partial."""
-        from ..scenes import jsonable
         from .tracking import TrackingStudy
 
-        study = TrackingStudy(runs, {"scene": self.scene.name, "partial": note}, self.setup)
-        (Path(out) / "study.json").write_text(json.dumps(jsonable(study.to_dict()), indent=1))
-        return [str(Path(out) / "study.json")]
+        return [str(TrackingStudy(runs, {"scene": self.scene.name, "partial": note}, self.setup).save(out, runs=False))]

@@ -9,7 +9,6 @@ sentence saying how that reference was obtained.
 """
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
@@ -20,6 +19,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..errors import INTERRUPT_LIKE, is_interrupt
+from ..io import write_rows
 
 
 @dataclass
@@ -113,14 +113,7 @@ class TradeoffResult:
         }
 
     def to_csv(self, path: str | os.PathLike) -> None:
-        keys: list[str] = ["knob"]
-        for r in self.rows:
-            keys.extend(k for k in r if k not in keys)
-        with open(path, "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=keys)
-            w.writeheader()
-            for r in self.rows:
-                w.writerow({"knob": self.knob, **r, "value": _fmt(r["value"])})
+        write_rows(path, [{"knob": self.knob, **r, "value": _fmt(r["value"])} for r in self.rows], ("knob",))
 
     def to_json(self, path: str | os.PathLike) -> None:
         with open(path, "w") as fh:
