@@ -81,3 +81,24 @@ def test_writer_keeps_the_file_layout(name, tmp_path):
                 np.testing.assert_array_equal(new[k], old[k], err_msg=k)
     res.meta = dict(META)
     _same(invctl.load(path), res)
+
+
+def test_contact_statistics_that_are_not_arrays_are_kept(tmp_path):
+    """Statistics that are neither arrays nor numbers (an event-driven run's event list) go into the JSON info."""
+    res = small_results()["contact"]
+    res.stats["events"] = [(0.1, "impact", 0, -1.0, 0.5)]
+    back = invctl.load(res.to_npz(tmp_path / "c"))
+    assert back.stats["events"] == [[0.1, "impact", 0, -1.0, 0.5]]
+
+
+@pytest.mark.parametrize("name", ["closed_loop", "contact", "switched"])
+def test_a_file_without_a_declared_array_is_refused(name, tmp_path):
+    from invctl.errors import ResultFileError
+
+    path = small_results()[name].to_npz(tmp_path / name)
+    with np.load(path) as z:
+        d = dict(z)
+    del d["t"]
+    np.savez(tmp_path / "cut.npz", **d)
+    with pytest.raises(ResultFileError, match=r"incomplete \w+ file \(missing \['t'\]\)"):
+        invctl.load(tmp_path / "cut.npz")
