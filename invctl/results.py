@@ -117,6 +117,10 @@ class Trajectory:
     q: Any
     v: Any
 
+    def __post_init__(self):  # (dataclass subclasses) a status given as its string
+        if hasattr(self, "status"):
+            self.status = Status.of(self.status)
+
     def field(self, name: str) -> np.ndarray:
         """``q``, ``v``, ``u``, ``y`` or ``lam`` as a 2-D array ``(rows, len(t))`` (no rows when this result
         has no such signal)."""
@@ -229,7 +233,7 @@ class Trajectory:
         for name, prefix in cls._PREFIXED.items():
             kw[name] = {**info.pop(name, {}), **{k[len(prefix):]: v for k, v in d.items() if k.startswith(prefix)}}
         missing = []
-        for f in fields(cls):  # type: ignore[arg-type]
+        for f in fields(cls):
             src = d if f.name in cls._ARRAYS else info
             if f.name in kw or f.name == "meta":
                 continue

@@ -484,7 +484,8 @@ def snapshot(model, drawing: Drawing, t, q, path, *, times=None, n: int = 5, tra
     path.parent.mkdir(parents=True, exist_ok=True)
     from . import save
 
-    return save(fig, path)
+    save(fig, path)
+    return path
 
 
 def animate_result(result, path, *, scene=None, params=None, fps: float = 25, speed: float = 1.0,

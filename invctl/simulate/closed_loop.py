@@ -80,9 +80,6 @@ class ClosedLoopResult(Animated):
                "drift_Gv", "wall_s", "controller", "status", "message", "ratio_names", "q_names", "y_names", "u_names")
     _PREFIXED = {"signals": "signal:", "signals_ref": "signal_ref:"}
 
-    def __post_init__(self):
-        self.status = Status.of(self.status)
-
     @property
     def departure(self):
         """``(t, "left region")`` or ``(t, "left its funnel")`` (the earlier) if the run left the model's

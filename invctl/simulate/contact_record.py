@@ -18,7 +18,7 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import ParameterError, RecordingError, ResourceLimitError, ResultFileError, SimulationFailed
-from ..results import Animated, Status
+from ..results import Animated
 
 #: format version of the ContactTrajectory files written now (3: time along the last axis); files
 #: of version 2 (time along the first axis) are read and transposed
@@ -112,9 +112,6 @@ class ContactTrajectory(Animated):
     _KIND, _VERSION, _OLDER = "ContactTrajectory", CONTACT_FORMAT_VERSION, _TIME_FIRST_VERSIONS
     _ARRAYS = ("t", "q", "v", "P", "active", "gaps", "energy", "V")
     _PREFIXED = {"stats": "stats:"}
-
-    def __post_init__(self):
-        self.status = Status.of(self.status)
 
     # ---------------------------------------------------------- derived data
     @property

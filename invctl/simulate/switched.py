@@ -86,18 +86,12 @@ class SwitchedSimulation(Trajectory):
     def n_events(self) -> int:
         return int(self.event_t.size)
 
-    def __post_init__(self):
-        self.status = Status.of(self.status)
-
     @property
     def q(self) -> np.ndarray:
         """The position ``x`` as ``(1, len(t))`` (``v`` is its velocity; the wrist's tip is ``xt, vt``)."""
         return np.atleast_2d(self.x)
 
-    @property
-    def y(self) -> np.ndarray:
-        """The output: the position ``x``, ``(1, len(t))``."""
-        return np.atleast_2d(self.x)
+    y = q  # the output is the position
 
     @property
     def u(self) -> np.ndarray:

@@ -39,11 +39,7 @@ class _Names(dict):
     """Controller name -> description; lookups ignore case (``--controller c1-inv`` and ``C1-INV`` work)."""
 
     def _key(self, name):
-        if isinstance(name, str) and not dict.__contains__(self, name):
-            for k in self:
-                if k.lower() == name.lower():
-                    return k
-        return name
+        return next((k for k in self if isinstance(name, str) and k.lower() == name.lower()), name)
 
     def __getitem__(self, name):
         return dict.__getitem__(self, self._key(name))
