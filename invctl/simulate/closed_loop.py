@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import (FunnelViolation, OptionError, ParameterError, RunInterrupted, SimulationFailed, check_interrupt,
                       INTERRUPT_LIKE, is_interrupt, watch_sigint)
-from ..results import Animated, Status
+from ..results import Animated, Status, plot_target
 
 #: a level counts as outside the funnel at this ratio (the law clips 1 - phi^2 e^2 at 1e-6)
 VIOLATION_RATIO = 1.0 - 5e-7
@@ -162,8 +162,6 @@ class ClosedLoopResult(Animated):
     def plot(self, ax=None, *, path=None, **options):
         """Outputs, errors, inputs and funnel (one figure; with ``ax``, the generic panels of
         :class:`~invctl.results.Trajectory` in those axes). Returns the figure."""
-        from ..results import plot_target
-
         ax, path = plot_target(ax, path)
         if ax is not None:
             return self._generic_plot(ax, path=path, fields=options.get("fields", ("y", "u")))

@@ -18,7 +18,7 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import ParameterError, RecordingError, ResourceLimitError, ResultFileError, SimulationFailed
-from ..results import Animated
+from ..results import Animated, plot_target
 
 #: format version of the ContactTrajectory files written now (3: time along the last axis); files
 #: of version 2 (time along the first axis) are read and transposed
@@ -263,8 +263,6 @@ class ContactTrajectory(Animated):
     def plot(self, ax=None, *, path=None, **options):
         """Phase portrait, gaps, impulses, energy and V (see :mod:`invctl.plot.contact`; with ``ax``, the
         generic panels of :class:`~invctl.results.Trajectory` in those axes). Returns the figure."""
-        from ..results import plot_target
-
         ax, path = plot_target(ax, path)
         if ax is not None:
             return self._generic_plot(ax, path=path, fields=options.pop("fields", ("q", "lam")))

@@ -33,7 +33,7 @@ from scipy.optimize import brentq, minimize_scalar
 
 from ..control.switched import ClosedLoop
 from ..errors import INTERRUPT_LIKE, ParameterError, RunInterrupted, SimulationFailed, is_interrupt, watch_sigint
-from ..results import Status, Trajectory
+from ..results import Status, Trajectory, plot_target
 from ..reference.gluing import powers_apply
 
 EV_ENTER, EV_LEAVE, EV_SLIDE, EV_UNSLIDE = 1, -1, 2, -2
@@ -141,7 +141,6 @@ class SwitchedSimulation(Trajectory):
         ``path``: save the figure there too). Returns the figure."""
         from ..plot import save
         from ..plot.switched import plot_simulation
-        from ..results import plot_target
 
         ax, path = plot_target(ax, path)
         fig = plot_simulation(self, axes=ax, title=title)[0].figure
