@@ -27,7 +27,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from .errors import ResultFileError
-from .io import FORMAT_VERSION, file_loader, load_npz_versioned, require_finite, save_npz
+from .io import FORMAT_VERSION, file_loader, load_npz_versioned, read_meta, require_finite, save_npz
 
 
 class Status(str, Enum):
@@ -303,8 +303,6 @@ def load(path):
         Missing, truncated or foreign file, or a kind this invctl does not know.
     """
     import importlib
-
-    from .io import read_meta
 
     p = Path(path)
     if p.is_dir():

@@ -32,7 +32,8 @@ from pathlib import Path
 from types import MappingProxyType, ModuleType
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
 
-from .errors import DimensionError, InvctlError, ModelError, ParameterError, SceneError, URDFError
+from .errors import (DimensionError, InvctlError, ModelError, ParameterError, SceneError, URDFError, check_interrupt,
+                     remember_sigint)
 
 if TYPE_CHECKING:
     import casadi as ca
@@ -696,7 +697,6 @@ class Scene:
     def run(self, command: str, **options) -> "CommandResult":
         """``invctl <command>`` on this scene with its bound values: the report (``text``, ``data``) and the
         typed ``result``. Options are the command's, as keywords (``N=200``, ``controller="C2"``, ...)."""
-        from .errors import check_interrupt, remember_sigint
         from .studies.commands import run_command
 
         preset, values = self.__dict__.get("_bound", (None, {}))

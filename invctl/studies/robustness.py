@@ -27,6 +27,7 @@ import numpy as np
 
 from ..errors import ParameterError, SceneError
 from ..plot import finish
+from ..scenes import load_scene, scene_reference
 from .sweep import SweepResult, grid, sweep
 
 _CACHE: dict[Any, Any] = {}
@@ -39,14 +40,10 @@ def _cached(key, build):
 
 
 def _scene(ref):
-    from ..scenes import load_scene
-
     return _cached(("scene", ref), lambda: load_scene(ref))
 
 
 def _load(scene: str, kind: str, what: str):
-    from ..scenes import load_scene
-
     sc = load_scene(scene)
     if sc.kind != kind:
         raise SceneError(f"{what} needs a {kind} scene; {sc.name!r} is a {sc.kind} scene")
@@ -56,8 +53,6 @@ def _load(scene: str, kind: str, what: str):
 def _run_sweep(point, sc, grids: dict, run: tuple, label: str, meta: dict, **fixed) -> SweepResult:
     """``point(scene=..., **fixed, **values)`` over the grid of ``grids`` (``run``: executor, max_workers,
     progress), workers loading scene ``sc`` by its reference."""
-    from ..scenes import scene_reference
-
     fn = functools.partial(point, scene=scene_reference(sc), **fixed)
     executor, max_workers, progress = run
     res = sweep(fn, grid(**{k: list(v) for k, v in grids.items()}), executor=executor, max_workers=max_workers,

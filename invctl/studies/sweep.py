@@ -19,7 +19,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import INTERRUPT_LIKE, ParameterError, is_interrupt
+from ..errors import INTERRUPT_LIKE, ParameterError, RunInterrupted, check_interrupt, is_interrupt, watch_sigint
 from ..io import write_rows
 
 
@@ -239,8 +239,6 @@ def sweep(
     ex, owned, _ = open_executor(executor, max_workers)
     try:
         if ex is None:
-            from ..errors import check_interrupt, watch_sigint
-
             for i, p in enumerate(pts):
                 check_interrupt()
                 with watch_sigint() as sigint:
@@ -276,8 +274,6 @@ def sweep(
     except INTERRUPT_LIKE as _exc:
         if not is_interrupt(_exc):
             raise
-        from ..errors import RunInterrupted
-
         k = sum(finished)
         note = f"{label} interrupted: {k} of {len(pts)} points complete"
         errors = [e if f else "not run: interrupted" for e, f in zip(errors, finished)]

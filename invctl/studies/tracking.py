@@ -29,9 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import (CoordinateError, DimensionError, FunnelViolation, OptionError, ParameterError, RunInterrupted, SceneError,
-                      check_interrupt, INTERRUPT_LIKE, is_interrupt)
+from ..errors import (INTERRUPT_LIKE, CoordinateError, DimensionError, FunnelViolation, ModelError, OptionError,
+                      ParameterError, RunInterrupted, SceneError, check_interrupt, is_interrupt)
 from ..io import file_loader, read_json
+from ..scenes import jsonable, scene_reference
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
 
@@ -175,8 +176,6 @@ def plant_of(scene, model, plant_params=None, plant_factors=None):
 
 def validate_plant(plant, plant_params: dict) -> None:
     """``plant.validate()``; a failure is a :class:`ParameterError` naming the ``--plant-set`` values."""
-    from ..errors import ModelError
-
     try:
         plant.validate()
     except ModelError as exc:
@@ -366,8 +365,6 @@ class TrackingSetup:
     def meta(self) -> dict:
         """Where a run comes from (for files and ``invctl animate``)."""
         scene = self.scene
-        from ..scenes import scene_reference
-
         return {"scene": scene_reference(scene), "params": dict(self.params),
                 "plant": {k: v for k, v in self.plant.values.items() if v != self.model.values.get(k)},
                 "units": dict(scene.tracking.units)}
@@ -529,8 +526,6 @@ class TrackingStudy:
     def save(self, directory, meta: dict | None = None, *, runs: bool = True) -> Path:
         """Write ``study.json`` (the summary) and, with ``runs``, ``run_<name>.npz`` to ``directory``; returns
         the path of ``study.json``."""
-        from ..scenes import jsonable
-
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         for name, r in self.runs.items() if runs else ():

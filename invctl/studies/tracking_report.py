@@ -12,12 +12,14 @@ from typing import Any
 
 import numpy as np
 
+from ..plot import close
 from ..scenes import CommandResult
 from . import pipeline
 from .pipeline import Step
 from .reports import add_reports, write_run
-from .tracking import (CONTROLLERS, NEEDS_INVERSE, check_controller, compare_runs, design_configuration,
-                       invert_tracking, run_controller, setup_tracking, tracking_linearization, tracking_model)
+from .tracking import (CONTROLLERS, NEEDS_INVERSE, TrackingStudy, check_controller, compare_runs, design_configuration,
+                       invert_tracking, output_structure, run_controller, setup_tracking, tracking_linearization,
+                       tracking_model)
 
 #: frames per second of the animations the pipeline writes (GIF delays are whole 1/100 s: 10, 20, 25, 50 are exact)
 ANIMATION_FPS = 20
@@ -38,8 +40,6 @@ def analyze(bound, *, samples: int = 200) -> CommandResult:
     t = scene.tracking
     ref = t.reference(model) if t.reference is not None else None
     point = design_configuration(scene, model, ref)
-    from .tracking import output_structure
-
     if output_structure(model, point).r_bar == 2 * model.n:
         return _analyze_flat(scene, model, ref, point, samples, t0)
     setup: dict[str, Any] = {"point": point}
@@ -380,8 +380,6 @@ class Session(pipeline.Session):
         return {"fps": ANIMATION_FPS}
 
     def finish(self, runs, out):
-        from ..plot import close
-
         study = compare_runs(self.scene, self.params, self.setup, runs)
         study.save(out, runs=False)  # the runs are written already
         close(study.plot(out))
@@ -389,6 +387,4 @@ class Session(pipeline.Session):
 
     def interrupted(self, runs, out, note):
         """The complete runs as a study (``study.json``, loadable with ``invctl.load``), marked partial."""
-        from .tracking import TrackingStudy
-
         return [str(TrackingStudy(runs, {"scene": self.scene.name, "partial": note}, self.setup).save(out, runs=False))]

@@ -18,7 +18,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import INTERRUPT_LIKE, is_interrupt
+from ..errors import INTERRUPT_LIKE, ResultFileError, RunInterrupted, is_interrupt, watch_sigint
 from ..io import write_rows
 
 
@@ -129,8 +129,6 @@ class TradeoffResult:
             Missing, unreadable or truncated file, not a trade-off table, rows without a finite
             ``error``/``time_s``.
         """
-        from ..errors import ResultFileError
-
         try:
             with open(path) as fh:
                 d = json.load(fh)
@@ -217,8 +215,6 @@ def run_tradeoff(spec: TradeoffSpec, *, progress: bool = True, min_time_s: float
     RunInterrupted
         On Ctrl-C (SIGINT): ``partial`` is the result with the rows complete so far.
     """
-    from ..errors import RunInterrupted, watch_sigint
-
     rows: list = []
     failures: list = []
     k, value = 0, None
