@@ -42,6 +42,19 @@ def small_results() -> dict:
     return {"closed_loop": closed, "contact": contact, "switched": switched}
 
 
+def small_inverse():
+    """A hand-made Legendre-2 inverse (n = 1, l = 1, p = 0, m = 1; three uneven intervals) with a reference."""
+    from invctl.inversion import Inverse
+
+    N, nx = 3, 4
+    X = np.cos(np.arange(nx * (N + 1), dtype=float)).reshape(nx, N + 1)
+    return Inverse("legendre2", np.array([0.0, 0.1, 0.25, 0.4]), X, np.zeros_like(X),
+                   np.sin(np.arange(nx * 2 * N, dtype=float)).reshape(nx, 2 * N), {"n": 1, "l": 1, "p": 0, "m": 1},
+                   0.1, 0.3, names={"q": ["x"], "u": ["F"]},
+                   diagnostics={"success": True, "status": "Solve_Succeeded", "iterations": 7, "residual": 1e-9},
+                   y_ref_fn=lambda t: np.atleast_2d(np.sin(np.atleast_1d(t))))
+
+
 def _same(a, b):
     assert type(a) is type(b)
     for k, x in vars(a).items():
@@ -102,3 +115,41 @@ def test_a_file_without_a_declared_array_is_refused(name, tmp_path):
     np.savez(tmp_path / "cut.npz", **d)
     with pytest.raises(ResultFileError, match=r"incomplete \w+ file \(missing \['t'\]\)"):
         invctl.load(tmp_path / "cut.npz")
+
+
+def _same_inverse(a, b, t):
+    """Same collocation data and info, the same reference at the stored times ``t``."""
+    assert type(a) is type(b)
+    for k in ("scheme", "t_mesh", "X_mesh", "dX_mesh", "X_col", "sizes", "t0", "tf", "names", "diagnostics", "meta"):
+        x, y = getattr(a, k), getattr(b, k)
+        if isinstance(x, np.ndarray):
+            assert x.shape == y.shape, k
+            np.testing.assert_array_equal(x, y, err_msg=k)
+        else:
+            assert x == y, k
+    np.testing.assert_allclose(a.y_ref(t), b.y_ref(t), rtol=0, atol=1e-15)
+
+
+def test_inverse_file_of_the_earlier_writer_loads_as_the_same_object():
+    expected = small_inverse()
+    expected.meta = dict(META)
+    back = invctl.load(DATA / "inverse.npz")
+    with np.load(DATA / "inverse.npz") as z:
+        _same_inverse(back, expected, z["t"])
+
+
+def test_inverse_writer_keeps_the_file_layout(tmp_path):
+    """The same entries (the samples on a grid of step ``dt`` and the collocation data) and the same info."""
+    inv = small_inverse()
+    path = inv.to_npz(tmp_path / "inverse", 0.05, meta=META)
+    with np.load(path) as new, np.load(DATA / "inverse.npz") as old:
+        assert sorted(new.files) == sorted(old.files)
+        for k in old.files:
+            if k == "__invctl__":
+                assert json.loads(str(new[k])) == json.loads(str(old[k]))
+            else:
+                assert new[k].shape == old[k].shape and new[k].dtype == old[k].dtype, k
+                np.testing.assert_array_equal(new[k], old[k], err_msg=k)
+        t = old["t"]
+    inv.meta = dict(META)
+    _same_inverse(invctl.load(path), inv, t)
