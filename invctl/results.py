@@ -199,11 +199,22 @@ class Trajectory:
     _ARRAYS: ClassVar[tuple] = ()
     #: dict fields whose arrays are written as entries ``<prefix><key>`` (their other values into the info)
     _PREFIXED: ClassVar[dict] = {}
+    #: info entries a file must have although their fields have defaults (written even when empty)
+    _REQUIRED: ClassVar[tuple] = ()
+    #: arrays besides the fields that a file must have (a subclass's samples), handed to :meth:`_read`
+    _SAMPLES: ClassVar[tuple] = ()
+    #: fields not written (:meth:`_read` rebuilds them) and the entries that must be finite
+    _UNSAVED: ClassVar[tuple] = ()
+    _FINITE: ClassVar[tuple] = ("t", "q", "v")
 
     def to_npz(self, path, *, meta: dict | None = None) -> Path:
         """Write to ``.npz`` (read back with :func:`load`); ``meta`` (JSON-able) records where the run came from
         (scene, parameters) for ``invctl animate``. Returns the path written."""
-        arrays, info = {}, {}
+        return self._write(path, {}, meta)
+
+    def _write(self, path, arrays: dict, meta: dict | None) -> Path:
+        """:meth:`to_npz` with a subclass's ``arrays`` (its samples) written besides the fields."""
+        arrays, info = dict(arrays), {}
         for name in (f.name for f in fields(self)):  # type: ignore[arg-type]  # subclasses are dataclasses
             value = getattr(self, name)
             if name in self._ARRAYS:
@@ -211,9 +222,9 @@ class Trajectory:
             elif name in self._PREFIXED:
                 plain = {k: v for k, v in value.items() if isinstance(v, np.ndarray) and v.dtype != object}
                 arrays.update({self._PREFIXED[name] + k: v for k, v in plain.items()})
-                if len(plain) < len(value):
+                if len(plain) < len(value) or name in self._REQUIRED:
                     info[name] = {k: v for k, v in value.items() if k not in plain}
-            elif name != "meta":
+            elif name not in ("meta", *self._UNSAVED):
                 info[name] = value
         return save_npz(path, self._KIND, arrays, {**info, **self.meta, **(meta or {})},  # type: ignore[attr-defined]
                         version=self._VERSION)
@@ -221,7 +232,7 @@ class Trajectory:
     @classmethod
     @file_loader
     def load(cls, path):
-        """Read a file written by :meth:`to_npz` (format, version, completeness and finite ``t, q, v`` checked).
+        """Read a file written by :meth:`to_npz` (format, version, completeness and finite values checked).
 
         Raises
         ------
@@ -229,13 +240,13 @@ class Trajectory:
             Missing, truncated, foreign, incomplete or newer files, and older ones this class cannot convert.
         """
         d, info, version = load_npz_versioned(path, cls._KIND, version=cls._VERSION, older=cls._OLDER)
-        kw: dict[str, Any] = {}
+        missing = [k for k in cls._SAMPLES if k not in d] + [k for k in cls._REQUIRED if k not in info]
+        kw: dict[str, Any] = {k: d[k] for k in cls._SAMPLES if k in d}
         for name, prefix in cls._PREFIXED.items():
             kw[name] = {**info.pop(name, {}), **{k[len(prefix):]: v for k, v in d.items() if k.startswith(prefix)}}
-        missing = []
         for f in fields(cls):
             src = d if f.name in cls._ARRAYS else info
-            if f.name in kw or f.name == "meta":
+            if f.name in kw or f.name in ("meta", *cls._UNSAVED):
                 continue
             if f.name in src:
                 kw[f.name] = _typed(str(f.type), src.pop(f.name))
@@ -243,13 +254,14 @@ class Trajectory:
                 missing.append(f.name)
         if missing:
             raise ResultFileError(f"{path}: incomplete {cls.__name__} file (missing {missing})")
-        require_finite(path, kw, ("t", "q", "v"))
+        require_finite(path, kw, cls._FINITE)
         kw["meta"] = {**info.pop("meta", {}), **info}  # the rest of the info (switched runs nested it)
         return cls(**cls._read(path, kw, version))
 
     @classmethod
     def _read(cls, path, kw: dict, version: int) -> dict:
-        """The constructor's arguments of a file of format ``version`` (subclasses check and convert)."""
+        """The constructor's arguments of a file of format ``version`` (subclasses check and convert, and take
+        their :attr:`_SAMPLES` out)."""
         return kw
 
 

@@ -153,3 +153,21 @@ def test_inverse_writer_keeps_the_file_layout(tmp_path):
         t = old["t"]
     inv.meta = dict(META)
     _same_inverse(invctl.load(path), inv, t)
+
+
+def test_a_contact_file_without_statistics_is_refused(tmp_path):
+    """The info's ``stats`` is written even when every statistic is an array, and a file without it is refused."""
+    from invctl.errors import ResultFileError
+
+    res = small_results()["contact"]
+    res.stats = {"Un": res.stats["Un"]}
+    path = res.to_npz(tmp_path / "c")
+    with np.load(path) as z:
+        d = dict(z)
+    tag = json.loads(str(d["__invctl__"]))
+    assert tag["info"]["stats"] == {}
+    del tag["info"]["stats"]
+    d["__invctl__"] = np.asarray(json.dumps(tag))
+    np.savez(tmp_path / "cut.npz", **d)
+    with pytest.raises(ResultFileError, match=r"incomplete ContactTrajectory file \(missing \['stats'\]\)"):
+        invctl.load(tmp_path / "cut.npz")

@@ -112,6 +112,7 @@ class ContactTrajectory(Animated):
     _KIND, _VERSION, _OLDER = "ContactTrajectory", CONTACT_FORMAT_VERSION, _TIME_FIRST_VERSIONS
     _ARRAYS = ("t", "q", "v", "P", "active", "gaps", "energy", "V")
     _PREFIXED = {"stats": "stats:"}
+    _REQUIRED = ("stats",)
 
     # ---------------------------------------------------------- derived data
     @property
