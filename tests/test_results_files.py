@@ -171,3 +171,17 @@ def test_a_contact_file_without_statistics_is_refused(tmp_path):
     np.savez(tmp_path / "cut.npz", **d)
     with pytest.raises(ResultFileError, match=r"incomplete ContactTrajectory file \(missing \['stats'\]\)"):
         invctl.load(tmp_path / "cut.npz")
+
+
+def test_closed_loop_csv_columns(tmp_path):
+    """One column per row of every signal, named after the result's names (non-identifier characters as ``_``)."""
+    res = small_results()["closed_loop"]
+    res.to_csv(tmp_path / "r.csv")
+    with open(tmp_path / "r.csv") as fh:
+        header = fh.readline().strip().split(",")
+    assert header == ["t", "x", "th", "dx", "dth", "u1", "u_ff1", "u_fb1", "y1", "y_ref1", "tip1", "tip2", "tip_ref1",
+                      "tip_ref2", "ratio_y1_level_0", "ratio_bar"]
+    table = np.loadtxt(tmp_path / "r.csv", delimiter=",", skiprows=1)
+    expected = np.vstack([res.t, res.q, res.v, res.u, res.u_ff, res.u_fb, res.y, res.y_ref, res.signals["tip"],
+                          res.signals_ref["tip"], res.ratios]).T
+    np.testing.assert_allclose(table, expected, rtol=1e-15)

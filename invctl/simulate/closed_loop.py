@@ -136,21 +136,19 @@ class ClosedLoopResult(Animated):
 
     def to_csv(self, path) -> None:
         """Time series (t, q, v, u, u_ff, u_fb, y, y_ref, signals, funnel ratios) as CSV with a header."""
-        cols = [("t", self.t[None, :])]
-        qn = self.q_names or [f"q{i + 1}" for i in range(self.q.shape[0])]
-        cols += [(f"{n}", self.q[i:i + 1]) for i, n in enumerate(qn)]
-        cols += [(f"d{n}", self.v[i:i + 1]) for i, n in enumerate(qn)]
+        def safe(name):
+            return re.sub(r"[^A-Za-z0-9_]+", "_", name).strip("_")
+
+        qn = self.row_names("q")
+        cols = [("t", self.t), *zip(qn, self.q), *((f"d{n}", row) for n, row in zip(qn, self.v))]
         for name in ("u", "u_ff", "u_fb", "y", "y_ref"):
-            arr = getattr(self, name)
-            cols += [(f"{name}{i + 1}", arr[i:i + 1]) for i in range(arr.shape[0])]
+            cols += [(f"{name}{i + 1}", row) for i, row in enumerate(getattr(self, name))]
         for name, arr in self.signals.items():
-            key = re.sub(r"[^A-Za-z0-9_]+", "_", name).strip("_")
-            cols += [(f"{key}{i + 1}", arr[i:i + 1]) for i in range(arr.shape[0])]
-            cols += [(f"{key}_ref{i + 1}", self.signals_ref[name][i:i + 1]) for i in range(arr.shape[0])]
-        safe = [re.sub(r"[^A-Za-z0-9_]+", "_", n).strip("_") for n in self.ratio_names]
-        cols += [(f"ratio_{n}", self.ratios[i:i + 1]) for i, n in enumerate(safe)]
-        data = np.vstack([c[1] for c in cols]).T
-        np.savetxt(path, data, delimiter=",", header=",".join(str(c[0]) for c in cols), comments="")
+            cols += [(f"{safe(name)}{i + 1}", row) for i, row in enumerate(arr)]
+            cols += [(f"{safe(name)}_ref{i + 1}", row) for i, row in enumerate(self.signals_ref[name][:len(arr)])]
+        cols += [(f"ratio_{safe(n)}", row) for n, row in zip(self.ratio_names, self.ratios)]
+        np.savetxt(path, np.column_stack([row for _, row in cols]), delimiter=",", header=",".join(n for n, _ in cols),
+                   comments="")
 
     @classmethod
     def _read(cls, path, kw: dict, version: int) -> dict:
