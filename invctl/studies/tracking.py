@@ -294,11 +294,6 @@ class TrackingSetup:
     _loops: dict = field(default_factory=dict)
     _c1: Any = None
 
-    def c1_controller(self):
-        """The funnel controller of the paper's C1 (003 (60)-(61)): the new reference (42) with (43), the
-        same controller as C2's (C1 adds the feedforward)."""
-        return self.controller
-
     def inverse_reference_controller(self):
         """The funnel controller of ``C1-inv`` (invctl's extension): new reference
         ``y^_ref,1 = K_1 Psi(q_ff(t), v_ff(t))`` along the state trajectory of the servo-constraint inverse
@@ -321,10 +316,12 @@ class TrackingSetup:
         return self._c1
 
     def controller_for(self, name: str):
-        """The feedback of controller ``name`` (None for the feedforward alone)."""
+        """The feedback of controller ``name`` (None for the feedforward alone): the paper's C1 (003 (60)-(61))
+        and C2 share :attr:`controller` (new reference (42) with (43); C1 adds the feedforward)."""
         name = check_controller(name)
-        return {"C1": self.c1_controller, "C2": lambda: self.controller, "C3": lambda: None,
-                "C1-inv": self.inverse_reference_controller}[name]()
+        if name == "C1-inv":
+            return self.inverse_reference_controller()
+        return None if name == "C3" else self.controller
 
     def _require_inverse(self, name: str) -> None:
         """Invert the reference model now if ``name`` needs the inverse and none was given."""
