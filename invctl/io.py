@@ -7,6 +7,7 @@ newer files instead of returning wrong-sized data.
 """
 from __future__ import annotations
 
+import csv
 import functools
 import json
 import os
@@ -150,6 +151,15 @@ def read_json(path, what: str) -> dict:
     if not isinstance(d, dict):
         raise ResultFileError(f"{path}: a {what} holds a JSON object, got {type(d).__name__}")
     return d
+
+
+def write_rows(path, rows, first: tuple = ()) -> None:
+    """``rows`` (dicts) as CSV with a header: the columns ``first``, then in the order they first appear."""
+    keys = list(dict.fromkeys([*first, *(k for r in rows for k in r)]))
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(rows)
 
 
 def require_finite(path, arrays: dict, names) -> None:

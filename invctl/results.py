@@ -19,11 +19,15 @@ back as its class.  The subclasses add their own extras (funnel ratios, impacts,
 """
 from __future__ import annotations
 
+from dataclasses import MISSING, fields
 from enum import Enum
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
+
+from .errors import ResultFileError
+from .io import FORMAT_VERSION, file_loader, load_npz_versioned, read_meta, require_finite, save_npz
 
 
 class Status(str, Enum):
@@ -113,6 +117,10 @@ class Trajectory:
     q: Any
     v: Any
 
+    def __post_init__(self):  # (dataclass subclasses) a status given as its string
+        if hasattr(self, "status"):
+            self.status = Status.of(self.status)
+
     def field(self, name: str) -> np.ndarray:
         """``q``, ``v``, ``u``, ``y`` or ``lam`` as a 2-D array ``(rows, len(t))`` (no rows when this result
         has no such signal)."""
@@ -172,24 +180,97 @@ class Trajectory:
             a.legend(fontsize=7, loc="best")
         axes[-1].set_xlabel("time t [s]")
         axes[0].set_title(f"{type(self).__name__}: {Status.of(getattr(self, 'status', 'ok')).value}")
-        fig = axes[0].figure
-        if path:
-            from .plot import save
+        from .plot import save
 
-            save(fig, path)
-        return fig
+        save(axes[0].figure, path)
+        return axes[0].figure
 
     def plot(self, ax=None, *, path=None, **options):
         """The result's figure (subclasses draw their own kind's panels); ``ax``: axes to draw in, ``path``: save
         the figure there too; ``fields``: which signals the generic panels show. Returns the figure."""
         return self._generic_plot(ax, path=path, fields=options.get("fields", ("q", "u")))
 
-    def to_npz(self, path, *, meta: dict | None = None):  # pragma: no cover - every subclass writes its own
-        raise NotImplementedError
+    # ---------------------------------------------------------------- files
+    #: the ``.npz`` kind (its entry in :data:`KINDS`), the format version written and the older ones read
+    _KIND: ClassVar[str] = ""
+    _VERSION: ClassVar[int] = FORMAT_VERSION
+    _OLDER: ClassVar[tuple] = ()
+    #: dataclass fields written as arrays; the others go into the file's JSON info, ``meta`` merged into it
+    _ARRAYS: ClassVar[tuple] = ()
+    #: dict fields whose arrays are written as entries ``<prefix><key>`` (their other values into the info)
+    _PREFIXED: ClassVar[dict] = {}
+    #: info entries a file must have although their fields have defaults (written even when empty)
+    _REQUIRED: ClassVar[tuple] = ()
+    #: arrays besides the fields that a file must have (a subclass's samples), handed to :meth:`_read`
+    _SAMPLES: ClassVar[tuple] = ()
+    #: fields not written (:meth:`_read` rebuilds them) and the entries that must be finite
+    _UNSAVED: ClassVar[tuple] = ()
+    _FINITE: ClassVar[tuple] = ("t", "q", "v")
+
+    def to_npz(self, path, *, meta: dict | None = None) -> Path:
+        """Write to ``.npz`` (read back with :func:`load`); ``meta`` (JSON-able) records where the run came from
+        (scene, parameters) for ``invctl animate``. Returns the path written."""
+        return self._write(path, {}, meta)
+
+    def _write(self, path, arrays: dict, meta: dict | None) -> Path:
+        """:meth:`to_npz` with a subclass's ``arrays`` (its samples) written besides the fields."""
+        arrays, info = dict(arrays), {}
+        for name in (f.name for f in fields(self)):  # type: ignore[arg-type]  # subclasses are dataclasses
+            value = getattr(self, name)
+            if name in self._ARRAYS:
+                arrays[name] = value
+            elif name in self._PREFIXED:
+                plain = {k: v for k, v in value.items() if isinstance(v, np.ndarray) and v.dtype != object}
+                arrays.update({self._PREFIXED[name] + k: v for k, v in plain.items()})
+                if len(plain) < len(value) or name in self._REQUIRED:
+                    info[name] = {k: v for k, v in value.items() if k not in plain}
+            elif name not in ("meta", *self._UNSAVED):
+                info[name] = value
+        return save_npz(path, self._KIND, arrays, {**info, **self.meta, **(meta or {})},  # type: ignore[attr-defined]
+                        version=self._VERSION)
 
     @classmethod
-    def load(cls, path):  # pragma: no cover - every subclass reads its own
-        raise NotImplementedError
+    @file_loader
+    def load(cls, path):
+        """Read a file written by :meth:`to_npz` (format, version, completeness and finite values checked).
+
+        Raises
+        ------
+        ResultFileError
+            Missing, truncated, foreign, incomplete or newer files, and older ones this class cannot convert.
+        """
+        d, info, version = load_npz_versioned(path, cls._KIND, version=cls._VERSION, older=cls._OLDER)
+        missing = [k for k in cls._SAMPLES if k not in d] + [k for k in cls._REQUIRED if k not in info]
+        kw: dict[str, Any] = {k: d[k] for k in cls._SAMPLES if k in d}
+        for name, prefix in cls._PREFIXED.items():
+            kw[name] = {**info.pop(name, {}), **{k[len(prefix):]: v for k, v in d.items() if k.startswith(prefix)}}
+        for f in fields(cls):
+            src = d if f.name in cls._ARRAYS else info
+            if f.name in kw or f.name in ("meta", *cls._UNSAVED):
+                continue
+            if f.name in src:
+                kw[f.name] = _typed(str(f.type), src.pop(f.name))
+            elif f.name in cls._ARRAYS or f.default is MISSING and f.default_factory is MISSING:
+                missing.append(f.name)
+        if missing:
+            raise ResultFileError(f"{path}: incomplete {cls.__name__} file (missing {missing})")
+        require_finite(path, kw, cls._FINITE)
+        kw["meta"] = {**info.pop("meta", {}), **info}  # the rest of the info (switched runs nested it)
+        return cls(**cls._read(path, kw, version))
+
+    @classmethod
+    def _read(cls, path, kw: dict, version: int) -> dict:
+        """The constructor's arguments of a file of format ``version`` (subclasses check and convert, and take
+        their :attr:`_SAMPLES` out)."""
+        return kw
+
+
+def _typed(kind: str, value):
+    """A value read from a file as its field's annotated type (scalars, names; arrays as they are)."""
+    if kind == "list":
+        return [str(x) for x in np.atleast_1d(value)] if np.size(value) else []
+    convert = {"float": float, "int": int, "str": str, "dict": dict}.get(kind)
+    return value if convert is None else convert(value)
 
 
 class Animated(Trajectory):
@@ -234,9 +315,6 @@ def load(path):
         Missing, truncated or foreign file, or a kind this invctl does not know.
     """
     import importlib
-
-    from .errors import ResultFileError
-    from .io import read_meta
 
     p = Path(path)
     if p.is_dir():

@@ -32,7 +32,8 @@ from pathlib import Path
 from types import MappingProxyType, ModuleType
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
 
-from .errors import DimensionError, InvctlError, ModelError, ParameterError, SceneError, URDFError
+from .errors import (DimensionError, InvctlError, ModelError, ParameterError, SceneError, URDFError, check_interrupt,
+                     remember_sigint)
 
 if TYPE_CHECKING:
     import casadi as ca
@@ -494,24 +495,17 @@ class Scene:
 
     @property
     def commands(self) -> tuple[str, ...]:
-        """The commands this scene offers."""
-        offered = self._commands()
-        if self.studies and "study" not in offered:
-            offered += ("study",)
-        return offered
-
-    def _commands(self) -> tuple[str, ...]:
+        """The commands this scene offers (see the module docstring; declared studies add ``study``)."""
         kind = self.kind
         if kind == "tracking":
-            if self.tracking is None or self.tracking.reference is None:
-                return ("analyze", "study")
-            return ("analyze", "invert", "design", "simulate", "pipeline", "study")
+            inverts = self.tracking is not None and self.tracking.reference is not None
+            return ("analyze", "invert", "design", "simulate", "pipeline", "study") if inverts else ("analyze", "study")
         if kind == "contact":
-            has_analysis = any(r.command == "analyze" for r in self.reports)
-            return (("analyze",) if has_analysis else ()) + ("simulate", "pipeline", "study")
+            analyzes = any(r.command == "analyze" for r in self.reports)
+            return ("analyze",) * analyzes + ("simulate", "pipeline", "study")
         if kind == "switched":
             return ("analyze", "simulate", "design", "pipeline", "study")
-        return ()
+        return ("study",) if self.studies else ()
 
     def require(self, command: str) -> None:
         """Raise :class:`SceneError` unless the scene offers ``command`` (saying what it would need)."""
@@ -605,9 +599,7 @@ class Scene:
         if unknown:
             raise ParameterError(f"{self.name}: unknown model parameter(s) {unknown}; known: {sorted(self.params)}"
                                  + (f"; choices: {sorted(self.choices)}" if self.choices else ""))
-        for k in values:
-            if k in self.choices:
-                values[k] = self.check_choice(k, values[k])
+        values.update({k: self.check_choice(k, v) for k, v in values.items() if k in self.choices})
         try:
             obj = self._build(values)
         except ModelError as exc:
@@ -696,7 +688,6 @@ class Scene:
     def run(self, command: str, **options) -> "CommandResult":
         """``invctl <command>`` on this scene with its bound values: the report (``text``, ``data``) and the
         typed ``result``. Options are the command's, as keywords (``N=200``, ``controller="C2"``, ...)."""
-        from .errors import check_interrupt, remember_sigint
         from .studies.commands import run_command
 
         preset, values = self.__dict__.get("_bound", (None, {}))
@@ -939,22 +930,16 @@ def _import_file(path: Path) -> ModuleType:
     sys.modules[modname] = module
     try:
         spec.loader.exec_module(module)
-    except SyntaxError as exc:
+    except BaseException as exc:  # the boundary to the scene file's code: anything it raises
         sys.modules.pop(modname, None)
-        where = f"{exc.filename or resolved}" + (f":{exc.lineno}" if exc.lineno else "")
-        raise SceneError(f"scene file {where}: syntax error: {exc.msg}"
-                         + (f"\n    {exc.text.rstrip()}" if exc.text else "")) from None
-    except SceneError as exc:  # e.g. Scene(...) rejecting what the file declares: say where
-        sys.modules.pop(modname, None)
-        where = _where(exc, str(resolved))
-        if where:
-            raise SceneError(f"{exc}{where}") from None
-        raise
-    except URDFError:  # the robot description the scene reads: its own error names the file and the element
-        sys.modules.pop(modname, None)
-        raise
-    except Exception as exc:  # noqa: BLE001 - the boundary to the scene file's code: anything it raises
-        sys.modules.pop(modname, None)
+        if isinstance(exc, SyntaxError):
+            where = f"{exc.filename or resolved}" + (f":{exc.lineno}" if exc.lineno else "")
+            raise SceneError(f"scene file {where}: syntax error: {exc.msg}"
+                             + (f"\n    {exc.text.rstrip()}" if exc.text else "")) from None
+        if isinstance(exc, SceneError) and _where(exc, str(resolved)):  # e.g. Scene(...) rejecting a declaration
+            raise SceneError(f"{exc}{_where(exc, str(resolved))}") from None
+        if isinstance(exc, (SceneError, URDFError)) or not isinstance(exc, Exception):
+            raise  # a robot description's own error names the file and the element; Ctrl-C stays Ctrl-C
         raise SceneError(f"scene file {str(path)!r} failed to import: {type(exc).__name__}: {exc}"
                          f"{_where(exc, str(resolved))}") from None
     return module

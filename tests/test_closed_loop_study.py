@@ -112,7 +112,7 @@ def test_c1_inv_on_the_reference_model_is_nearly_exact_and_c1_is_not(setup):
     from invctl.simulate.closed_loop import ClosedLoop
 
     uff = setup.u_ff_samples()
-    ctrls = (("C1-inv", setup.inverse_reference_controller()), ("C1", setup.c1_controller()), ("C3", None))
+    ctrls = (("C1-inv", setup.inverse_reference_controller()), ("C1", setup.controller_for("C1")), ("C3", None))
     runs = {name: ClosedLoop(setup.model, setup.reference, controller=ctrl, u_ff=uff,
                              signals=setup.signals).run(setup.q0) for name, ctrl in ctrls}
     # after the start (t > 0.2 s), where the feedback has removed what the clipped pre-actuation left

@@ -258,3 +258,32 @@ SCENE = Scene("ball", build, params={"m": 1.0, "g": 9.81, "e": 0.5}, settings={"
     runs = scene.pipeline(tmp_path / "out", quiet=True, t_end=0.3, animate=True)
     assert sorted(runs) == ["also_off", "off"] and builds == [{}]
     assert all((tmp_path / "out" / f"anim_{k}.gif").stat().st_size > 0 for k in runs)
+
+
+def test_the_commands_a_scene_offers_follow_from_what_it_declares():
+    from invctl.scenes import Contact, Report, Scene, Switched, Tracking
+
+    def build():
+        return None
+
+    def ref(model):
+        return None
+
+    def compute(ctx):
+        return {}
+
+    offers = {
+        ("analyze", "invert", "design", "simulate", "pipeline", "study"): Scene("a", build, tracking=Tracking(ref)),
+        ("analyze", "study"): Scene("b", build, tracking=Tracking()),
+        ("simulate", "pipeline", "study"): Scene("c", build, contact=Contact(initial_state=ref)),
+        ("analyze", "simulate", "pipeline", "study"): Scene("d", build, contact=Contact(initial_state=ref),
+                                                            reports=(Report("r", compute, command="analyze"),)),
+        ("analyze", "simulate", "design", "pipeline", "study"): Scene("e", build, switched=Switched()),
+        (): Scene("f", build),
+        ("study",): Scene("g", build, studies={"job": build}),
+    }
+    for commands, scene in offers.items():
+        assert scene.commands == commands, scene.name
+    with pytest.raises(invctl.errors.SceneError, match=r"does not offer 'invert'; it offers: analyze, study \(invert "
+                                                       r"needs a model with outputs and tracking=Tracking\(reference"):
+        offers[("analyze", "study")].require("invert")

@@ -55,6 +55,15 @@ def test_funnel_mismatch_rejects_unknown_parameter():
         plant_mismatch("manipulator", no_such=[1.0], executor="serial", progress=False)
 
 
+def test_sweeps_reject_unknown_controllers_and_parameters_before_any_run():
+    from invctl.errors import ParameterError, SceneError
+
+    with pytest.raises(SceneError, match=r"unknown controller 'C9'.*C1-inv"):
+        plant_mismatch("cartpole", controller="C9", mp=[1.0], executor="serial", progress=False)
+    with pytest.raises(ParameterError, match=r"compliant_wrist: give grids of its parameters; unknown \['nope'\]"):
+        switched_lambda_map("compliant_wrist", kt=[1e4], nope=[1.0], executor="serial", progress=False)
+
+
 def test_clearance_grid_dask_local_cluster(tmp_path):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,

@@ -19,7 +19,7 @@ import scipy.linalg as sla
 
 from ..errors import CoordinateError, StabilityError
 from .auxiliary import as_points, eval_batch, region_samples, sampling_domain
-from .internal import point_args
+from .internal import point_args, xi_expression
 from .relative_degree import schur_complement
 
 _IMAG_TOL = 1e-9
@@ -92,8 +92,6 @@ class LinearizedInternal:
         if cached is not None:
             return cached
         model, internal = self.model, self.internal
-        from .internal import xi_expression
-
         _, out_blocks = xi_expression(model)
         eta38 = ca.mtimes(ca.DM(self.F0), internal.phi_expr)
         for Fi, yk in zip(self.F, out_blocks):

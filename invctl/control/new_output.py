@@ -273,15 +273,17 @@ def _refine(Qt, Pt, res, spaces, S_all, indices):
     a0 = [np.linalg.lstsq(N.T, Ki, rcond=None)[0] for N, Ki in zip(Ns, res.K[:q])]
     x0 = np.concatenate(a0 + [np.ravel(res.K[q:])]) if (a0 or m > q) else np.zeros(0)
 
-    def unpack(x):
+    def unpack(x, bases):
+        """The rows of ``x``: its eta2-row coefficients times ``bases`` (``Ms``: the rows of D; ``Ns``: the
+        rows of K), then the free rows."""
         rows, off = [], 0
-        for M, n in zip(Ms, sizes):
-            rows.append(x[off:off + n] @ M)
+        for B, n in zip(bases, sizes):
+            rows.append(x[off:off + n] @ B)
             off += n
-        return np.vstack(rows + [x[off:].reshape(m - q, m)]) if (rows or m > q) else np.zeros((0, m))
+        return rows + list(x[off:].reshape(m - q, m))
 
     def cost(x):
-        D = unpack(x)
+        D = np.vstack(unpack(x, Ms)) if (Ms or m > q) else np.zeros((0, m))
         nrm = np.linalg.norm(D, 2)
         return 1e3 if nrm == 0 else -_margins(D, S_all, E).min() / nrm
 
@@ -290,15 +292,8 @@ def _refine(Qt, Pt, res, spaces, S_all, indices):
                             "fatol": 1e-12})
     if not -out.fun > res.relative_margin:
         return None
-    x = out.x
-    D = unpack(x)
-    scale = float(np.mean(np.diag(D @ S_all[0] @ E)))     # unit mean diagonal of D S~(w0) E
-    x = x / scale
-    K, off = [], 0
-    for N, n in zip(Ns, sizes):
-        K.append(x[off:off + n] @ N)
-        off += n
-    K += list(x[off:].reshape(m - q, m))
+    D = np.vstack(unpack(out.x, Ms))
+    K = unpack(out.x / float(np.mean(np.diag(D @ S_all[0] @ E))), Ns)  # unit mean diagonal of D S~(w0) E
     return _finish(Qt, Pt, K, res.k_i, 1, res.pairing, "high-gain", S_all, indices,
                    res.note + f"; refined by Nelder-Mead over {S_all.shape[0]} points (relative margin "
                    f"{res.relative_margin:.3g} -> {-out.fun:.3g})")

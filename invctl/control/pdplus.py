@@ -20,7 +20,7 @@ from typing import Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from ..errors import DimensionError, ModelError
+from ..errors import DimensionError, ModelError, ParameterError
 
 
 @dataclass(frozen=True)
@@ -61,8 +61,6 @@ class FeedbackLaw:
         vals = dict(zip(self.kappa_names, self.kappa_values))
         unknown = sorted(set(overrides) - set(vals))
         if unknown:
-            from ..errors import ParameterError
-
             raise ParameterError(f"law {self.name!r}: unknown gain(s) {unknown}; known: {list(vals)}")
         vals.update({k: float(v) for k, v in overrides.items()})
         return np.array([vals[k] for k in self.kappa_names], float)

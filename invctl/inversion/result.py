@@ -6,9 +6,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..io import file_loader
+from ..errors import ResultFileError
 from ..results import Animated, Curve, Status
-from ..scenes import jsonable
 from .schemes import get_scheme
 
 _BLOCKS = ("q", "v", "lam", "mu", "u")
@@ -238,63 +237,40 @@ class Inverse(Animated):
             save(fig, path)
         return fig
 
+    _KIND = "Inverse"
+    _ARRAYS = ("t_mesh", "X_mesh", "dX_mesh", "X_col")
+    _SAMPLES, _UNSAVED, _FINITE = ("t", "y_ref"), ("y_ref_fn",), ("t_mesh", "X_mesh", "dX_mesh", "X_col", "y_ref")
+
     def to_npz(self, path, dt: float | None = None, meta: dict | None = None):
         """Save ``t, q, v, lam, mu, u, y_ref`` on a uniform grid of step ``dt`` plus the
         collocation data (``t_mesh, X_mesh, dX_mesh, X_col``) needed by :meth:`load`;
         ``meta`` (JSON-able) records where it came from (scene, parameters). Returns the path."""
-        from ..io import save_npz
-
         dt = float(dt) if dt else (self.Tf - self.T0) / 1000
         if not dt > 0:
             raise ValueError(f"dt must be positive, got {dt}")
         t = np.arange(self.T0, self.Tf + 0.5 * dt, dt)
         X = self.X(t)
         yr = self.y_ref(t)
-        info = {"scheme": self.scheme, "sizes": self.sizes, "t0": self.t0, "tf": self.tf, "names": self.names,
-                "diagnostics": jsonable(self.diagnostics), **self.meta, **(meta or {})}
-        return save_npz(path, "Inverse", dict(
+        return self._write(path, dict(
             t=t, q=X[self._slice("q")], v=X[self._slice("v")], lam=X[self._slice("lam")], mu=X[self._slice("mu")],
-            u=X[self._slice("u")], u_causal=self.u_causal(t), y_ref=np.zeros((0, t.size)) if yr is None else yr,
-            t_mesh=self.t_mesh, X_mesh=self.X_mesh, dX_mesh=self.dX_mesh, X_col=self.X_col), info)
+            u=X[self._slice("u")], u_causal=self.u_causal(t), y_ref=np.zeros((0, t.size)) if yr is None else yr), meta)
 
     @classmethod
-    @file_loader
-    def load(cls, path) -> "Inverse":
-        """Load what :meth:`to_npz` wrote (interpolants rebuilt from the collocation data).
-
-        Raises
-        ------
-        ResultFileError
-            Missing, truncated, foreign or older files; sizes that do not match the data; NaN.
-        """
-        from ..errors import ResultFileError
-        from ..io import load_npz, require_finite
-
-        z, meta = load_npz(path, "Inverse")
-        need = ("t", "t_mesh", "X_mesh", "dX_mesh", "X_col", "y_ref")
-        missing = [k for k in need if k not in z] + [k for k in ("scheme", "sizes", "t0", "tf") if k not in meta]
-        if missing:
-            raise ResultFileError(f"{path}: incomplete inverse (missing {missing})")
-        require_finite(path, z, ("t_mesh", "X_mesh", "dX_mesh", "X_col", "y_ref"))
-        sizes = {k: int(meta["sizes"].get(k, -1)) for k in ("n", "l", "p", "m")}
+    def _read(cls, path, kw: dict, version: int) -> dict:
+        """Sizes and collocation data checked against each other; the reference interpolated in its samples."""
+        t, yr, tm, X = kw.pop("t"), kw.pop("y_ref"), kw["t_mesh"], kw["X_mesh"]
+        sizes = kw["sizes"] = {k: int(kw["sizes"].get(k, -1)) for k in ("n", "l", "p", "m")}
         nx = 2 * sizes["n"] + sizes["l"] + sizes["p"] + sizes["m"]
-        if min(sizes.values()) < 0 or z["X_mesh"].shape != (nx, z["t_mesh"].size):
+        if min(sizes.values()) < 0 or X.shape != (nx, tm.size):
             raise ResultFileError(f"{path}: sizes {sizes} (nx = {nx}) do not match the stored mesh data "
-                                  f"{z['X_mesh'].shape}; the file is inconsistent")
-        sch = get_scheme(str(meta["scheme"]))
-        ncol = sch.n_col(z["t_mesh"].size - 1)
-        if (z["t_mesh"].ndim != 1 or z["t_mesh"].size < 2 or np.any(np.diff(z["t_mesh"]) <= 0)
-                or z["dX_mesh"].shape != z["X_mesh"].shape or (ncol and z["X_col"].shape != (nx, ncol))):
+                                  f"{X.shape}; the file is inconsistent")
+        sch = get_scheme(kw["scheme"])
+        ncol = sch.n_col(tm.size - 1)
+        if (tm.ndim != 1 or tm.size < 2 or np.any(np.diff(tm) <= 0) or kw["dX_mesh"].shape != X.shape
+                or (ncol and kw["X_col"].shape != (nx, ncol))):
             raise ResultFileError(f"{path}: inconsistent collocation data (a mesh that is not increasing, or slopes "
-                                  f"{z['dX_mesh'].shape} / collocation states {z['X_col'].shape} that do not fit "
-                                  f"{z['X_mesh'].shape} on a {sch.name} mesh)")
-        try:
-            inv = cls(meta["scheme"], z["t_mesh"], z["X_mesh"], z["dX_mesh"], z["X_col"], sizes,
-                      float(meta["t0"]), float(meta["tf"]), meta.get("names", {}), meta.get("diagnostics", {}))
-        except ValueError as exc:
-            raise ResultFileError(f"{path}: {exc}") from None
-        inv.meta = {k: meta[k] for k in ("scene", "params") if k in meta}
-        if z["y_ref"].size:
-            t, yr = z["t"], z["y_ref"]
-            inv.y_ref_fn = lambda tt: np.vstack([np.interp(np.atleast_1d(tt), t, row) for row in yr])
-        return inv
+                                  f"{kw['dX_mesh'].shape} / collocation states {kw['X_col'].shape} that do not fit "
+                                  f"{X.shape} on a {sch.name} mesh)")
+        if yr.size:
+            kw["y_ref_fn"] = lambda tt: np.vstack([np.interp(np.atleast_1d(tt), t, row) for row in yr])
+        return kw

@@ -29,7 +29,7 @@ from typing import Callable, Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from ..errors import OptionError, URDFError, UnsupportedURDFError
+from ..errors import OptionError, ParameterError, URDFError, UnsupportedURDFError
 
 SUPPORTED_JOINTS = ("revolute", "continuous", "prismatic", "fixed")
 #: how :meth:`Robot.model` forms M and f: recursive Newton-Euler (default) or the Lagrangian differentiated by AD
@@ -535,8 +535,6 @@ class Robot:
 
 def check_values(values: Mapping[str, float], where: str) -> None:
     """Reject negative dampers ``d_*``, springs ``k_*`` and gravity ``g`` (a scene's ``validate``)."""
-    from ..errors import ParameterError
-
     bad = {k: v for k, v in values.items() if (k.startswith(("d_", "k_")) or k == "g") and v < 0}
     if bad:
         raise ParameterError(f"{where}: dampers d_*, springs k_* and g must be >= 0, got {bad}")

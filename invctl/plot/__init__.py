@@ -61,8 +61,8 @@ def finish(fig, path=None, dpi: float = 120):
     return fig
 
 
-def save(fig, path, dpi: float | None = None) -> Path:
-    """Write ``fig`` to ``path`` (format by the suffix) with one draw. Matplotlib's ``savefig`` draws a figure
+def save(fig, path, dpi: float | None = None) -> Path | None:
+    """Write ``fig`` to ``path`` (format by the suffix; nothing when ``path`` is None) with one draw. Matplotlib's ``savefig`` draws a figure
     with a layout engine (constrained layout, or the placeholder ``tight_layout`` leaves) twice, once to lay it out
     and once to render; a PNG here is rendered once, with the layout in the same draw, and written from the
     canvas. A figure without a layout engine (:func:`grid`) whose titles or axis labels leave the figure or run
@@ -70,6 +70,8 @@ def save(fig, path, dpi: float | None = None) -> Path:
     compressed at zlib level 1."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
+    if not path:
+        return None
     path = Path(path)
     if dpi is not None:
         fig.set_dpi(dpi)

@@ -17,7 +17,8 @@ from typing import Any, Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from ..errors import AnimationError, DimensionError, DrawingError, ParameterError
+from ..errors import AnimationError, DimensionError, DrawingError, ParameterError, SceneError
+from ..scenes import Scene, _is_path, load_scene
 
 LINK_STYLE = {"color": "tab:blue", "lw": 3.0, "solid_capstyle": "round"}
 POINT_STYLE = {"marker": "o", "ms": 5.0, "color": "k", "ls": "none"}
@@ -484,7 +485,8 @@ def snapshot(model, drawing: Drawing, t, q, path, *, times=None, n: int = 5, tra
     path.parent.mkdir(parents=True, exist_ok=True)
     from . import save
 
-    return save(fig, path)
+    save(fig, path)
+    return path
 
 
 def animate_result(result, path, *, scene=None, params=None, fps: float = 25, speed: float = 1.0,
@@ -495,9 +497,6 @@ def animate_result(result, path, *, scene=None, params=None, fps: float = 25, sp
     commands and kept in its file); the scene's ``drawing(model)`` says what to draw.  A recorded
     scene file is never loaded (loading runs its code): pass it as ``scene=`` if you trust it.
     """
-    from ..errors import SceneError
-    from ..scenes import Scene, _is_path, load_scene
-
     meta = dict(getattr(result, "meta", None) or {})
     if scene is None:
         scene = meta.get("scene")

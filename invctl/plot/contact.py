@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import save
+
 
 def active_window(tr, rel: float = 1e-2, pad: float = 0.1):
     """``(t_start, t_stop)`` that holds everything that happens: the span where the velocities or the changes
@@ -73,8 +75,5 @@ def plot_contact_trajectory(tr, path=None, *, coords=None, title: str | None = N
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    if path:
-        from . import save
-
-        save(fig, path)
+    save(fig, path)
     return fig

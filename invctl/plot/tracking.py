@@ -18,7 +18,7 @@ def plot_run(res, path=None, units=None):
     units = dict(units or (res.meta or {}).get("units") or {})
     fig, ax = grid(2, 2, (10, 6.5))
     t = res.t
-    ynames = res.y_names or [f"y{i + 1}" for i in range(res.y.shape[0])]
+    ynames, unames = res.row_names("y"), res.row_names("u")
     curves = []
     for i in range(res.y.shape[0]):
         line, = ax[0, 0].plot(t, res.y[i], label=ynames[i])
@@ -26,7 +26,7 @@ def plot_run(res, path=None, units=None):
         curves += [(res, t, res.y[i], line.get_color()), (None, t, res.y_ref[i], "k")]
     _clip_departed(ax[0, 0], curves)
     ax[0, 0].set(title=f"{_label(res.controller, res)}: outputs (dashed: reference)", xlabel="t [s]",
-                 ylabel=_unit_label(ynames, units) if len(_by_unit(ynames, units)) == 1 else "outputs (mixed units)")
+                 ylabel=_unit_label(ynames, units, "outputs"))
     ax[0, 0].legend()
     curves = []
     for name in ["output", *res.signals]:
@@ -36,11 +36,9 @@ def plot_run(res, path=None, units=None):
     _clip_departed(ax[0, 1], curves, log=True)
     ax[0, 1].set(title="tracking errors", xlabel="t [s]", ylabel="error norm")
     ax[0, 1].legend()
-    unames = res.u_names or [f"u{i + 1}" for i in range(res.u.shape[0])]
     for i in range(res.u.shape[0]):
         ax[1, 0].plot(t, res.u[i], label=unames[i])
-    ax[1, 0].set(title="inputs", xlabel="t [s]", ylabel=_unit_label(unames, units)
-                 if len(_by_unit(unames, units)) == 1 else "inputs (mixed units)")
+    ax[1, 0].set(title="inputs", xlabel="t [s]", ylabel=_unit_label(unames, units, "inputs"))
     ax[1, 0].legend()
     if res.ratios.size:
         for k in range(res.ratios.shape[0]):
@@ -52,8 +50,7 @@ def plot_run(res, path=None, units=None):
     else:
         ax[1, 1].axis("off")
         ax[1, 1].text(0.1, 0.5, "no feedback: no funnel", transform=ax[1, 1].transAxes)
-    if path:
-        save(fig, path)
+    save(fig, path)
     return fig
 
 
@@ -106,12 +103,6 @@ def _title(captions: dict, key: str, text: str) -> str:
     return f"{captions[key]}: {text}" if key in captions else text
 
 
-def _with_unit(name: str, units: dict) -> str:
-    """``name [unit]`` when the scene declares the unit, else ``name``."""
-    unit = (units or {}).get(name)
-    return f"{name} [{unit}]" if unit else name
-
-
 def _by_unit(names, units: dict) -> list:
     """Indices of ``names`` grouped by their unit (undeclared units: one group per name), in order."""
     groups: dict = {}
@@ -121,7 +112,11 @@ def _by_unit(names, units: dict) -> list:
     return list(groups.values())
 
 
-def _unit_label(names, units):
+def _unit_label(names, units, what: str = "") -> str:
+    """An axis label of the curves ``names``: ``q1, q2 [m]`` (the unit of the first; ``name [unit]`` for one curve,
+    without a unit when none is declared); ``<what> (mixed units)`` when ``what`` is given and the units differ."""
+    if what and len(_by_unit(names, units)) > 1:
+        return f"{what} (mixed units)"
     unit = (units or {}).get(names[0])
     return (", ".join(names) + (f" [{unit}]" if unit else "")) if len(names) <= 3 else (
         f"[{unit}]" if unit else ", ".join(names))
@@ -140,7 +135,7 @@ def plot_study(study, out_dir=None, fmt="png", captions=None, units=None):
     runs = study.runs
     figs = {}
     main = runs.get("C1") or next(iter(runs.values()))
-    qn = main.q_names or [f"q{i + 1}" for i in range(main.q.shape[0])]
+    qn = main.row_names("q")
     groups = _by_unit(qn, units)
     fig, axs = grid(len(groups), 1, (7, 1.2 + 2.2 * len(groups)), sharex=True, labelled_rows=False)
     for ax, idx in zip(axs[:, 0], groups):
@@ -173,7 +168,7 @@ def plot_study(study, out_dir=None, fmt="png", captions=None, units=None):
         ax.legend()
         figs[key] = fig
 
-    yn = main.y_names or [f"y{i + 1}" for i in range(main.y.shape[0])]
+    yn = main.row_names("y")
     panels = [(f"output {n}: y - y_ref", (lambda r, i=i: r.y[i] - r.y_ref[i]), units.get(n)) for i, n in enumerate(yn)]
     panels += [(f"{s}: ||error||", (lambda r, s=s: r.signal_error(s)), units.get(s)) for s in main.signals]
     cols = min(len(panels), 3)
@@ -195,13 +190,13 @@ def plot_study(study, out_dir=None, fmt="png", captions=None, units=None):
 
     m = main.u.shape[0]
     fig, axs = grid(m, 1, (7, 2.6 * m + 0.6), sharex=True, labelled_rows=False)
-    unames = main.u_names or [f"u{i + 1}" for i in range(m)]
+    unames = main.row_names("u")
     for name, r in runs.items():
         for i in range(m):
             axs[i, 0].plot(r.t, r.u[i], color=_COLORS.get(name), label=_label(name, r))
     for i in range(m):
         _clip_departed(axs[i, 0], [(r, r.t, r.u[i], _COLORS.get(name)) for name, r in runs.items()])
-        axs[i, 0].set(ylabel=_with_unit(unames[i], units))
+        axs[i, 0].set(ylabel=_unit_label([unames[i]], units))
     axs[0, 0].set(title=_title(captions, "inputs", "inputs"))
     axs[-1, 0].set(xlabel="t [s]")
     axs[0, 0].legend()
@@ -261,6 +256,5 @@ def plot_funnels(controller, t_end: float, path=None):
     ax.semilogy(t, np.ravel(controller.phi_bar.boundary(t)), "k", lw=1.5, label="e_bar")
     ax.set(title="funnel boundaries 1/phi(t)", xlabel="t [s]", ylabel="1/phi (units of the error level)")
     ax.legend(fontsize=8, ncol=2)
-    if path:
-        save(fig, path)
+    save(fig, path)
     return fig

@@ -28,7 +28,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.interpolate import PPoly
+from scipy.interpolate import CubicHermiteSpline, PPoly
 from scipy.linalg import expm
 
 from ..errors import ParameterError, ReferenceSignalError
@@ -94,8 +94,6 @@ def force_bump(t_c: float, t_b: float, F_max: float, t0: float = 0.0) -> PPoly:
 def from_callable(f, t0: float, t1: float, n: int = 200) -> PPoly:
     """A C^1 piecewise-cubic profile interpolating ``f`` and its (central-difference) slope on ``n`` intervals,
     constant after ``t1``."""
-    from scipy.interpolate import CubicHermiteSpline
-
     t = np.linspace(t0, t1, n + 1)
     y = np.array([float(f(ti)) for ti in t])
     if not np.all(np.isfinite(y)):

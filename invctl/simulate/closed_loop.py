@@ -17,16 +17,14 @@ from __future__ import annotations
 
 import re
 import time
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
 
 from ..errors import (FunnelViolation, OptionError, ParameterError, RunInterrupted, SimulationFailed, check_interrupt,
                       INTERRUPT_LIKE, is_interrupt, watch_sigint)
-from ..io import file_loader
-from ..results import Animated, Status
+from ..results import Animated, Status, plot_target
 
 #: a level counts as outside the funnel at this ratio (the law clips 1 - phi^2 e^2 at 1e-6)
 VIOLATION_RATIO = 1.0 - 5e-7
@@ -77,8 +75,10 @@ class ClosedLoopResult(Animated):
     stats: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
 
-    def __post_init__(self):
-        self.status = Status.of(self.status)
+    _KIND = "ClosedLoopResult"
+    _ARRAYS = ("t", "q", "v", "z", "u", "u_ff", "u_fb", "y", "y_ref", "ratios", "e_bar", "phi_bar", "drift_g",
+               "drift_Gv", "wall_s", "controller", "status", "message", "ratio_names", "q_names", "y_names", "u_names")
+    _PREFIXED = {"signals": "signal:", "signals_ref": "signal_ref:"}
 
     @property
     def departure(self):
@@ -134,75 +134,32 @@ class ClosedLoopResult(Animated):
                 "left_region": self.stats.get("left_region"),
                 "wall_s": self.wall_s}
 
-    def to_npz(self, path, meta: dict | None = None):
-        """Write all arrays and scalars to ``.npz`` (load with :meth:`load`); ``meta`` (JSON-able)
-        records where the run came from (scene, parameters) for ``invctl animate``. Returns the path."""
-        from ..io import save_npz
-
-        data = {f.name: getattr(self, f.name) for f in fields(self)
-                if f.name not in ("signals", "signals_ref", "cumulative_errors", "stats", "meta")}
-        for name, arr in self.signals.items():
-            data[f"signal:{name}"] = arr
-            data[f"signal_ref:{name}"] = self.signals_ref[name]
-        info = {"cumulative_errors": self.cumulative_errors, "stats": self.stats, **self.meta, **(meta or {})}
-        return save_npz(path, "ClosedLoopResult", data, info)
-
     def to_csv(self, path) -> None:
         """Time series (t, q, v, u, u_ff, u_fb, y, y_ref, signals, funnel ratios) as CSV with a header."""
-        cols = [("t", self.t[None, :])]
-        qn = self.q_names or [f"q{i + 1}" for i in range(self.q.shape[0])]
-        cols += [(f"{n}", self.q[i:i + 1]) for i, n in enumerate(qn)]
-        cols += [(f"d{n}", self.v[i:i + 1]) for i, n in enumerate(qn)]
+        def safe(name):
+            return re.sub(r"[^A-Za-z0-9_]+", "_", name).strip("_")
+
+        qn = self.row_names("q")
+        cols = [("t", self.t), *zip(qn, self.q), *((f"d{n}", row) for n, row in zip(qn, self.v))]
         for name in ("u", "u_ff", "u_fb", "y", "y_ref"):
-            arr = getattr(self, name)
-            cols += [(f"{name}{i + 1}", arr[i:i + 1]) for i in range(arr.shape[0])]
+            cols += [(f"{name}{i + 1}", row) for i, row in enumerate(getattr(self, name))]
         for name, arr in self.signals.items():
-            key = re.sub(r"[^A-Za-z0-9_]+", "_", name).strip("_")
-            cols += [(f"{key}{i + 1}", arr[i:i + 1]) for i in range(arr.shape[0])]
-            cols += [(f"{key}_ref{i + 1}", self.signals_ref[name][i:i + 1]) for i in range(arr.shape[0])]
-        safe = [re.sub(r"[^A-Za-z0-9_]+", "_", n).strip("_") for n in self.ratio_names]
-        cols += [(f"ratio_{n}", self.ratios[i:i + 1]) for i, n in enumerate(safe)]
-        data = np.vstack([c[1] for c in cols]).T
-        np.savetxt(path, data, delimiter=",", header=",".join(str(c[0]) for c in cols), comments="")
+            cols += [(f"{safe(name)}{i + 1}", row) for i, row in enumerate(arr)]
+            cols += [(f"{safe(name)}_ref{i + 1}", row) for i, row in enumerate(self.signals_ref[name][:len(arr)])]
+        cols += [(f"ratio_{safe(n)}", row) for n, row in zip(self.ratio_names, self.ratios)]
+        np.savetxt(path, np.column_stack([row for _, row in cols]), delimiter=",", header=",".join(n for n, _ in cols),
+                   comments="")
 
     @classmethod
-    @file_loader
-    def load(cls, path) -> "ClosedLoopResult":
-        """Read a run written by :meth:`save` (format and version checked)."""
-        from ..io import load_npz, require_finite
-
-        arrays, info = load_npz(path, "ClosedLoopResult")
-        require_finite(path, arrays, ("t", "q", "v"))
-        kw: dict[str, Any] = {"signals": {}, "signals_ref": {}, "cumulative_errors": dict(info.get("cumulative_errors", {})),
-              "stats": dict(info.get("stats", {})),
-              "meta": {k: v for k, v in info.items() if k not in ("cumulative_errors", "stats")}}
-        for key, a in arrays.items():
-            if key.startswith("signal:"):
-                kw["signals"][key[7:]] = a
-            elif key.startswith("signal_ref:"):
-                kw["signals_ref"][key[11:]] = a
-            else:
-                kw[key] = a
-        for f in fields(cls):
-            if f.name not in kw:
-                from ..errors import ResultFileError
-
-                raise ResultFileError(f"{path}: not a complete closed-loop run (missing {f.name!r})")
-        kw["wall_s"] = float(kw["wall_s"])
-        for k in ("controller", "status", "message"):
-            kw[k] = str(kw[k])
-        for k in ("ratio_names", "q_names", "y_names", "u_names"):
-            kw[k] = [str(x) for x in np.atleast_1d(kw[k])] if np.size(kw[k]) else []
+    def _read(cls, path, kw: dict, version: int) -> dict:
         exit_ = kw["stats"].get("left_region")
         if kw["status"] == "ok" and exit_:   # written before such runs had their own status
             kw["status"], kw["message"] = "left_region", _left_region_message(exit_)
-        return cls(**kw)
+        return kw
 
     def plot(self, ax=None, *, path=None, **options):
         """Outputs, errors, inputs and funnel (one figure; with ``ax``, the generic panels of
         :class:`~invctl.results.Trajectory` in those axes). Returns the figure."""
-        from ..results import plot_target
-
         ax, path = plot_target(ax, path)
         if ax is not None:
             return self._generic_plot(ax, path=path, fields=options.get("fields", ("y", "u")))
@@ -334,20 +291,17 @@ class ClosedLoop:
         self.dae = dae  # the closed loop's right-hand side (``p`` = theta, start time of the chunk)
         grid = np.linspace(0.0, self.per_chunk * self.dt, self.per_chunk + 1)[1:]
         opts = {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": self.max_num_steps,
-                "linear_solver": "csparse", "print_stats": False, "disable_internal_warnings": True, "expand": True}
-        compiled = _compiled_dae(dae)
+                "linear_solver": "csparse", "print_stats": False, "disable_internal_warnings": True}
+        compiled = _compiled_dae(dae)  # generated C of the right-hand side and its Jacobian (disk cache), or None
         self.rhs_backend = "vm" if compiled is None else "c"
-        if compiled is not None:  # generated C of the right-hand side and its Jacobian (disk cache)
-            opts.pop("expand")
-            self.integrator = ca.integrator("closed_loop", "cvodes", compiled, 0.0, grid, opts)
-            self.step_integrator = ca.integrator("closed_loop_step", "cvodes", compiled, 0.0, [self.dt], opts)
-        else:
-            try:  # the right-hand side and its Jacobian as SX (one flat instruction list, no MX call overhead)
-                self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
-            except RuntimeError:  # a graph that does not expand
-                opts["expand"] = False
-                self.integrator = ca.integrator("closed_loop", "cvodes", dae, 0.0, grid, opts)
-            self.step_integrator = ca.integrator("closed_loop_step", "cvodes", dae, 0.0, [self.dt], opts)
+        rhs = dae if compiled is None else compiled
+        opts["expand"] = compiled is None  # the graph as SX: one flat instruction list, no MX call overhead
+        try:
+            self.integrator = ca.integrator("closed_loop", "cvodes", rhs, 0.0, grid, opts)
+        except RuntimeError:  # a graph that does not expand
+            opts["expand"] = False
+            self.integrator = ca.integrator("closed_loop", "cvodes", rhs, 0.0, grid, opts)
+        self.step_integrator = ca.integrator("closed_loop_step", "cvodes", rhs, 0.0, [self.dt], opts)
         G = plant.function("G")(q, theta)
         mon = ca.Function("monitor", [t, t_start, x, theta],
                           [u, uff, ufb, h, yref, ca.vertcat(*sig) if sig else ca.MX(0, 1),
@@ -665,12 +619,6 @@ def _compiled_dae(dae, wait: bool = False):
 def _stack(mons):
     """The monitor's outputs of consecutive pieces joined along time."""
     return [np.hstack(p) for p in zip(*mons)]
-
-
-def simulate_closed_loop(plant, reference, q0, v0=None, **options) -> ClosedLoopResult:
-    """One-call form: ``ClosedLoop(plant, reference, **options).run(q0, v0)``."""
-    label = options.pop("controller_label", None)
-    return ClosedLoop(plant, reference, **options).run(q0, v0, controller_label=label)
 
 
 def scipy_reference_run(loop: ClosedLoop, q0, v0=None, theta=None, *, method="LSODA", rtol=1e-8, atol=1e-10,

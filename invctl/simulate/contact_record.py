@@ -14,13 +14,11 @@ import math
 import os
 from dataclasses import dataclass, field
 from functools import cached_property
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import ParameterError, RecordingError, ResourceLimitError, ResultFileError, SimulationFailed
-from ..io import file_loader, load_npz_versioned, require_finite, save_npz
-from ..results import Animated, Status
+from ..results import Animated, plot_target
 
 #: format version of the ContactTrajectory files written now (3: time along the last axis); files
 #: of version 2 (time along the first axis) are read and transposed
@@ -80,29 +78,19 @@ def _fmt_bytes(b: float) -> str:
 
 @dataclass
 class ContactTrajectory(Animated):
-    """Result of a time-stepping (or event-driven) contact simulation.
+    """Result of a time-stepping (or event-driven) contact simulation, time along the last axis: ``q``, ``v``
+    ``(n, len(t))`` from ``t[0]`` on; ``gaps`` ``(m_u, len(t))``; ``P`` (the impulses of each step, ``P/h``
+    estimates the contact force) and ``active`` (the active-set flags) ``(m_u, len(t) - 1)`` for a finished run
+    (one column per step); ``energy`` (mechanical) and ``V`` (the law's Lyapunov function) ``(len(t),)``;
+    ``stats["Un"]`` (normal velocities) ``(m_u, len(t))``, ``stats["u"]`` (inputs) ``(m, len(t))``; the impact
+    table ``stats["impact_v_plus"]`` is ``(n_impacts, n)``, one row per impact.
 
-    Arrays have time along the last axis, like :class:`~invctl.simulate.closed_loop.ClosedLoopResult`
-    and :class:`~invctl.inversion.result.Inverse`: ``q``, ``v`` are
-    ``(n, len(t))`` and include ``t[0]``; ``gaps`` is ``(m_u, len(t))``;
-    ``P`` (the impulses of each step, ``P/h`` estimates the contact force)
-    and ``active`` (the active-set flags) are ``(m_u, len(t) - 1)`` for a
-    finished run (one column per step); ``energy`` (the mechanical energy)
-    and ``V`` (the Lyapunov function of the law) are ``(len(t),)``.
-    ``stats["Un"]`` (normal velocities, ``(m_u, len(t))``) and
-    ``stats["u"]`` (inputs, ``(m, len(t))``) are time-last too; the impact
-    table (``stats["impact_v_plus"]``, ``(n_impacts, n)``) has one row per
-    impact.
-
-    A decimated or event record (``run(..., record_every=k)`` or
-    ``record="events"``) holds the recorded steps only: column ``j`` is the
-    state at step ``stats["step_index"][j]`` and ``P[:, j]``,
-    ``active[:, j]`` are the impulse and active set of that step; the last
-    column is the final state.  Its statistics (:attr:`max_gap_violation`,
-    :attr:`max_V_increase`, :attr:`max_energy_increase`, :meth:`impacts`,
-    :meth:`rest_time`) come from the exact accumulators of the run, which
-    see every step; :meth:`impact_mask` needs every step and raises
-    :class:`~invctl.errors.RecordingError`.
+    A decimated or event record (``run(..., record_every=k)`` or ``record="events"``) holds the recorded steps
+    only: column ``j`` is the state at step ``stats["step_index"][j]`` and ``P[:, j]``, ``active[:, j]`` the
+    impulse and active set of that step; the last column is the final state.  Its statistics
+    (:attr:`max_gap_violation`, :attr:`max_V_increase`, :attr:`max_energy_increase`, :meth:`impacts`,
+    :meth:`rest_time`) come from the exact accumulators of the run, which see every step; :meth:`impact_mask`
+    needs every step and raises :class:`~invctl.errors.RecordingError`.
     """
 
     t: np.ndarray
@@ -121,10 +109,10 @@ class ContactTrajectory(Animated):
     status: str = "ok"
     message: str = ""
 
+    _KIND, _VERSION, _OLDER = "ContactTrajectory", CONTACT_FORMAT_VERSION, _TIME_FIRST_VERSIONS
     _ARRAYS = ("t", "q", "v", "P", "active", "gaps", "energy", "V")
-
-    def __post_init__(self):
-        self.status = Status.of(self.status)
+    _PREFIXED = {"stats": "stats:"}
+    _REQUIRED = ("stats",)
 
     # ---------------------------------------------------------- derived data
     @property
@@ -249,71 +237,33 @@ class ContactTrajectory(Animated):
         return float(self.t[bad[-1] + 1])
 
     # ------------------------------------------------------------ save / plot
-    def to_npz(self, path, meta: dict | None = None) -> Path:
-        """Write to ``.npz`` (read back with :meth:`load`); ``meta`` (JSON-able) records where the run
-        came from (scene, parameters) for ``invctl animate``. Returns the path written."""
-        arrays = {k: getattr(self, k) for k in self._ARRAYS}
-        stats = {}
-        for k, v in self.stats.items():
-            if isinstance(v, np.ndarray) and v.dtype != object:
-                arrays[f"stats:{k}"] = v
-            elif isinstance(v, (int, float, str, bool, np.floating, np.integer, np.bool_)) or v is None:
-                stats[k] = v
-        info = {"h": self.h, "impact_vel_tol": self.impact_vel_tol, "names": self.names, "stats": stats,
-                "status": self.status, "message": self.message, **self.meta, **(meta or {})}
-        return save_npz(path, "ContactTrajectory", arrays, info, version=CONTACT_FORMAT_VERSION)
-
     @classmethod
-    @file_loader
-    def load(cls, path) -> "ContactTrajectory":
-        """Read a file written by :meth:`to_npz` (format and version checked; files of format
-        version 2, with time along the first axis, are transposed to the time-last layout)."""
-        d, info, version = load_npz_versioned(path, "ContactTrajectory", version=CONTACT_FORMAT_VERSION,
-                                              older=_TIME_FIRST_VERSIONS)
-        missing = [k for k in cls._ARRAYS if k not in d] + [k for k in ("h", "stats") if k not in info]
-        if missing:
-            raise ResultFileError(f"{path}: incomplete contact trajectory (missing {missing})")
+    def _read(cls, path, kw: dict, version: int) -> dict:
+        """Files of format version 2 (time along the first axis) transposed to the time-last layout; shapes checked."""
         if version in _TIME_FIRST_VERSIONS:
-            for k in ("q", "v", "P", "active", "gaps", *(f"stats:{s}" for s in _TIMED_STATS)):
-                if k in d and d[k].ndim == 2:
-                    d[k] = np.ascontiguousarray(d[k].T)
-        cls._check_shapes(path, d)
-        require_finite(path, d, ("t", "q", "v"))
-        stats = dict(info["stats"])
-        stats.update({k[6:]: v for k, v in d.items() if k.startswith("stats:")})
-        meta = {k: v for k, v in info.items()
-                if k not in ("h", "impact_vel_tol", "names", "stats", "status", "message")}
-        return cls(**{k: d[k] for k in cls._ARRAYS}, h=float(info["h"]), names=dict(info.get("names", {})),
-                   stats=stats, impact_vel_tol=float(info.get("impact_vel_tol", 1e-8)), meta=meta,
-                   status=str(info.get("status", "ok")), message=str(info.get("message", "")))
+            for d, keys in ((kw, ("q", "v", "P", "active", "gaps")), (kw["stats"], _TIMED_STATS)):
+                for k in keys:
+                    if k in d and np.ndim(d[k]) == 2:
+                        d[k] = np.ascontiguousarray(d[k].T)
+        cls._check_shapes(path, kw)
+        return kw
 
     @staticmethod
     def _check_shapes(path, d: dict) -> None:
         """Raise :class:`ResultFileError` unless the arrays have the time-last shapes."""
-        t = d["t"]
-        if t.ndim != 1:
-            raise ResultFileError(f"{path}: malformed ContactTrajectory file (t has shape {t.shape}, expected 1-D)")
-        N = t.size
-        for k in ("q", "v", "gaps", "P", "active"):
-            a = d[k]
-            ok = a.ndim == 2 and (a.shape[1] == N if k in ("q", "v", "gaps") else a.shape[1] in (N - 1, N))
-            if ok and k == "v":
-                ok = a.shape == d["q"].shape
-            if ok and k in ("P", "active"):
-                ok = a.shape[0] == d["gaps"].shape[0] and d["P"].shape == d["active"].shape
-            if not ok:
-                raise ResultFileError(f"{path}: malformed ContactTrajectory file ({k} has shape {a.shape} for "
-                                      f"{N} times; expected time along the last axis)")
-        for k in ("energy", "V"):
-            if d[k].shape != (N,):
-                raise ResultFileError(f"{path}: malformed ContactTrajectory file ({k} has shape {d[k].shape}, "
-                                      f"expected ({N},))")
+        q, gaps, P, N = d["q"], d["gaps"], d["P"], d["t"].size
+        rows = lambda a: a.shape[0] if a.ndim == 2 else -1  # noqa: E731
+        steps = P.shape[1] if P.ndim == 2 and P.shape[1] in (N - 1, N) else -1  # one column per step (or sample)
+        want = {"t": (N,), "q": (rows(q), N), "v": q.shape, "gaps": (rows(gaps), N), "P": (rows(gaps), steps),
+                "active": (rows(gaps), steps), "energy": (N,), "V": (N,)}
+        for k, shape in want.items():
+            if d[k].shape != shape:
+                raise ResultFileError(f"{path}: malformed ContactTrajectory file ({k} has shape {d[k].shape} for "
+                                      f"{N} times, expected {shape}: time along the last axis)")
 
     def plot(self, ax=None, *, path=None, **options):
         """Phase portrait, gaps, impulses, energy and V (see :mod:`invctl.plot.contact`; with ``ax``, the
         generic panels of :class:`~invctl.results.Trajectory` in those axes). Returns the figure."""
-        from ..results import plot_target
-
         ax, path = plot_target(ax, path)
         if ax is not None:
             return self._generic_plot(ax, path=path, fields=options.pop("fields", ("q", "lam")))

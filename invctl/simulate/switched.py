@@ -33,8 +33,7 @@ from scipy.optimize import brentq, minimize_scalar
 
 from ..control.switched import ClosedLoop
 from ..errors import INTERRUPT_LIKE, ParameterError, RunInterrupted, SimulationFailed, is_interrupt, watch_sigint
-from ..io import file_loader
-from ..results import Status, Trajectory
+from ..results import Status, Trajectory, plot_target
 from ..reference.gluing import powers_apply
 
 EV_ENTER, EV_LEAVE, EV_SLIDE, EV_UNSLIDE = 1, -1, 2, -2
@@ -78,26 +77,21 @@ class SwitchedSimulation(Trajectory):
     message: str = ""
     stats: dict = field(default_factory=dict)
 
+    _KIND = "SwitchedSimulation"
     _ARRAYS = ("t", "x", "v", "xt", "vt", "xd", "xd_dot", "Fd", "Fd_desired", "Fe", "Fc", "wall", "ctrl",
-               "intended", "event_t", "event_surface", "event_kind")
-    _SCALARS = ("peak_force", "contact_phases", "bounces", "force_rms_error", "wall_time")
+               "intended", "event_t", "event_surface", "event_kind", "peak_force", "contact_phases", "bounces",
+               "force_rms_error", "wall_time")
 
     @property
     def n_events(self) -> int:
         return int(self.event_t.size)
-
-    def __post_init__(self):
-        self.status = Status.of(self.status)
 
     @property
     def q(self) -> np.ndarray:
         """The position ``x`` as ``(1, len(t))`` (``v`` is its velocity; the wrist's tip is ``xt, vt``)."""
         return np.atleast_2d(self.x)
 
-    @property
-    def y(self) -> np.ndarray:
-        """The output: the position ``x``, ``(1, len(t))``."""
-        return np.atleast_2d(self.x)
+    y = q  # the output is the position
 
     @property
     def u(self) -> np.ndarray:
@@ -135,16 +129,6 @@ class SwitchedSimulation(Trajectory):
                 "contact_intervals": self.contact_intervals(), "wall_time": self.wall_time,
                 "t_end": float(self.t[-1]), "label": self.label}
 
-    def to_npz(self, path, meta: dict | None = None):
-        """Write to ``.npz`` (read back with :meth:`load`); returns the path written."""
-        from ..io import save_npz
-
-        data = {k: np.asarray(getattr(self, k)) for k in self._ARRAYS}
-        data.update({k: np.asarray(getattr(self, k)) for k in self._SCALARS})
-        info = {"label": self.label, "meta": {**self.meta, **(meta or {})}, "status": self.status,
-                "message": self.message, "stats": self.stats}
-        return save_npz(path, "SwitchedSimulation", data, info)
-
     def to_csv(self, path) -> None:
         """Sampled signals as CSV (one row per sample; events and scores are in :meth:`to_npz`)."""
         cols = ["t", "x", "v"] + (["xt", "vt"] if self.xt.size else []) + \
@@ -152,37 +136,15 @@ class SwitchedSimulation(Trajectory):
         data = np.column_stack([np.asarray(getattr(self, c), float) for c in cols])
         np.savetxt(path, data, delimiter=",", header=",".join(cols), comments="", fmt="%.17g")
 
-    @classmethod
-    @file_loader
-    def load(cls, path) -> "SwitchedSimulation":
-        """Read a file written by :meth:`to_npz` (format and version checked)."""
-        from ..errors import ResultFileError
-        from ..io import load_npz
-
-        f, info = load_npz(path, "SwitchedSimulation")
-        missing = [k for k in cls._ARRAYS + cls._SCALARS if k not in f]
-        if missing:
-            raise ResultFileError(f"{path}: incomplete switched simulation (missing {missing})")
-        kw = {k: f[k] for k in cls._ARRAYS}
-        kw.update({k: f[k].item() for k in cls._SCALARS})
-        for k in ("contact_phases", "bounces"):
-            kw[k] = int(kw[k])
-        return cls(**kw, label=str(info.get("label", "")), meta=dict(info.get("meta", {})),
-                   status=str(info.get("status", "ok")), message=str(info.get("message", "")),
-                   stats=dict(info.get("stats", {})))
-
     def plot(self, ax=None, *, path=None, title: str | None = None, **options):
         """Position and force against desired force, contact phases shaded (``ax``: two axes to draw in;
         ``path``: save the figure there too). Returns the figure."""
+        from ..plot import save
         from ..plot.switched import plot_simulation
-        from ..results import plot_target
 
         ax, path = plot_target(ax, path)
         fig = plot_simulation(self, axes=ax, title=title)[0].figure
-        if path:
-            from ..plot import save
-
-            save(fig, path)
+        save(fig, path)
         return fig
 
 

@@ -12,12 +12,11 @@ from pathlib import Path
 
 from ..errors import AnimationError, OptionError, ResultFileError, SceneError
 from ..io import check_output_path, read_meta
+from ..results import load
 from ..scenes import CommandResult, _is_path, load_scene
 
 
 def _load(path):
-    from ..results import load
-
     meta = read_meta(path)
     if meta["kind"] not in ("ClosedLoopResult", "Inverse", "ContactTrajectory"):
         raise ResultFileError(f"{path}: a {meta['kind']} has no mechanism to draw (animate closed-loop, contact or "

@@ -28,6 +28,7 @@ from typing import Any, Callable
 
 from ..errors import InvctlError, NumericalError, OptionError, OutputPathError, RunInterrupted, SceneError, watch_sigint
 from ..io import check_output_dir, check_output_path
+from ..plot import close, finish
 from ..scenes import SCENE_COMMANDS, CommandResult, Scene, bind_scene
 from .pipeline import run_pipeline
 from .workflow import workflow
@@ -390,8 +391,6 @@ def study(scene, kind: str, values=None, **options) -> CommandResult:
     out.mkdir(parents=True, exist_ok=True)
     result.to_csv(out / f"{stem}.csv")
     result.to_json(out / f"{stem}.json")
-    from ..plot import close, finish
-
     close(finish(result.plot().figure, out / f"{stem}.png"))
     data = result.to_dict()
     data["files"] = {ext: str(out / f"{stem}.{ext}") for ext in ("csv", "json", "png")}

@@ -29,8 +29,9 @@ import numpy as np
 
 from typing import TYPE_CHECKING, Any
 
-from ..errors import DimensionError, ParameterError, RunInterrupted, SceneError, SimulationFailed
-from ..scenes import CommandResult
+from ..errors import ContactError, DimensionError, ParameterError, RunInterrupted, SceneError, SimulationFailed
+from ..plot import close
+from ..scenes import CommandResult, scene_reference
 from . import pipeline
 from .pipeline import Step
 from .reports import add_reports, run_reports, write_run
@@ -78,8 +79,6 @@ class ContactRun:
         return _contact(self.scene)
 
     def meta(self) -> dict:
-        from ..scenes import scene_reference
-
         return {"scene": scene_reference(self.scene), "params": dict(self.params),
                 "settings": dict(self.settings), "controller": self.controller}
 
@@ -243,7 +242,6 @@ def _equilibrium_report(run: ContactRun) -> tuple[list, dict]:
     distance to it, the local dimension of E there and the residual of (40) at the final state with the
     multipliers of its last step (``P/h``).  Time-varying laws have no equilibria: nothing is reported."""
     from ..contact.equilibria import static_equilibrium, static_force
-    from ..errors import ContactError
 
     tr, law, model = run.result, run.law, run.model
     t = ca.SX.sym("t")
@@ -399,8 +397,6 @@ class Session(pipeline.Session):
         return self._runs[name].meta()
 
     def figure(self, name, step, out):
-        from ..plot import close
-
         close(step.trajectory.plot(out / f"run_{name}.png", title=f"{self.scene.name} ({name})"))
 
     def animation(self, name):

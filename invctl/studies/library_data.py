@@ -29,7 +29,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import LibraryError, OutputPathError, ParameterError, ResultFileError
+from ..io import load_npz, read_json, read_meta, save_npz
 from ..plot import finish
+from ..scenes import jsonable
 
 if TYPE_CHECKING:
     from ..inversion import Inverse
@@ -352,8 +354,6 @@ class Library:
 
     def to_dict(self) -> dict:
         """JSON-able summary (``invctl generate --json``)."""
-        from ..scenes import jsonable
-
         err = self.stats["error"]
         return jsonable({
             "scene": self.info.get("scene"), "shape": list(self.shape), "points": len(self.status),
@@ -407,8 +407,6 @@ class Library:
     # ------------------------------------------------------------ files
     def save(self, path) -> Path:
         """Write one ``.npz`` file (kind ``TrajectoryLibrary``); returns the path."""
-        from ..io import save_npz
-
         arrays = {"values": self.values, "status": np.array(self.status), "messages": np.array(self.messages),
                   "t_mesh": self.t_mesh, "X_mesh": self.X_mesh, "dX_mesh": self.dX_mesh, "X_col": self.X_col,
                   "t0": self.t0, "tf": self.tf, "initial_guess": np.array(self.stats["initial_guess"])}
@@ -429,8 +427,6 @@ class Library:
             A point file of a folder that another library's run wrote (its settings key is not the one in
             ``library.json``).
         """
-        from ..io import load_npz
-
         p = Path(path)
         if p.is_dir():
             store = LibraryStore(p, None)
@@ -541,8 +537,6 @@ class LibraryStore:
         if not f.is_file():
             raise ResultFileError(f"{self.path}: no library.json (an unfinished library: run generate again "
                                   "with the same settings to finish it)")
-        from ..io import read_json
-
         return read_json(f, "library index")
 
     def _mismatch(self, what: str, found) -> None:
@@ -564,8 +558,6 @@ class LibraryStore:
     def existing(self, expect: str | None = None) -> dict:
         """Records of the points solved by an earlier run of the same settings (resume); with ``expect``
         (the key in ``library.json``, when loading) a point file of another key is a :class:`LibraryError`."""
-        from ..io import load_npz, read_meta
-
         out: dict = {}
         if self.force and self.key is not None:  # start over
             self.clear()
@@ -612,7 +604,6 @@ class LibraryStore:
     def write(self, rec: dict, meta: dict) -> Path:
         """Write one solved point (atomically: a cut-off write never looks like a solved point)."""
         from ..inversion import Inverse
-        from ..io import save_npz
 
         self.parts.mkdir(parents=True, exist_ok=True)
         i = int(rec["index"])
@@ -638,8 +629,6 @@ class LibraryStore:
             if self.parts.is_dir():
                 shutil.rmtree(self.parts)
             return self.path
-        from ..scenes import jsonable
-
         d = lib.to_dict()
         index = {"key": self.key, "shape": list(lib.shape), "values": lib.values.tolist(),
                  "axes": [[a.name, a.kind, a.key, a.index, list(a.values)] for a in lib.axes],

@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import InvctlError, ParameterError
 from ..plot import finish
+from ..scenes import jsonable
 
 
 @dataclass
@@ -61,8 +62,6 @@ class RobustnessTable:
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        from ..scenes import jsonable
-
         return jsonable({"rows": self.rows, "nominal": self.nominal, "info": self.info})
 
     def plot(self, path=None):

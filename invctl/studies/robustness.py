@@ -27,6 +27,7 @@ import numpy as np
 
 from ..errors import ParameterError, SceneError
 from ..plot import finish
+from ..scenes import load_scene, scene_reference
 from .sweep import SweepResult, grid, sweep
 
 _CACHE: dict[Any, Any] = {}
@@ -39,14 +40,10 @@ def _cached(key, build):
 
 
 def _scene(ref):
-    from ..scenes import load_scene
-
     return _cached(("scene", ref), lambda: load_scene(ref))
 
 
 def _load(scene: str, kind: str, what: str):
-    from ..scenes import load_scene
-
     sc = load_scene(scene)
     if sc.kind != kind:
         raise SceneError(f"{what} needs a {kind} scene; {sc.name!r} is a {sc.kind} scene")
@@ -56,8 +53,6 @@ def _load(scene: str, kind: str, what: str):
 def _run_sweep(point, sc, grids: dict, run: tuple, label: str, meta: dict, **fixed) -> SweepResult:
     """``point(scene=..., **fixed, **values)`` over the grid of ``grids`` (``run``: executor, max_workers,
     progress), workers loading scene ``sc`` by its reference."""
-    from ..scenes import scene_reference
-
     fn = functools.partial(point, scene=scene_reference(sc), **fixed)
     executor, max_workers, progress = run
     res = sweep(fn, grid(**{k: list(v) for k, v in grids.items()}), executor=executor, max_workers=max_workers,
@@ -80,10 +75,9 @@ def _two(grids: dict, what: str):
 
 # ------------------------------------------------------------------- funnel
 def _tracking_setup(scene_ref: str, controller: str, t_end, params: tuple):
-    from .tracking import setup_tracking
+    from .tracking import NEEDS_INVERSE, setup_tracking
 
-    scene = _scene(scene_ref)
-    return setup_tracking(scene, dict(params), invert=controller in ("C1", "C3", "C1-42"), t_end=t_end,
+    return setup_tracking(_scene(scene_ref), dict(params), invert=controller in NEEDS_INVERSE, t_end=t_end,
                           plant_factors={})
 
 
@@ -111,6 +105,9 @@ def plant_mismatch(scene: str, *, controller: str = "C1", t_end=None, params=Non
     m2=[0.8, 1.2])`` (derived parameters follow)."""
     sc = _load(scene, "tracking", "plant_mismatch")
     sc.require("simulate")
+    from .tracking import check_controller
+
+    controller = check_controller(controller)
     model = sc.model(params)
     _known(factors, model.values, "plant_mismatch: give factors of the plant's parameters, e.g. m3=[1.0, 1.2]")
     return _run_sweep(mismatch_point, sc, factors, (executor, max_workers, progress), f"plant mismatch {controller}",
@@ -144,10 +141,7 @@ def switched_lambda_map(scene: str, *, params=None, executor=None, max_workers: 
     ``params``), e.g. ``switched_lambda_map("compliant_wrist", kt=[...], bt=[...])``; ``Lambda`` is NaN
     where a visible eigenvector exists (no rotation)."""
     sc = _load(scene, "switched", "switched_lambda_map")
-    _two(grids, "switched_lambda_map")
-    unknown = sorted(set(grids) - set(sc.params))
-    if unknown:
-        raise ParameterError(f"{sc.name}: unknown parameter(s) {unknown}; known: {sorted(sc.params)}")
+    _known(_two(grids, "switched_lambda_map"), sc.params, f"{sc.name}: give grids of its parameters")
     return _run_sweep(lambda_map_point, sc, grids, (executor, max_workers, progress), "Lambda map",
                       {"study": "switched_lambda_map", "labels": {k: k for k in grids}},
                       params=tuple(sorted(dict(params or {}).items())))

@@ -9,7 +9,6 @@ dropped.
 """
 from __future__ import annotations
 
-import csv
 import itertools
 import os
 import sys
@@ -20,7 +19,8 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import INTERRUPT_LIKE, ParameterError, is_interrupt
+from ..errors import INTERRUPT_LIKE, ParameterError, RunInterrupted, check_interrupt, is_interrupt, watch_sigint
+from ..io import write_rows
 
 
 def grid(**axes: Sequence[float]) -> tuple[list[dict[str, float]], tuple[int, ...]]:
@@ -82,14 +82,7 @@ class SweepResult:
         return rows
 
     def to_csv(self, path: str | os.PathLike) -> None:
-        rows = self.rows()
-        keys: list[str] = []
-        for r in rows:
-            keys.extend(k for k in r if k not in keys)
-        with open(path, "w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=keys)
-            writer.writeheader()
-            writer.writerows(rows)
+        write_rows(path, self.rows())
 
     @property
     def failed_mask(self) -> np.ndarray:
@@ -246,8 +239,6 @@ def sweep(
     ex, owned, _ = open_executor(executor, max_workers)
     try:
         if ex is None:
-            from ..errors import check_interrupt, watch_sigint
-
             for i, p in enumerate(pts):
                 check_interrupt()
                 with watch_sigint() as sigint:
@@ -283,8 +274,6 @@ def sweep(
     except INTERRUPT_LIKE as _exc:
         if not is_interrupt(_exc):
             raise
-        from ..errors import RunInterrupted
-
         k = sum(finished)
         note = f"{label} interrupted: {k} of {len(pts)} points complete"
         errors = [e if f else "not run: interrupted" for e, f in zip(errors, finished)]

@@ -141,22 +141,13 @@ def _border(p: dict, name: str, lo: float, hi: float, method: str, *, want_stabl
     grid = np.geomspace(lo, hi, n_scan)
     m = np.array([_margin({**p, name: float(v)}, method) for v in grid])
     stable = m < 0
-    if want_stable_above:
-        idx = np.flatnonzero(~stable[:-1] & stable[1:])
-        if stable[0]:
-            return float(lo)
-        if not idx.size:
-            raise StabilityError(f"no GUAS design with {name} in [{lo:.4g}, {hi:.4g}]",
-                                 diagnostics={"grid": grid.tolist(), "ln_Lambda": m.tolist()})
-        k = int(idx[0])
-    else:
-        idx = np.flatnonzero(stable[:-1] & ~stable[1:])
-        if stable[-1]:
-            return float(hi)
-        if not idx.size:
-            raise StabilityError(f"no GUAS design with {name} in [{lo:.4g}, {hi:.4g}]",
-                                 diagnostics={"grid": grid.tolist(), "ln_Lambda": m.tolist()})
-        k = int(idx[-1])
+    if stable[0 if want_stable_above else -1]:
+        return float(lo if want_stable_above else hi)
+    idx = np.flatnonzero((stable[:-1] != stable[1:]) & (stable[1:] == want_stable_above))
+    if not idx.size:
+        raise StabilityError(f"no GUAS design with {name} in [{lo:.4g}, {hi:.4g}]",
+                             diagnostics={"grid": grid.tolist(), "ln_Lambda": m.tolist()})
+    k = int(idx[0] if want_stable_above else idx[-1])
     a, b = float(grid[k]), float(grid[k + 1])
     ma, mb = m[k], m[k + 1]
     if math.isfinite(ma) and math.isfinite(mb):

@@ -29,9 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import (CoordinateError, DimensionError, FunnelViolation, OptionError, ParameterError, RunInterrupted, SceneError,
-                      check_interrupt, INTERRUPT_LIKE, is_interrupt)
+from ..errors import (INTERRUPT_LIKE, CoordinateError, DimensionError, FunnelViolation, ModelError, OptionError,
+                      ParameterError, RunInterrupted, SceneError, check_interrupt, is_interrupt)
 from ..io import file_loader, read_json
+from ..scenes import jsonable, scene_reference
 from ..simulate.closed_loop import ClosedLoop, ClosedLoopResult
 
 
@@ -39,11 +40,7 @@ class _Names(dict):
     """Controller name -> description; lookups ignore case (``--controller c1-inv`` and ``C1-INV`` work)."""
 
     def _key(self, name):
-        if isinstance(name, str) and not dict.__contains__(self, name):
-            for k in self:
-                if k.lower() == name.lower():
-                    return k
-        return name
+        return next((k for k in self if isinstance(name, str) and k.lower() == name.lower()), name)
 
     def __getitem__(self, name):
         return dict.__getitem__(self, self._key(name))
@@ -180,8 +177,6 @@ def plant_of(scene, model, plant_params=None, plant_factors=None):
 
 def validate_plant(plant, plant_params: dict) -> None:
     """``plant.validate()``; a failure is a :class:`ParameterError` naming the ``--plant-set`` values."""
-    from ..errors import ModelError
-
     try:
         plant.validate()
     except ModelError as exc:
@@ -300,11 +295,6 @@ class TrackingSetup:
     _loops: dict = field(default_factory=dict)
     _c1: Any = None
 
-    def c1_controller(self):
-        """The funnel controller of the paper's C1 (003 (60)-(61)): the new reference (42) with (43), the
-        same controller as C2's (C1 adds the feedforward)."""
-        return self.controller
-
     def inverse_reference_controller(self):
         """The funnel controller of ``C1-inv`` (invctl's extension): new reference
         ``y^_ref,1 = K_1 Psi(q_ff(t), v_ff(t))`` along the state trajectory of the servo-constraint inverse
@@ -327,10 +317,12 @@ class TrackingSetup:
         return self._c1
 
     def controller_for(self, name: str):
-        """The feedback of controller ``name`` (None for the feedforward alone)."""
+        """The feedback of controller ``name`` (None for the feedforward alone): the paper's C1 (003 (60)-(61))
+        and C2 share :attr:`controller` (new reference (42) with (43); C1 adds the feedforward)."""
         name = check_controller(name)
-        return {"C1": self.c1_controller, "C2": lambda: self.controller, "C3": lambda: None,
-                "C1-inv": self.inverse_reference_controller}[name]()
+        if name == "C1-inv":
+            return self.inverse_reference_controller()
+        return None if name == "C3" else self.controller
 
     def _require_inverse(self, name: str) -> None:
         """Invert the reference model now if ``name`` needs the inverse and none was given."""
@@ -371,8 +363,6 @@ class TrackingSetup:
     def meta(self) -> dict:
         """Where a run comes from (for files and ``invctl animate``)."""
         scene = self.scene
-        from ..scenes import scene_reference
-
         return {"scene": scene_reference(scene), "params": dict(self.params),
                 "plant": {k: v for k, v in self.plant.values.items() if v != self.model.values.get(k)},
                 "units": dict(scene.tracking.units)}
@@ -531,14 +521,15 @@ class TrackingStudy:
                 "extension_reductions": self.extension_reductions, "info": self.info,
                 "comparison": self.comparison().to_dict() if self.runs else {}}
 
-    def save(self, directory, meta: dict | None = None) -> None:
+    def save(self, directory, meta: dict | None = None, *, runs: bool = True) -> Path:
+        """Write ``study.json`` (the summary) and, with ``runs``, ``run_<name>.npz`` to ``directory``; returns
+        the path of ``study.json``."""
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
-        for name, r in self.runs.items():
+        for name, r in self.runs.items() if runs else ():
             r.to_npz(d / f"run_{name}.npz", meta=meta)
-        from ..scenes import jsonable
-
         (d / "study.json").write_text(json.dumps(jsonable(self.to_dict()), indent=1))
+        return d / "study.json"
 
     @classmethod
     @file_loader

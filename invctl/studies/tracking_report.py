@@ -6,20 +6,20 @@ command's options (already checked by :mod:`invctl.studies.commands` and the wor
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..plot import close
 from ..scenes import CommandResult
 from . import pipeline
 from .pipeline import Step
 from .reports import add_reports, write_run
-from .tracking import (CONTROLLERS, NEEDS_INVERSE, check_controller, compare_runs, design_configuration,
-                       invert_tracking, run_controller, setup_tracking, tracking_linearization, tracking_model)
+from .tracking import (CONTROLLERS, NEEDS_INVERSE, TrackingStudy, check_controller, compare_runs, design_configuration,
+                       invert_tracking, output_structure, run_controller, setup_tracking, tracking_linearization,
+                       tracking_model)
 
 #: frames per second of the animations the pipeline writes (GIF delays are whole 1/100 s: 10, 20, 25, 50 are exact)
 ANIMATION_FPS = 20
@@ -40,8 +40,6 @@ def analyze(bound, *, samples: int = 200) -> CommandResult:
     t = scene.tracking
     ref = t.reference(model) if t.reference is not None else None
     point = design_configuration(scene, model, ref)
-    from .tracking import output_structure
-
     if output_structure(model, point).r_bar == 2 * model.n:
         return _analyze_flat(scene, model, ref, point, samples, t0)
     setup: dict[str, Any] = {"point": point}
@@ -382,19 +380,11 @@ class Session(pipeline.Session):
         return {"fps": ANIMATION_FPS}
 
     def finish(self, runs, out):
-        from ..plot import close
-        from ..scenes import jsonable
-
         study = compare_runs(self.scene, self.params, self.setup, runs)
-        (Path(out) / "study.json").write_text(json.dumps(jsonable(study.to_dict()), indent=1))
+        study.save(out, runs=False)  # the runs are written already
         close(study.plot(out))
         return [study.table()], study.to_dict()
 
     def interrupted(self, runs, out, note):
         """The complete runs as a study (``study.json``, loadable with ``invctl.load``), marked partial."""
-        from ..scenes import jsonable
-        from .tracking import TrackingStudy
-
-        study = TrackingStudy(runs, {"scene": self.scene.name, "partial": note}, self.setup)
-        (Path(out) / "study.json").write_text(json.dumps(jsonable(study.to_dict()), indent=1))
-        return [str(Path(out) / "study.json")]
+        return [str(TrackingStudy(runs, {"scene": self.scene.name, "partial": note}, self.setup).save(out, runs=False))]

@@ -9,7 +9,6 @@ sentence saying how that reference was obtained.
 """
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
@@ -19,7 +18,8 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import INTERRUPT_LIKE, is_interrupt
+from ..errors import INTERRUPT_LIKE, ResultFileError, RunInterrupted, is_interrupt, watch_sigint
+from ..io import write_rows
 
 
 @dataclass
@@ -113,14 +113,7 @@ class TradeoffResult:
         }
 
     def to_csv(self, path: str | os.PathLike) -> None:
-        keys: list[str] = ["knob"]
-        for r in self.rows:
-            keys.extend(k for k in r if k not in keys)
-        with open(path, "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=keys)
-            w.writeheader()
-            for r in self.rows:
-                w.writerow({"knob": self.knob, **r, "value": _fmt(r["value"])})
+        write_rows(path, [{"knob": self.knob, **r, "value": _fmt(r["value"])} for r in self.rows], ("knob",))
 
     def to_json(self, path: str | os.PathLike) -> None:
         with open(path, "w") as fh:
@@ -136,8 +129,6 @@ class TradeoffResult:
             Missing, unreadable or truncated file, not a trade-off table, rows without a finite
             ``error``/``time_s``.
         """
-        from ..errors import ResultFileError
-
         try:
             with open(path) as fh:
                 d = json.load(fh)
@@ -224,8 +215,6 @@ def run_tradeoff(spec: TradeoffSpec, *, progress: bool = True, min_time_s: float
     RunInterrupted
         On Ctrl-C (SIGINT): ``partial`` is the result with the rows complete so far.
     """
-    from ..errors import RunInterrupted, watch_sigint
-
     rows: list = []
     failures: list = []
     k, value = 0, None

@@ -80,12 +80,11 @@ def tracking_simulate(scene, params: dict, settings: dict, smoke: bool = False) 
     controller = "C2" if smoke else "C1"
     setup = setup_tracking(scene, params, invert=controller == "C1")
     uff = setup.u_ff_samples() if controller == "C1" else None
-    ctrl = setup.c1_controller() if controller == "C1" else setup.controller
 
     def loop(rtol):
-        return ClosedLoop(setup.plant, setup.reference, controller=ctrl, u_ff=uff, signals=setup.signals,
-                          t_end=setup.t_end, dt=setup.dt, rtol=rtol, atol=rtol * 1e-2, max_num_steps=10**6,
-                          name=controller)
+        return ClosedLoop(setup.plant, setup.reference, controller=setup.controller, u_ff=uff,
+                          signals=setup.signals, t_end=setup.t_end, dt=setup.dt, rtol=rtol, atol=rtol * 1e-2,
+                          max_num_steps=10**6, name=controller)
 
     ref = loop(1e-12).run(setup.q0, controller_label=controller)
     values = [1e-3, 1e-5, 1e-7] if smoke else [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-10]
