@@ -95,3 +95,12 @@ def test_every_error_class_is_documented_for_users():
                and issubclass(getattr(errors, n), errors.InvctlError)]
     assert len(classes) > 20
     assert [n for n in classes if f"`{n}`" not in doc] == []
+
+
+@pytest.mark.parametrize("study, scene", [(plant_mismatch, "stiff_wall"), (switched_lambda_map, "cartpole"),
+                                          (contact_grid, "manipulator")])
+def test_a_study_refuses_a_scene_of_another_kind_before_any_point(study, scene):
+    from invctl.errors import SceneError
+
+    with pytest.raises(SceneError, match="needs a (tracking|switched|contact) scene"):
+        study(scene, progress=False)

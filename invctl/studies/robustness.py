@@ -25,10 +25,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import ParameterError, SceneError
+from ..errors import ParameterError
 from ..plot import finish
 from ..scenes import load_scene, scene_reference
 from .sweep import SweepResult, grid, sweep
+from .workflow import scene_of_kind
 
 _CACHE: dict[Any, Any] = {}
 
@@ -41,13 +42,6 @@ def _cached(key, build):
 
 def _scene(ref):
     return _cached(("scene", ref), lambda: load_scene(ref))
-
-
-def _load(scene: str, kind: str, what: str):
-    sc = load_scene(scene)
-    if sc.kind != kind:
-        raise SceneError(f"{what} needs a {kind} scene; {sc.name!r} is a {sc.kind} scene")
-    return sc
 
 
 def _run_sweep(point, sc, grids: dict, run: tuple, label: str, meta: dict, **fixed) -> SweepResult:
@@ -103,7 +97,7 @@ def plant_mismatch(scene: str, *, controller: str = "C1", t_end=None, params=Non
     """A tracking scene's closed loop over plant mismatches: plant = reference model (``params``) with
     its parameters multiplied by the grid's factors, e.g. ``plant_mismatch("manipulator", m3=[1, 1.2],
     m2=[0.8, 1.2])`` (derived parameters follow)."""
-    sc = _load(scene, "tracking", "plant_mismatch")
+    sc = scene_of_kind(scene, "tracking", "plant_mismatch")
     sc.require("simulate")
     from .tracking import check_controller
 
@@ -140,7 +134,7 @@ def switched_lambda_map(scene: str, *, params=None, executor=None, max_workers: 
     """Lambda of a switched scene over a grid of two of its parameters (others: the scene's, updated by
     ``params``), e.g. ``switched_lambda_map("compliant_wrist", kt=[...], bt=[...])``; ``Lambda`` is NaN
     where a visible eigenvector exists (no rotation)."""
-    sc = _load(scene, "switched", "switched_lambda_map")
+    sc = scene_of_kind(scene, "switched", "switched_lambda_map")
     _known(_two(grids, "switched_lambda_map"), sc.params, f"{sc.name}: give grids of its parameters")
     return _run_sweep(lambda_map_point, sc, grids, (executor, max_workers, progress), "Lambda map",
                       {"study": "switched_lambda_map", "labels": {k: k for k in grids}},
@@ -174,7 +168,7 @@ def contact_grid(scene: str, *, controller=None, t_end=None, base=None, executor
                  max_workers: int | None = None, progress: bool = True, **grids) -> SweepResult:
     """A contact scene's run over a grid of its parameters and settings, e.g.
     ``contact_grid("prismatic_clearance", e=[0, 0.5, 1], L=[0.1 + 1e-6, 0.11])``."""
-    sc = _load(scene, "contact", "contact_grid")
+    sc = scene_of_kind(scene, "contact", "contact_grid")
     _known(grids, {**sc.params, **sc.settings}, f"{sc.name}: give grids of parameters or settings")
     return _run_sweep(contact_point, sc, grids, (executor, max_workers, progress), "grid",
                       {"study": "contact_grid", "controller": controller, "t_end": t_end, "labels": {k: k for k in grids}},

@@ -245,6 +245,18 @@ def workflow(scene: Scene) -> Workflow:
     return WORKFLOWS[scene.kind]
 
 
+def scene_of_kind(ref: str, kind: str, what: str) -> Scene:
+    """The scene ``ref`` (a shipped name or a path), refused with ``SceneError`` unless it is of ``kind`` (the
+    study ``what`` needs one)."""
+    from ..errors import SceneError
+    from ..scenes import load_scene
+
+    sc = load_scene(ref)
+    if sc.kind != kind:
+        raise SceneError(f"{what} needs a {kind} scene; {sc.name!r} is a {sc.kind} scene")
+    return sc
+
+
 # ---------------------------------------------------------------- time and memory of a run
 #: below this many samples a run is never large (no model is built to estimate it)
 _SMALL = 2e5
