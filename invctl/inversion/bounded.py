@@ -287,8 +287,9 @@ def predicted_start(tr, p, x, lam_x, lam_g, old, new):
     stationarity = -(np.array(tr._grad_f(x, p)[1]).ravel() + C.T @ lam)
     tol = ACTIVE_TOL * np.maximum(1.0, np.minimum(np.abs(lo0), np.abs(hi0)))
     eq = lo == hi
-    upper = eq | ((np.abs(v - hi0) <= tol) & (lam >= 0) & np.isfinite(hi))  # held at hi (equalities: lo = hi)
-    lower = ~upper & (np.abs(v - lo0) <= tol) & (lam <= 0) & np.isfinite(lo)
+    # held at hi (equalities: lo = hi) or lo: active at the last optimum, or beyond a moved bound there
+    upper = eq | (((np.abs(v - hi0) <= tol) & (lam >= 0)) | (v > hi + tol)) & np.isfinite(hi)
+    lower = ~upper & (((np.abs(v - lo0) <= tol) & (lam <= 0)) | (v < lo - tol)) & np.isfinite(lo)
     for _ in range(PREDICTOR_ROUNDS):
         rows = np.flatnonzero(upper | lower)
         A = C[rows]
