@@ -257,6 +257,7 @@ def held_resolve(lines, md, ref, q0, inv, exact):
     first = time.perf_counter() - t0
     opti_first, opti_warm = opti_bounded(md, ref, inv, exact, expand=True, warm=True)
     state = {"invctl": 8.0, "opti": 8.0}
+    iterations: list = []  # of every held re-solve
 
     def flip(who):
         state[who] = 7.9 if state[who] == 8.0 else 8.0
@@ -265,6 +266,7 @@ def held_resolve(lines, md, ref, q0, inv, exact):
     def ours():
         b = flip("invctl")
         out = held.solve(bounds=Bounds(u={"u2": b}))
+        iterations.append(out.diagnostics["iterations"])
         return {"objective": out.diagnostics["objective"], "X": out.X_mesh, "iterations": out.diagnostics["iterations"],
                 "bound": b}
 
@@ -283,6 +285,8 @@ def held_resolve(lines, md, ref, q0, inv, exact):
                  f"{fresh['iterations']} iterations); Opti warm {r_peer['iterations']} iterations, {r_peer['status']}, "
                  f"objective rel. diff {abs(r_peer['objective'] / fresh['objective'] - 1):.1e}; invctl held first call "
                  f"{first:.2f} s, Opti warm build + first solve {opti_first['build_s'] + opti_first['first_solve_s']:.2f} s")
+    lines.append(f"   invctl held iterations, every round: {iterations} (IPOPT from the predicted start, "
+                 f"{'predicted start' in held.info['reused']})")
     lines.append("   held re-solve                        min_s  median_s  min/invctl")
     base = timed["invctl held InversionSolver"][0]
     for name, (mn_, med, _r) in timed.items():

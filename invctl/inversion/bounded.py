@@ -247,6 +247,73 @@ IPOPT_WARM = {"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push
               "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.mu_init": 1e-9}
 
 
+#: regularization of the predictor's KKT system (Hessian block, constraint block): degenerate active sets (a plateau
+#: at a bound makes mesh, control-point and rate rows dependent) have a step only with it
+REG_W, REG_C = 1e-8, 1e-8
+#: most active-set corrections of the predicted start
+PREDICTOR_ROUNDS = 10
+
+
+def _csc(tr, name, M):
+    """A sparse CasADi DM as a scipy CSC matrix, its pattern (``name``: which output) kept on ``tr``."""
+    import scipy.sparse as sps
+
+    patterns = tr.__dict__.setdefault("_csc_patterns", {})
+    if name not in patterns:
+        sp = M.sparsity()
+        patterns[name] = (np.array(sp.row(), np.int32), np.array(sp.colind(), np.int32))
+    return sps.csc_matrix((np.array(M.nonzeros()), *patterns[name]), shape=M.shape)
+
+
+def predicted_start(tr, p, x, lam_x, lam_g, old, new):
+    """The start of a held re-solve after a bound or parameter change: the Newton step (Gauss-Newton Hessian) on
+    the optimality conditions of the last optimum ``(x, lam_x, lam_g)`` at the parameters ``p``, its active bounds
+    moved to their values in ``new`` (``old``, ``new``: ``(lbx, ubx, lbg, ubg)``); bounds the linearized step
+    violates join the active set and bounds whose multiplier changes sign leave it, until neither happens.  Started
+    at the last optimum itself, IPOPT spends its first iterations in steps cut short at the moved bounds.
+    Returns ``(x0, lam_x0, lam_g0)``, or ``None`` when the step is not defined."""
+    import scipy.sparse as sps
+    from scipy.sparse.linalg import splu
+
+    x, lam_x, lam_g = (np.asarray(v, float).ravel() for v in (x, lam_x, lam_g))
+    n, ng = x.size, lam_g.size
+    g = np.array(tr.g_function()(x, p)).ravel()
+    C = sps.vstack([_csc(tr, "jac_g", tr._jac_g(x, p, g)[0]), sps.identity(n)], format="csr")  # rows: g, then x
+    v, lam = np.concatenate([g, x]), np.concatenate([lam_g, lam_x])
+    lo0, hi0 = np.concatenate([old[2], old[0]]), np.concatenate([old[3], old[1]])
+    lo, hi = np.concatenate([new[2], new[0]]), np.concatenate([new[3], new[1]])
+    Hu = _csc(tr, "hess_gn", tr._hess_gn(x, p, 1.0, lam_g))
+    H = Hu + Hu.T - sps.diags(Hu.diagonal()) + REG_W * sps.identity(n)
+    stationarity = -(np.array(tr._grad_f(x, p)[1]).ravel() + C.T @ lam)
+    tol = ACTIVE_TOL * np.maximum(1.0, np.minimum(np.abs(lo0), np.abs(hi0)))
+    eq = lo == hi
+    # held at hi (equalities: lo = hi) or lo: active at the last optimum, or beyond a moved bound there
+    upper = eq | (((np.abs(v - hi0) <= tol) & (lam >= 0)) | (v > hi + tol)) & np.isfinite(hi)
+    lower = ~upper & (((np.abs(v - lo0) <= tol) & (lam <= 0)) | (v < lo - tol)) & np.isfinite(lo)
+    for _ in range(PREDICTOR_ROUNDS):
+        rows = np.flatnonzero(upper | lower)
+        A = C[rows]
+        K = sps.bmat([[H, A.T], [A, -REG_C * sps.identity(rows.size)]], format="csc")
+        rhs = np.concatenate([stationarity, np.where(upper[rows], hi[rows], lo[rows]) - v[rows]])
+        try:
+            step = splu(K).solve(rhs)
+        except RuntimeError:  # singular
+            return None
+        if not np.all(np.isfinite(step)):
+            return None
+        new_lam = lam.copy()
+        new_lam[rows] += step[n:]
+        v_lin = v + C @ step[:n]
+        leave = ~eq & ((upper & (new_lam < 0)) | (lower & (new_lam > 0)))
+        join_hi = ~(upper | lower) & (v_lin > hi + tol)
+        join_lo = ~(upper | lower) & (v_lin < lo - tol)
+        if not (leave.any() or join_hi.any() or join_lo.any()):
+            break
+        upper, lower = (upper & ~leave) | join_hi, (lower & ~leave) | join_lo
+    new_lam[~(upper | lower)] = 0.0
+    return x + step[:n], new_lam[ng:], new_lam[:ng]
+
+
 def solve_scaled(tr, slv, x0, params, limits, *, hessian: str, scale: float = 1e3, warm=None):
     """Solve with the objective scaled by ``scale``; when the optimal scaled objective is below
     1e-2 (tiny output errors), solve again warm-started with the objective scaled to 1, so that
@@ -485,6 +552,11 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None, hold=Non
                              rho=objective.slack, energy=objective.energy, rate=objective.rate, c=c, scale=scale)
 
     t_solve = time.perf_counter()
+    if warm is not None:  # the last optimum moved by the change of bounds or parameters
+        predicted = predicted_start(tr, params(scale0), x0, warm[0], warm[1], last["limits"], (lbx, ubx, lbg, ubg))
+        if predicted is not None:
+            x0, warm = predicted[0], predicted[1:]
+            info["reused"].append("predicted start")
     hessian = _hessian(slv, "gauss-newton")
 
     def run(start, warm=None, scale=1e3):
@@ -579,7 +651,8 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None, hold=Non
     inv.diagnostics["held"] = held
     if hold is not None:
         hold["last"] = {"tr": tr, "x": x, "lam_x": sol["lam_x"], "lam_g": sol["lam_g"], "scale": scale,
-                        "t_mesh": t_mesh, "inverse": inv, "ends": (setup.E0, setup.Ef)}
+                        "t_mesh": t_mesh, "inverse": inv, "ends": (setup.E0, setup.Ef),
+                        "limits": (lbx, ubx, lbg, ubg)}
     return inv
 
 

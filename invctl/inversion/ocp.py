@@ -383,6 +383,7 @@ class OCPTranscription:
                             ["jac_g_x", "jac_g_p"])
         self._gfun = ca.Function("ocp_g", [xs, ps], [gs], ["x", "p"], ["g"],
                                  {"custom_jacobian": jac_g, "jac_penalty": 0})
+        self._jac_g = jac_g  # (x, p, g) -> (dg/dx, 0): the held re-solve's predictor (bounded.predicted_start)
         weight = P["eps"] if self.elastic else P["fscale"]
         f = weight * ca.sumsqr(R)
         if self.free_time:
