@@ -97,6 +97,24 @@ def test_right_hand_side_from_the_disk_cache_gives_the_vm_run(c2_setup, tmp_path
     assert b.cumulative_output_error == pytest.approx(a.cumulative_output_error, rel=1e-6)
 
 
+def test_a_loop_above_the_compile_limit_is_not_compiled(c2_setup, tmp_path, monkeypatch):
+    """A closed loop whose right-hand side and Jacobian exceed ``COMPILE_LIMIT`` instructions runs in the virtual
+    machine and starts no compiler (nothing generated into the cache); below the limit the C is built."""
+    import invctl.simulate.closed_loop as cl
+    from invctl.inversion.compiled import compiler
+
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("INVCTL_CACHE", str(tmp_path))
+    s = c2_setup
+    loop = cl.ClosedLoop(s.plant, s.reference, t_end=0.1, dt=1e-3, chunks=2)  # background compiles off (conftest)
+    monkeypatch.setenv("INVCTL_BACKGROUND_COMPILE", "1")
+    monkeypatch.setattr(cl, "COMPILE_LIMIT", 10)
+    assert cl._compiled_dae(loop.dae) is None and list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(cl, "COMPILE_LIMIT", 10**9)
+    assert cl._compiled_dae(loop.dae, wait=True) is not None and any(tmp_path.glob("closed_loop_*.so"))
+
+
 def test_quadrature_matches_trapezoid_of_grid(c2_run):
     r = c2_run
     assert np.trapezoid(r.output_error, r.t) == pytest.approx(r.cumulative_output_error, rel=1e-5)

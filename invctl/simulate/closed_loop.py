@@ -568,11 +568,17 @@ def _fast(fn: ca.Function) -> ca.Function:
     return fn
 
 
+#: instructions (right-hand side and its Jacobian) above which a closed loop is not compiled: the flexible arm's
+#: n = 16 loop (2.1e5) builds in 45 s at -O1; n = 32 (millions) ran gcc for over 10 minutes at 6 GB
+COMPILE_LIMIT = 1_000_000
+
+
 def _compiled_dae(dae, wait: bool = False):
     """The closed loop's DAE (expanded to SX) as generated C from the disk cache, with its Jacobian as
     ``jac_<name>`` in the same library (CVODES's Newton iterations use it); ``None`` when it is not there yet:
     then it is generated and a detached, low-priority compiler builds it for the next loop of the same graph
-    (as :mod:`invctl.inversion.compiled`; off with ``INVCTL_BACKGROUND_COMPILE=0``). ``wait``: compile now."""
+    (as :mod:`invctl.inversion.compiled`; off with ``INVCTL_BACKGROUND_COMPILE=0``), unless the right-hand side
+    and its Jacobian exceed ``COMPILE_LIMIT`` instructions. ``wait``: compile now."""
     import hashlib
     import os
     import shutil
@@ -599,10 +605,13 @@ def _compiled_dae(dae, wait: bool = False):
     if not wait and (not background_enabled() or (lock.exists() and time.time() - lock.stat().st_mtime < 600)):
         return None
     fn = ca.Function(name, fn.sx_in(), fn.call(fn.sx_in()), ca.dyn_in(), ca.dyn_out())
+    jac = fn.jacobian()  # named jac_<name>: casadi.external finds it
+    if fn.n_instructions() + jac.n_instructions() > COMPILE_LIMIT:
+        return None  # the virtual machine runs it: compiling would take many minutes and gigabytes
     tmp = tempfile.mkdtemp(prefix="invctl-cl-")
     cg = ca.CodeGenerator(f"{name}.c", {"with_header": False})
     cg.add(fn)
-    cg.add(fn.jacobian())  # named jac_<name>: casadi.external finds it
+    cg.add(jac)
     cg.generate(tmp + os.sep)
     lock.write_text(str(os.getpid()))
     part = lib.with_suffix(f".{os.getpid()}.part")
