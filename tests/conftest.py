@@ -36,3 +36,20 @@ def manipulator():
     import invctl_scenes.manipulator as scene
 
     return scene.build()
+
+
+@pytest.fixture(scope="module")
+def model():
+    """The manipulator on its ``guess`` parameter set (the held-solver tests' model; m3 = 0.5, c = 5), one per test
+    module (a module's own ``model`` fixture takes precedence)."""
+    import invctl_scenes.manipulator as scene
+
+    return scene.build(**scene.PRESETS["guess"])
+
+
+@pytest.fixture(scope="module")
+def ref(model):
+    """The manipulator scene's reference for ``model``."""
+    import invctl_scenes.manipulator as scene
+
+    return scene.reference(model)

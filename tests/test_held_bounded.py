@@ -21,16 +21,6 @@ KW = dict(N=20, compiled=False)
 
 
 @pytest.fixture(scope="module")
-def model():
-    return scene.build(**scene.PRESETS["guess"])
-
-
-@pytest.fixture(scope="module")
-def ref(model):
-    return scene.reference(model)
-
-
-@pytest.fixture(scope="module")
 def q0(model):
     return scene.initial_configuration(model)
 

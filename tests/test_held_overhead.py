@@ -15,16 +15,6 @@ from invctl.inversion.plan import _tail_span
 from invctl.inversion.servo import _decoupling_scales
 
 
-@pytest.fixture(scope="module")
-def model():
-    return scene.build(**scene.PRESETS["guess"])
-
-
-@pytest.fixture(scope="module")
-def ref(model):
-    return scene.reference(model)
-
-
 def test_background_compile_starts_after_the_first_solve(model, ref, tmp_path, monkeypatch):
     from invctl.inversion import compiled
 

@@ -19,16 +19,6 @@ from invctl.inversion.servo import mapped
 KW = dict(N=40, backend="newton", newton_tol=1e-12, compiled=False)
 
 
-@pytest.fixture(scope="module")
-def model():
-    return scene.build(**scene.PRESETS["guess"])
-
-
-@pytest.fixture(scope="module")
-def ref(model):
-    return scene.reference(model)
-
-
 @pytest.fixture
 def built(monkeypatch):
     """Every CasADi Function and Transcription constructed from Python while the test runs."""

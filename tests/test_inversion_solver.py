@@ -19,17 +19,6 @@ from invctl.results import Status
 KW = dict(N=60, backend="newton", newton_tol=1e-12, compiled=False)
 
 
-@pytest.fixture(scope="module")
-def model():
-    """The manipulator on the parameter set these re-solves were written for (m3 = 0.5 -> 0.56, c = 5 -> 5.5)."""
-    return scene.build(**scene.PRESETS["guess"])
-
-
-@pytest.fixture(scope="module")
-def ref(model):
-    return scene.reference(model)
-
-
 def _rel(a, b):
     return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
 
