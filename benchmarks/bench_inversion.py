@@ -412,6 +412,14 @@ def main():
         print("  what limits the re-solve: with the horizon given, the solve and the setup (both end equilibria, the "
               "dichotomy check of the selection: small numpy/LAPACK calls); with the automatic horizon, its re-plan "
               "(quasi-static path, linearizations, invariant subspaces and row choice at both ends)")
+        dn = first_n.diagnostics
+        rest = first_n_wall - dn["build_s"] - dn["solve_s"]
+        print(f"  what limits the first solve: of the Newton call's {first_n_wall * 1e3:.0f} ms, build "
+              f"{dn['build_s'] * 1e3:.0f} ms and solve {dn['solve_s'] * 1e3:.0f} ms; the other {rest * 1e3:.0f} ms are "
+              "the plan (quasi-static path, horizon, boundary selection), the guess and the residual checks; IPOPT adds "
+              "its instance and its own iterations")
+        print("  what limits the first run: beside the virtual-machine path it forks the background compile worker "
+              "after the first solve; fresh processes differ by about as much from run to run")
 
     print("\nsingle shooting on the unstable internal dynamics (forward integration of the inverse ODE):")
     inv = ours[1e-7]["inv"]
