@@ -39,6 +39,7 @@ from .ocp import slack_scale
 from .options import Objective, Options
 from .problem import prepare, resolve_plan
 from .servo import mapped
+from .solver import structure_change
 
 #: IPOPT options of the bounded problems: the adaptive barrier update (measured on the manipulator, |u2| <= 6 ... 9 N,
 #: HS N = 20, 40, 100, Gauss-Newton: 17-31 iterations, monotone 18-29; minimum time, exact Hessian, five
@@ -518,15 +519,15 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None, hold=Non
                                                                        "where": b["where"]} for b in bad}})
     sch, t_mesh, N = setup.scheme, setup.t_mesh, setup.t_mesh.size - 1
     t_build = time.perf_counter()
-    held = bool(last) and _same_structure(last["tr"], servo, setup.selection, N, rb)
+    why = _structure_change(last["tr"], servo, setup.selection, N, rb) if last else None
+    held = bool(last) and why is None
     if held:  # the last transcription (Legendre/Radau: with the interior rows if the last solve needed them)
         tr = last["tr"]
         info["reused"].append("transcription")
     else:
         tr = ocp_transcription(servo, setup.selection, sch, N, relaxed=True, bounded=rb.bounded, rated=rb.rated,
                                compiled=disc.compiled)
-        if last:
-            info["rebuilt"] = _structure_change(last["tr"], servo, setup.selection, N, rb)
+        info["rebuilt"] = why
     build_s = setup.timings["build_s"] + time.perf_counter() - t_build
     guess = warm_start if warm_start is not None else exact
     tc = tr.collocation_times(t_mesh)
@@ -656,25 +657,14 @@ def invert_bounded(model, reference, opts: Options, *, warm_start=None, hold=Non
     return inv
 
 
-def _same_structure(tr, servo, selection, N, rb) -> bool:
-    return (tr.servo is servo and tr.selection == selection and tr.N == N and tr.bounded == tuple(rb.bounded)
-            and tr.rated == tuple(rb.rated) and not tr.upgradable())
-
-
-def _structure_change(tr, servo, selection, N, rb) -> str:
-    """Why a held bounded solve builds another transcription (``info["rebuilt"]``)."""
-    if tr.servo is not servo:
-        return f"model structure ({tr.servo.model.name} -> {servo.model.name})"
-    if tr.selection != selection:
-        return f"boundary selection {tr.selection.describe()} -> {selection.describe()}"
-    if tr.N != N:
-        return f"N {tr.N} -> {N}"
-    if (tr.bounded, tr.rated) != (tuple(rb.bounded), tuple(rb.rated)):
-        names = list(rb.labels)
-        rnames = list(rb.rate_labels)
-        return (f"bounded entries {[names[i] for i in tr.bounded]} -> {[names[i] for i in rb.bounded]}, rate-bounded "
-                f"{[rnames[j] for j in tr.rated]} -> {[rnames[j] for j in rb.rated]}")
-    return "functions compiled in the background are ready"
+def _structure_change(tr, servo, selection, N, rb) -> str | None:
+    """Why a held bounded solve builds another transcription (``info["rebuilt"]``), or ``None``."""
+    why = structure_change(tr, servo, selection, N)
+    if why is None and (tr.bounded, tr.rated) != (tuple(rb.bounded), tuple(rb.rated)):
+        names, rnames = list(rb.labels), list(rb.rate_labels)
+        why = (f"bounded entries {[names[i] for i in tr.bounded]} -> {[names[i] for i in rb.bounded]}, rate-bounded "
+               f"{[rnames[j] for j in tr.rated]} -> {[rnames[j] for j in rb.rated]}")
+    return why or ("functions compiled in the background are ready" if tr.upgradable() else None)
 
 
 def _bound_size(rb, label) -> float:

@@ -26,6 +26,18 @@ from .problem import prepare, resolve_plan
 from .result import Inverse
 
 
+def structure_change(tr, servo, selection, N: int) -> str | None:
+    """Why a held solve cannot reuse transcription ``tr`` (square or bounded) for ``(servo, selection, N)``:
+    the text of ``info["rebuilt"]``, or ``None`` when those agree."""
+    if tr.servo is not servo:
+        return f"model structure ({tr.servo.model.name} -> {servo.model.name})"
+    if (tr.selection.start, tr.selection.end) != (selection.start, selection.end):
+        return f"boundary selection {tr.selection.describe()} -> {selection.describe()}"
+    if tr.N != N:
+        return f"N {tr.N} -> {N}"
+    return None
+
+
 class InversionSolver:
     """Stable inversion of ``model`` along ``reference`` (the options of
     :func:`~invctl.inversion.invert`), held for repeated solves.
@@ -210,17 +222,12 @@ class InversionSolver:
         old = self._setup
         N = setup.t_mesh.size - 1
         tr = self._tr
-        if tr is None or tr.upgradable() or tr.servo is not setup.servo or (
-                tr.selection.start, tr.selection.end, tr.N, tr.objective) != (
-                setup.selection.start, setup.selection.end, N, float(weight)):
-            if tr is not None and tr.servo is not setup.servo:
-                info["rebuilt"] = f"model structure ({tr.servo.model.name} -> {model.name})"
-            elif tr is not None and tr.selection != setup.selection:
-                info["rebuilt"] = f"boundary selection {old.selection.describe()} -> {setup.selection.describe()}"
-            elif tr is not None and tr.N != N:
-                info["rebuilt"] = f"N {tr.N} -> {N}"
-            elif tr is not None:
-                info["rebuilt"] = "functions compiled in the background are ready"
+        why = None if tr is None else (
+            structure_change(tr, setup.servo, setup.selection, N)
+            or (f"input-energy weight {tr.objective:g} -> {float(weight):g}" if tr.objective != float(weight) else None)
+            or ("functions compiled in the background are ready" if tr.upgradable() else None))
+        if tr is None or why:
+            info["rebuilt"] = why
             tr = transcription(setup.servo, setup.selection, setup.scheme, N, weight,
                                compiled=disc.compiled if not under else False)
             self.builds += 1
