@@ -30,8 +30,6 @@ from scipy.integrate import solve_bvp, solve_ivp
 import invctl_scenes.manipulator as scene
 from invctl.inversion import InversionSolver, forward_check, quasi_static_guess, resolve_selection, servo_model
 from invctl.studies.tracking import invert_tracking
-from invctl.inversion import compiled as _compiled_mod
-from invctl.inversion import cache as _cache_mod
 
 SMOKE = bool({"--smoke", "--quick"} & set(sys.argv[1:]))
 ROUNDS = 1 if SMOKE else 5
@@ -42,12 +40,15 @@ def rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def clear_caches():
-    _cache_mod._TRANS_CACHE.clear()
-    _cache_mod._SERVO_CACHE.clear()
-    _cache_mod._EQ_CACHE.clear()
-    _cache_mod._QS_LAST.clear()
-    _compiled_mod._NAMES.clear()
+def fresh_model():
+    """A fresh model object (the parameter set the committed output was measured on): the inversion keeps what it
+    builds on the model, so a fresh one builds everything again (the compiled pieces load from disk by name)."""
+    return scene.build(**scene.PRESETS["guess"])
+
+
+def transcriptions(model) -> list:
+    """The square transcriptions the model's servo model (default formulation) keeps."""
+    return list(servo_model(model).transcriptions.values())
 
 
 class SplineInverse:
@@ -173,7 +174,7 @@ def held_resolves(model, ref, backend, factors, **options):
 
 
 def main():
-    model = scene.build(**scene.PRESETS["guess"])  # the parameter set the committed output was measured on
+    model = fresh_model()
     ref = scene.reference(model)
     schemes = ["hermite-simpson", "legendre3", "radau3"]
     Ns = [20, 40] if SMOKE else [40, 80, 160, 320, 640]
@@ -182,7 +183,7 @@ def main():
     print(f"{'scheme':16s} {'N':>5s} {'build_s':>8s} {'solve_s':>8s} {'iter':>4s} {'rss_MB':>7s} {'fwd_err':>9s}")
     for sch in schemes:
         for N in Ns:
-            clear_caches()
+            model = fresh_model()
             try:
                 inv = invert_tracking(scene.SCENE, model, ref, N=N, scheme=sch, backend="newton",
                                    residual_tol=1.0)
@@ -212,7 +213,7 @@ def main():
 
     # forward check: compiled CVODES versus scipy DOP853 with a Python right-hand side
     print("\nforward check of HS N = 160 (rtol = atol = 1e-12), CVODES (default) vs scipy DOP853:")
-    clear_caches()
+    model = fresh_model()
     inv = invert_tracking(scene.SCENE, model, ref, N=160, backend="newton")
     for meth in ("cvodes", "cvodes", "DOP853"):
         t = time.perf_counter()
@@ -228,13 +229,13 @@ def main():
     ipopt_resolve = {}
     for label, opts in (("previous (L-BFGS Hessian, MUMPS default scaling)", old),
                         ("default (exact zero Hessian, MUMPS unscaled, AMD)", None)):
-        clear_caches()
+        model = fresh_model()
         base = invert_tracking(scene.SCENE, model, ref, N=100, ipopt_options=opts)
         colds = []
         for _ in range(ROUNDS):
             b = invert_tracking(scene.SCENE, model, ref, N=100, ipopt_options=opts)
             colds.append(b.diagnostics["solve_s"])
-        tr = next(iter(_cache_mod._TRANS_CACHE.values()))
+        tr = transcriptions(model)[0]
         st = list(tr._solvers.values())[-1].stats()
         cb_cold = sum(v for k, v in st.items() if k.startswith("t_wall_nlp"))
         res, its = [], []
@@ -255,7 +256,7 @@ def main():
     print("\nIPOPT (default backend) first call per mesh, VM vs compiled functions:")
     for comp in (False, True):
         for N in ([40] if SMOKE else [160, 320]):
-            clear_caches()
+            model = fresh_model()
             t = time.perf_counter()
             inv = invert_tracking(scene.SCENE, model, ref, N=N, backend="ipopt", compiled=comp)
             wall = time.perf_counter() - t
@@ -270,7 +271,7 @@ def main():
                   f"re-solve m3+1% {inv2.diagnostics['solve_s'] * 1e3:.1f} ms ({inv2.diagnostics['iterations']} it)")
 
     print("\nNewton backend (simplified Newton, LU reused), HS N = 100 (error <= 1e-6):")
-    clear_caches()
+    model = fresh_model()
     inv = invert_tracking(scene.SCENE, model, ref, N=100, backend="newton")
     d = inv.diagnostics
     err = forward_check(model, inv, ref)["error"]
@@ -278,7 +279,7 @@ def main():
           f"{d['factorizations']} factorizations, compiled={d['compiled']}), error {err:.2e}")
     colds = []
     for _ in range(ROUNDS):  # solve only on the built problem, from the quasi-static guess, no factorization kept
-        for tr in _cache_mod._TRANS_CACHE.values():
+        for tr in transcriptions(model):
             tr._lu = None
         colds.append(invert_tracking(scene.SCENE, model, ref, N=100, backend="newton").diagnostics["solve_s"])
     newton_cold = float(np.median(colds))
@@ -293,8 +294,8 @@ def main():
         print(f"  re-solve m3 x {f}: {inv2.diagnostics['solve_s'] * 1e3:.1f} ms ({inv2.diagnostics['iterations']} it, "
               f"{inv2.diagnostics['factorizations']} factorizations), error {e2:.2e}")
 
-    print("\nfirst solve at the scene default (HS, N = 200, IPOPT), caches cleared, imports excluded:")
-    clear_caches()
+    print("\nfirst solve at the scene default (HS, N = 200, IPOPT), a fresh model object, imports excluded:")
+    model = fresh_model()
     t = time.perf_counter()
     first = invert_tracking(scene.SCENE, model, ref)
     first_wall = time.perf_counter() - t
@@ -302,7 +303,7 @@ def main():
     print(f"  {first_wall:.3f} s (build {first.diagnostics['build_s']:.3f} s, guess {first.diagnostics['guess_s']:.3f} s, "
           f"solve {first.diagnostics['solve_s']:.3f} s), forward-check error {first_err:.2e}")
 
-    clear_caches()
+    model = fresh_model()
     t = time.perf_counter()
     first_n = invert_tracking(scene.SCENE, model, ref, backend="newton")
     first_n_wall = time.perf_counter() - t
@@ -311,10 +312,10 @@ def main():
           f"{first_n.diagnostics['solve_s']:.3f} s), error {first_n_err:.2e}")
 
     # accuracy on request: refinement
-    print("\nask for an accuracy (error-driven refinement, IPOPT, caches cleared):")
+    print("\nask for an accuracy (error-driven refinement, IPOPT, a fresh model object):")
     ours = {}
     for tol in (1e-6, 1e-7):
-        clear_caches()
+        model = fresh_model()
         t = time.perf_counter()
         inv = invert_tracking(scene.SCENE, model, ref, N=60, tol=tol)
         wall = time.perf_counter() - t

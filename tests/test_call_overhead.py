@@ -2,8 +2,6 @@
 entry evicted, not the whole memo), and the fast paths against their plain forms."""
 from __future__ import annotations
 
-from collections import OrderedDict
-
 import casadi as ca
 import numpy as np
 import pytest
@@ -18,19 +16,18 @@ def _scalar_functions(k):
     return [ca.Function(f"f{i}", [x], [x * (i + 1)]) for i in range(k)]
 
 
-@pytest.mark.parametrize("memo, limit, get", [
-    ("_MAPS", "MAPS_KEPT", lambda f: servo_mod.mapped(f, 3)),
-    ("_BUFFERED", "BUFFERED_KEPT", lambda f: servo_mod.buffered_map(f, 3))], ids=["mapped", "buffered_map"])
-def test_map_memos_evict_the_least_recently_used_entry(monkeypatch, memo, limit, get):
-    monkeypatch.setattr(servo_mod, memo, OrderedDict())
-    monkeypatch.setattr(servo_mod, limit, 3)
+@pytest.mark.parametrize("memo, get", [
+    ("maps", lambda m, f: m.mapped(f, 3)),
+    ("buffered", lambda m, f: m.buffered_map(f, 3))], ids=["mapped", "buffered_map"])
+def test_map_memos_evict_the_least_recently_used_entry(memo, get):
+    maps = servo_mod.MapMemo(maps_kept=3, buffered_kept=3)
     f0, f1, f2, f3 = _scalar_functions(4)
-    first = [get(f) for f in (f0, f1, f2)]
-    assert get(f0) is first[0]  # f0 used again: f1 is now the least recently used
-    get(f3)  # one entry too many: f1 goes, f0 and f2 stay (the whole memo was cleared before)
-    assert get(f0) is first[0] and get(f2) is first[2]
-    assert get(f1) is not first[1]
-    assert len(getattr(servo_mod, memo)) == 3
+    first = [get(maps, f) for f in (f0, f1, f2)]
+    assert get(maps, f0) is first[0]  # f0 used again: f1 is now the least recently used
+    get(maps, f3)  # one entry too many: f1 goes, f0 and f2 stay (the whole memo was cleared before)
+    assert get(maps, f0) is first[0] and get(maps, f2) is first[2]
+    assert get(maps, f1) is not first[1]
+    assert len(getattr(maps, memo)) == 3
 
 
 def test_buffered_map_equals_the_plain_map():
@@ -43,7 +40,7 @@ def test_buffered_map_equals_the_plain_map():
     X, P = rng.normal(size=(2, 5)), rng.normal(size=2)
     for fn in (dense, sparse):
         plain = [np.array(ca.densify(o)) for o in fn.map(5).call([X, np.tile(P[:, None], 5)])]
-        got = servo_mod.buffered_map(fn, 5, once=(1,))(X, P)
+        got = servo_mod.MapMemo().buffered_map(fn, 5, once=(1,))(X, P)
         for a, b in zip(got, plain):
             assert np.array_equal(a, b)
 
@@ -136,8 +133,7 @@ def test_a_first_solve_with_the_pieces_on_disk_builds_no_sx_jacobian_or_residual
                hs.block_name: collocation.Transcription(other, sel, hs, 20).block_function()}
     monkeypatch.setattr(compiled, "load_cached", lambda name, key, flags=("-O2",): on_disk.get(name))
     monkeypatch.setattr(compiled, "compile_in_background", lambda *a, **k: None)
-    for memo in ("_SERVO_CACHE", "_TRANS_CACHE"):  # a fresh servo model and transcription
-        monkeypatch.setattr(cache, memo, {})
+    model = scene.build()  # a fresh model object: a fresh servo model and transcription
     inv = invert(model, ref, compiled="auto", **kw)
     fresh = cache.servo_model(model)
     assert "rhs_jac" not in fresh.__dict__ and "residuals" not in fresh.__dict__
@@ -151,12 +147,10 @@ def test_a_tracking_inversion_builds_one_equilibrium_solver(monkeypatch):
     model's own parameter values), not a second one."""
     import invctl_scenes.manipulator as scene
     from invctl.analysis import equilibrium
-    from invctl.inversion import cache
     from invctl.studies.tracking import equilibrium_configuration, invert_tracking
 
     model = scene.build()
     ref = scene.reference(model)
-    monkeypatch.setattr(cache, "_EQ_CACHE", {})
     made = []
     real = equilibrium.EquilibriumSolver.__init__
     monkeypatch.setattr(equilibrium.EquilibriumSolver, "__init__", lambda self, md: made.append(md) or real(self, md))

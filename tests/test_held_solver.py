@@ -14,7 +14,7 @@ from invctl.inversion import collocation as coll
 from invctl.inversion import square
 from invctl.inversion.cache import servo_model
 from invctl.inversion.sensitivity import ParametricInverse
-from invctl.inversion.servo import mapped
+
 
 KW = dict(N=40, backend="newton", newton_tol=1e-12, compiled=False)
 
@@ -90,7 +90,7 @@ def test_reference_samples_outside_the_transition_are_its_rest_values(model, ref
     inside = np.linspace(ref.t0, ref.tf, 7)
     for tails in ([-3.0, -0.5], [-1.25, -0.01]):
         t = np.r_[tails, inside, ref.tf + 0.2, ref.tf + 4.0]
-        direct = np.vstack([np.array(o) for o in mapped(ref.function(3), t.size)(t[None, :])])
+        direct = np.vstack([np.array(o) for o in ref.function(3).map(t.size)(t[None, :])])
         assert np.array_equal(servo.reference_samples(ref, t), direct)
 
 
@@ -106,7 +106,7 @@ def test_reference_samples_of_a_reference_moving_outside_are_evaluated(model):
     for moving in (Reference(t, ca.vertcat(ca.sin(3 * t), 0.1 * t ** 4), 0.0, 1.0, 4),
                    Reference(t, ca.vertcat(periodic, 0.5 * periodic), 0.0, 1.0, 4)):
         tt = np.linspace(-2.0, 3.0, 41)
-        direct = np.vstack([np.array(o) for o in mapped(moving.function(3), tt.size)(tt[None, :])])
+        direct = np.vstack([np.array(o) for o in moving.function(3).map(tt.size)(tt[None, :])])
         assert np.array_equal(servo.reference_samples(moving, tt), direct)
 
 

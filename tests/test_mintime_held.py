@@ -11,7 +11,6 @@ import invctl.inversion.square as square
 import invctl_scenes.cartpole as cp
 from invctl.errors import OptionError
 from invctl.inversion import Bounds
-from invctl.inversion import cache
 from invctl.inversion.bounded import _limits, solve_scaled
 from invctl.inversion.options import SolverOptions
 
@@ -38,9 +37,10 @@ def test_held_resolve_equals_a_fresh_solve_and_builds_nothing(cart, monkeypatch)
     for name in ("prepare", "resolve_plan"):
         monkeypatch.setattr(mt, name, lambda *a, _n=name, **k: built.append(_n))
     monkeypatch.setattr(square, "solve_square", lambda *a, **k: built.append("solve_square"))
-    cached = len(cache._OCP_CACHE)
+    servo = held._held["last"]["setup"].servo
+    kept = list(servo.ocp_transcriptions.values())
     again = held.solve()
-    assert built == [] and len(cache._OCP_CACHE) == cached
+    assert built == [] and list(servo.ocp_transcriptions.values()) == kept
     d = again.diagnostics
     assert d["held"] and d["bound_rounds"] == 0 and d["iterations"] <= 6
     assert d["free_time"]["duration"] == pytest.approx(fresh.diagnostics["free_time"]["duration"], rel=1e-9)

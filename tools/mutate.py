@@ -83,7 +83,7 @@ TEST_MAP = {
     "invctl/inversion/boundary.py": ["tests/test_bounds_between_nodes.py",
                                      "tests/test_analysis_manipulator.py"],
     "invctl/inversion/bounded.py": _OCP,
-    "invctl/inversion/cache.py": _OCP,
+    "invctl/inversion/cache.py": _OCP + ["tests/test_owned_objects.py"],
     "invctl/inversion/collocation.py": _INVERSION + _OCP,
     "invctl/inversion/compiled.py": ["tests/test_library.py"] + _INVERSION,
     "invctl/inversion/guess.py": _INVERSION + _OCP,

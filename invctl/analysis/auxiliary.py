@@ -27,7 +27,8 @@ _CACHE_ATTR = "_analysis_cache"
 
 
 def cache_of(model) -> dict:
-    """The analysis cache of a model (created on first use).
+    """The store of objects derived from a model's symbols (analysis and inversion; made with the model,
+    or on first use for objects that are not :class:`~invctl.model.Model` instances).
 
     Symbolic entries depend only on the symbols and are valid for every
     ``with_params`` copy; numeric entries must key on ``theta_values``.

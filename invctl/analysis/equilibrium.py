@@ -47,11 +47,11 @@ class EquilibriumSolver:
     def _at(self, K: int):
         """``_Fd`` at one point (``K = 0``) or mapped over ``K`` points (theta shared), called through
         buffers: numpy in and out, no ``DM`` conversions (built once per ``K``)."""
-        from ..inversion.servo import Buffered, buffered_map
+        from ..inversion.servo import Buffered, dense_map
 
         if K:
             if K not in self._maps:
-                self._maps[K] = buffered_map(self._Fd, K, once=(2,))
+                self._maps[K] = Buffered(dense_map(self._Fd, K, (2,)))
             return self._maps[K]
         if self._one is None:
             self._one = Buffered(self._Fd)

@@ -108,9 +108,6 @@ def resolve_selection(servo, start, end, *, allow_underdetermined: bool = False)
     return Selection(tuple(s), tuple(e), labels)
 
 
-_TANGENT: dict = {}
-
-
 def tangent_dynamics(servo, X, Y, theta):
     """The linearized inverse model at ``X`` and its restriction to the constraint manifold.
 
@@ -120,7 +117,7 @@ def tangent_dynamics(servo, X, Y, theta):
     ``T`` into itself, and the eigenvalues of ``A_T`` are those of the linearized internal
     (zero) dynamics (003 Sect. 2-3); the other ``nx - dim T`` eigenvalues of ``A`` belong to
     the constraint drift (``-omega`` with Baumgarte stabilization, ``0`` without).  The last few
-    results are remembered (read-only arrays): the same point is linearized once.
+    results are remembered by ``servo`` (read-only arrays): the same point is linearized once.
     """
     return _tangent(servo, X, Y, theta)[0]
 
@@ -141,20 +138,18 @@ def _tangent(servo, X, Y, theta) -> list:
     import scipy.linalg as sla
 
     X, Y, theta = (np.asarray(a, float).ravel() for a in (X, Y, theta))
-    key = (id(servo), X.tobytes(), Y.tobytes(), theta.tobytes())
-    hit = _TANGENT.get(key)
-    if hit is not None and hit[0] is servo:  # a plan and the dichotomy check of its equilibria
-        return hit[1]
-    A, C = servo.linearization(X, Y, theta)
-    T = sla.null_space(C) if C.size else np.eye(A.shape[0])
-    out = (A, T, T.T @ A @ T)
-    for a in out:
-        a.flags.writeable = False
-    if len(_TANGENT) >= 8:
-        _TANGENT.pop(next(iter(_TANGENT)))
-    entry = [out, None]  # the linearization and, once asked for, its spectra
-    _TANGENT[key] = (servo, entry)
-    return entry
+    from .servo import remember
+
+    def make():  # the linearization and, once asked for, its spectra
+        A, C = servo.linearization(X, Y, theta)
+        T = sla.null_space(C) if C.size else np.eye(A.shape[0])
+        out = (A, T, T.T @ A @ T)
+        for a in out:
+            a.flags.writeable = False
+        return [out, None]
+
+    # a plan and the dichotomy check of its equilibria linearize the same points
+    return remember(servo.tangents, (X.tobytes(), Y.tobytes(), theta.tobytes()), make, 8)
 
 
 def neutral_tolerance(eigenvalues, neutral: float = 1e-6) -> float:

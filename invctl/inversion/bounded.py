@@ -38,7 +38,6 @@ from .cache import ocp_transcription, servo_model
 from .ocp import slack_scale
 from .options import Objective, Options
 from .problem import prepare, resolve_plan
-from .servo import mapped
 from .solver import structure_change
 
 #: IPOPT options of the bounded problems: the adaptive barrier update (measured on the manipulator, |u2| <= 6 ... 9 N,
@@ -232,7 +231,7 @@ def output_error(inv, servo, reference, theta, samples_per_interval: int = 8) ->
     t = np.concatenate([(tm[:-1, None] + np.diff(tm)[:, None] * s[None, :]).ravel(), [tm[-1]]])
     X = inv.X(t)
     Ys = servo.reference_samples(reference, t)
-    e = np.array(mapped(servo.output, t.size)(X, Ys, theta)) - Ys[:reference.m]
+    e = np.array(servo.maps.mapped(servo.output, t.size)(X, Ys, theta)) - Ys[:reference.m]
     ea = np.abs(e)
     k = int(np.argmax(np.max(ea, axis=0)))
     rms = np.sqrt(np.trapezoid(e * e, t, axis=1) / (t[-1] - t[0]))

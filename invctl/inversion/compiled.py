@@ -44,24 +44,18 @@ def compiler() -> str | None:
     return _COMPILERS[cc]
 
 
-_NAMES: dict = {}
-
-
 def _name(fn: ca.Function, flags, key: str | None = None) -> str:
     """Cache name: from ``key`` (a structural key of what built ``fn``, e.g. the model's
     serialized functions and the source of the code that derives ``fn`` from them) when
-    given, else from the serialization of ``fn`` (memoized per function object:
+    given, else from the serialization of ``fn`` (kept on the function object:
     serializing the right-hand-side Jacobian costs ~10 ms)."""
     if key is not None:
         return keyed_name(fn.name(), flags, key)
-    hit = _NAMES.get((id(fn), tuple(flags)))
-    if hit is not None and hit[0] is fn:
-        return hit[1]
-    key = hashlib.sha1((fn.serialize() + " ".join(flags)).encode()).hexdigest()[:16]
-    name = f"{fn.name()}_{key}"
-    if len(_NAMES) > 256:
-        _NAMES.clear()
-    _NAMES[(id(fn), tuple(flags))] = (fn, name)
+    names = fn.__dict__.setdefault("_invctl_cache_names", {})
+    name = names.get(tuple(flags))
+    if name is None:
+        digest = hashlib.sha1((fn.serialize() + " ".join(flags)).encode()).hexdigest()[:16]
+        name = names[tuple(flags)] = f"{fn.name()}_{digest}"
     return name
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .cache import equilibrium_solver as _equilibrium_solver
-from .servo import buffered_map, check_decoupling
+from .servo import check_decoupling
 
 
 def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: str = "", path=None,
@@ -66,10 +66,10 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     X = np.vstack([Q, V, np.zeros((l + p + m, times.size))])
     Y = servo.reference_samples(reference, times)
     th = model.theta_values
-    _pos, _vel, acc = buffered_map(servo.evaluator("residuals"), times.size, once=(2,))(X, Y, th)
-    Az = buffered_map(servo.decoupling, times.size, once=(2,))(X, Y, th)[0].reshape(
+    _pos, _vel, acc = servo.maps.buffered_map(servo.evaluator("residuals"), times.size, once=(2,))(X, Y, th)
+    Az = servo.maps.buffered_map(servo.decoupling, times.size, once=(2,))(X, Y, th)[0].reshape(
         l + p + m, l + p + m, times.size, order="F")
-    check_decoupling(model, Az, times, Q)
+    check_decoupling(model, Az, times, Q, maps=servo.maps)
     Z = np.linalg.solve(Az.transpose(2, 0, 1), -acc.T[:, :, None])[:, :, 0].T
     return np.vstack([Q, V, Z])
 

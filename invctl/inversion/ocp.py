@@ -609,9 +609,7 @@ class OCPTranscription:
         k = zeta.shape[1]
         tau = tau_ref if tau is None else tau  # samples given for the actual duration: no retiming
         args = [zeta, Ysamples] + ([tau] if self.free_time else []) + [theta, c, np.ones(self.m), np.ones(3), tau_ref]
-        from .servo import mapped
-
-        return np.array(mapped(self._functions["point"], k)(*args))
+        return np.array(self.servo.maps.mapped(self._functions["point"], k)(*args))
 
 
 # ---------------------------------------------------------------- the exact Hessian, structured

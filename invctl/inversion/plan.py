@@ -37,7 +37,6 @@ from .boundary import (BLOCKS, explain_no_dichotomy, neutral_tolerance, resolve_
 from .cache import equilibrium_solver as _equilibrium_solver
 from .cache import servo_model
 from .guess import _split, quasi_static_guess
-from .servo import mapped
 
 #: largest number of candidate selections enumerated exactly (otherwise column-pivoted QR)
 MAX_ENUMERATION = 5000
@@ -196,7 +195,7 @@ def check_reference(reference, order: int = 3, *, samples: int = 2000, levels: i
     fn = reference.function(order + 1)
 
     def values(t):  # (order + 2, m, K)
-        outs = mapped(fn, t.size)(np.asarray(t, float)[None, :])
+        outs = fn.map(t.size)(np.asarray(t, float)[None, :])  # once per reference (a reference's functions are its own)
         return np.stack([np.array(o).reshape(m, t.size) for o in outs])
 
     grid = np.linspace(t0 - 0.05 * tau, tf + 0.05 * tau, samples + 1)

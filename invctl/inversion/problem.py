@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import BoundaryConditionError, NoDichotomyError, OptionError, ReferenceSignalError
 from .boundary import (BLOCKS, Selection, _resolve, dichotomy, explain_dichotomy, explain_no_dichotomy,
                        resolve_selection)
-from .cache import _QS_LAST, compiled_key, equilibrium_solver, servo_model
+from .cache import compiled_key, equilibrium_solver, servo_model
 from .schemes import Scheme, get_scheme
 from .guess import default_mesh, quasi_static_guess
 from .servo import NUMERIC_SOLVES_NX
@@ -142,7 +142,7 @@ def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest
     n = model.n
     G = None
     if ends is None:
-        last = _QS_LAST.get("entry")
+        last = servo.quasi_static.get("entry")
         if (last is not None and last[0] is model and last[1] is reference and last[2] == (T0, Tf)
                 and np.array_equal(last[3], q0)):
             G = last[4]  # mesh refinement: same model, reference and horizon
@@ -153,7 +153,7 @@ def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest
                 pt = np.linspace(plan.t0, plan.tf, plan.path.shape[1])
                 path = np.vstack([np.interp(qs_times, pt, row) for row in plan.path])
             G = quasi_static_guess(model, reference, qs_times, q0, servo=servo, path=path)
-            _QS_LAST["entry"] = (model, reference, (T0, Tf), q0, G)
+            servo.quasi_static["entry"] = (model, reference, (T0, Tf), q0, G)
         ends = (G[:, 0], G[:, -1])
     eq = equilibrium_solver(model)
     E = []

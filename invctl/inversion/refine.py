@@ -11,7 +11,6 @@ import numpy as np
 from ..errors import INTERRUPT_LIKE, InversionFailed, RunInterrupted, is_interrupt
 from .schemes import get_scheme
 from .guess import _split
-from .servo import mapped
 
 
 def interval_errors(inv, servo, reference, theta) -> np.ndarray:
@@ -25,7 +24,7 @@ def interval_errors(inv, servo, reference, theta) -> np.ndarray:
     eps = 1e-6 * h.min()
     dXn = (inv.X(tt + eps) - inv.X(tt - eps)) / (2 * eps)
     Y = servo.reference_samples(reference, tt)
-    F = np.array(mapped(servo.rhs, tt.size)(inv.X(tt), Y, theta))
+    F = np.array(servo.maps.mapped(servo.rhs, tt.size)(inv.X(tt), Y, theta))
     scale = 1.0 + np.max(np.abs(inv.X_mesh), axis=1, keepdims=True)
     err = np.max(np.abs(dXn - F) / scale, axis=0).reshape(h.size, s.size).max(axis=1)
     return err * h

@@ -23,7 +23,6 @@ other parameters or references by Newton's method from its own solution (continu
 from __future__ import annotations
 
 import time
-import weakref
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -38,8 +37,6 @@ from .backends import _newton
 from .cache import equilibrium_solver, model_key, servo_model, transcription
 from .guess import quasi_static_guess
 from .square import make_inverse
-
-_FUN: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def _selection(servo, text: str) -> Selection:
@@ -135,8 +132,8 @@ def parameter_chain(model, names=None, *, derived: bool = True) -> np.ndarray:
 
 
 def _functions(servo):
-    """Per servo model: ``dF/dtheta`` and the equilibrium residual's Jacobians (SX, built once)."""
-    fns = _FUN.get(servo)
+    """Per servo model: ``dF/dtheta`` and the equilibrium residual's Jacobians (SX, built once, kept by it)."""
+    fns = servo.derived.get("sensitivity")
     if fns is None:
         md, L = servo.model, servo.layout
         X, Y, th = ca.SX.sym("X", L.nx), ca.SX.sym("Y", 4 * L.m), ca.SX.sym("theta", md.theta.shape[0])
@@ -158,7 +155,7 @@ def _functions(servo):
             bal = bal + ca.mtimes(sub(md.J).T, mu)
         R = ca.vertcat(sub(md.g) if l else ca.SX(0, 1), sub(md.j) if p else ca.SX(0, 1), sub(md.h) - y, bal)
         dR = ca.Function("equilibrium_sens", [w, y, th], [ca.jacobian(R, w), ca.densify(ca.jacobian(R, th))])
-        fns = _FUN[servo] = (dF, dR)
+        fns = servo.derived["sensitivity"] = (dF, dR)
     return fns
 
 
@@ -302,7 +299,7 @@ class ParametricInverse:
         if reference.m != self.servo.layout.m:
             raise ValueError(f"resolve: the reference has {reference.m} components, the model {self.servo.layout.m}")
         reference.require(3, "servo-constraint inversion (jerk-level index reduction of 003 (35))")
-        servo = servo_model(model, self.servo.formulation, self.servo.omega)
+        servo = self.servo  # the same structure: its functions take the parameter values as an argument
         tr = self.transcription()
         t_mesh = self.mesh_for(reference)
         Y, yends = self._samples(reference, t_mesh)
@@ -449,14 +446,15 @@ class ParametricInverse:
 
 def _interval_theta(trs) -> ca.Function:
     """``d(defect of one interval)/dtheta`` from the transcription's interval function (its SX form):
-    Hermite-Simpson also through the node slopes, ``+ d/dF_a F_theta(a) + d/dF_b F_theta(b)``."""
-    fn = _FUN.get(trs)
+    Hermite-Simpson also through the node slopes, ``+ d/dF_a F_theta(a) + d/dF_b F_theta(b)``; kept by
+    the transcription."""
+    fn = trs.__dict__.get("_interval_theta")
     if fn is None:
         iv, nx, nth = trs.interval_sx, trs.nx, trs.ntheta
         ins = [ca.SX.sym(iv.name_in(i), iv.sparsity_in(i)) for i in range(iv.n_in())]
         defect = iv(*ins)[0]
         th = ins[-1]
-        fn = _FUN[trs] = trs.scheme.bvp_theta_function(iv, ins, defect, ca.jacobian(defect, th), nx, nth)
+        fn = trs.__dict__["_interval_theta"] = trs.scheme.bvp_theta_function(iv, ins, defect, ca.jacobian(defect, th), nx, nth)
     return fn
 
 

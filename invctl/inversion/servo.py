@@ -61,31 +61,49 @@ LINSOL = "ldl"
 NUMERIC_SOLVES_NX = 20
 
 
-#: memo sizes of :func:`mapped` and :func:`buffered_map`; past them the least recently used entry goes
+#: sizes of a :class:`MapMemo`; past them the least recently used entry goes
 MAPS_KEPT = 512
 BUFFERED_KEPT = 64
-_MAPS: OrderedDict = OrderedDict()
 
 
-def _remember(memo: OrderedDict, key, fn, make, limit: int):
-    """``make()`` memoized in ``memo`` under ``key`` while ``fn`` is alive (the entry holds it); past
-    ``limit`` entries the least recently used one is evicted."""
-    hit = memo.get(key)
-    if hit is not None and hit[0] is fn:
+def remember(memo: OrderedDict, key, make, limit: int):
+    """``memo[key]``, made by ``make()`` when missing; past ``limit`` entries the least recently used one goes."""
+    if key in memo:
         memo.move_to_end(key)
-        return hit[1]
-    out = make()
-    memo[key] = (fn, out)
-    memo.move_to_end(key)
+        return memo[key]
+    out = memo[key] = make()
     while len(memo) > limit:
         memo.popitem(last=False)
     return out
 
 
-def mapped(fn: ca.Function, k: int) -> ca.Function:
-    """``fn.map(k)``, memoized per function object (building a map costs ~0.4 ms, more than
-    evaluating it on a mesh of a few hundred nodes)."""
-    return _remember(_MAPS, (id(fn), k), fn, lambda: fn.map(k), MAPS_KEPT)
+class MapMemo:
+    """``fn.map(k)`` and maps called through buffers, memoized per function object while it is alive (an
+    entry holds it), the least recently used ones evicted past :data:`MAPS_KEPT` / :data:`BUFFERED_KEPT`
+    entries (building a map costs ~0.4 ms, more than evaluating it on a mesh of a few hundred nodes).  Kept by
+    the object whose functions it maps (a :class:`ServoModel`, a transcription)."""
+
+    def __init__(self, maps_kept: int = MAPS_KEPT, buffered_kept: int = BUFFERED_KEPT):
+        self.maps_kept, self.buffered_kept = maps_kept, buffered_kept
+        self.maps: OrderedDict = OrderedDict()
+        self.buffered: OrderedDict = OrderedDict()
+
+    @staticmethod
+    def _get(memo: OrderedDict, key, fn, make, limit: int):
+        hit = memo.get(key)
+        if hit is not None and hit[0] is not fn:  # the id of a dead function, reused
+            del memo[key]
+        return remember(memo, key, lambda: (fn, make()), limit)[1]
+
+    def mapped(self, fn: ca.Function, k: int) -> ca.Function:
+        """``fn.map(k)``."""
+        return self._get(self.maps, (id(fn), k), fn, lambda: fn.map(k), self.maps_kept)
+
+    def buffered_map(self, fn: ca.Function, k: int, once: tuple = ()) -> "Buffered":
+        """``fn`` (one-column inputs) at ``k`` points (inputs of ``k`` columns, those numbered in ``once`` of
+        one column, the same at every point), called through buffers (:class:`Buffered`)."""
+        return self._get(self.buffered, (id(fn), k, once), fn,
+                         lambda: Buffered(dense_map(fn, k, once, self)), self.buffered_kept)
 
 
 class Buffered:
@@ -115,22 +133,13 @@ class Buffered:
             return [o.reshape(shape, order="F").copy() for o, shape in zip(self._out, self._shapes)]
 
 
-
-_BUFFERED: OrderedDict = OrderedDict()
-
-
-def buffered_map(fn: ca.Function, k: int, once: tuple = ()) -> Buffered:
-    """``fn`` (one-column inputs) at ``k`` points (inputs of ``k`` columns, those numbered in ``once`` of
-    one column, the same at every point), called through buffers (:class:`Buffered`), memoized per
-    function object like :func:`mapped`.  A function with dense outputs is mapped as it is (the map of
-    :func:`mapped` when no input is shared); otherwise through a wrapper that densifies them."""
-    return _remember(_BUFFERED, (id(fn), k, once), fn, lambda: Buffered(dense_map(fn, k, once)), BUFFERED_KEPT)
-
-
-def dense_map(fn: ca.Function, k: int, once: tuple) -> ca.Function:
-    """``fn`` at ``k`` points (inputs numbered in ``once`` shared) with dense outputs."""
+def dense_map(fn: ca.Function, k: int, once: tuple, memo: MapMemo | None = None) -> ca.Function:
+    """``fn`` at ``k`` points (inputs numbered in ``once`` shared) with dense outputs (a function with dense
+    outputs is mapped as it is: through ``memo``'s :meth:`MapMemo.mapped` when no input is shared)."""
     if all(fn.sparsity_out(i).is_dense() for i in range(fn.n_out())):
-        return fn.map(f"{fn.name()}_at_{k}", "serial", k, list(once), []) if once else mapped(fn, k)
+        if once:
+            return fn.map(f"{fn.name()}_at_{k}", "serial", k, list(once), [])
+        return fn.map(k) if memo is None else memo.mapped(fn, k)
     ins = [ca.MX.sym(fn.name_in(i), fn.size1_in(i), 1 if i in once else k) for i in range(fn.n_in())]
     out = fn.map(k)(*ins)
     outs = [ca.densify(o) for o in (out if isinstance(out, (list, tuple)) else [out])]
@@ -187,6 +196,15 @@ class ServoModel:
         self.formulation = formulation
         self.omega = float(omega)
         self.layout = Layout(model.n, model.ell, model.p, model.m)
+        # what is derived from this servo model lives on it (no module state): the maps of its functions and
+        # of the references it samples, its transcriptions (invctl.inversion.cache), its linearizations at
+        # points (boundary.tangent_dynamics) and the last quasi-static path (problem.prepare)
+        self.maps = MapMemo()
+        self.transcriptions: OrderedDict = OrderedDict()
+        self.ocp_transcriptions: OrderedDict = OrderedDict()
+        self.tangents: OrderedDict = OrderedDict()
+        self.quasi_static: dict = {}
+        self.derived: dict = {}  # other functions derived from it (parameter sensitivities)
 
     @cached_property
     def names(self) -> dict[str, list[str]]:
@@ -432,7 +450,7 @@ class ServoModel:
             hit = memo.get(key)
             if hit is not None and hit[0] is reference:
                 return hit[1]
-            Ys = (np.vstack(buffered_map(reference.function(3), ts.size)(ts)) if ts.size
+            Ys = (np.vstack(self.maps.buffered_map(reference.function(3), ts.size)(ts)) if ts.size
                   else np.zeros((4 * reference.m, 0)))
             if len(memo) >= 16:
                 memo.pop(next(iter(memo)))
@@ -476,21 +494,20 @@ def _check_position_output(model) -> None:
             diagnostics={"outputs": list(model.y_names), "problems": bad})
 
 
-def _decoupling_scales(model, Q) -> np.ndarray:
+def _decoupling_scales(model, Q, maps: MapMemo | None = None) -> np.ndarray:
     """``||C M^-1||_2 ||W||_2`` at the configurations ``Q`` (columns), ``C = [G; J; h']``,
     ``W = [G^T J^T B]`` (numerically; the scale of the product ``A_z = C M^-1 W``).  The parts
-    come from one mapped evaluation of a function built once per model."""
-    parts = getattr(model, "_decoupling_parts", None)
-    if parts is None:
+    come from one mapped evaluation (memoized in ``maps``) of a function the model keeps."""
+    from ..analysis.auxiliary import cached
+
+    def build():
         H = ca.jacobian(model.h, model.q)
-        parts = ca.Function("decoupling_parts", [model.q, model.theta],
-                            [model.M, ca.vertcat(model.G, model.J, H), ca.horzcat(model.G.T, model.J.T, model.B)])
-        try:
-            model._decoupling_parts = parts
-        except AttributeError:
-            pass
+        return ca.Function("decoupling_parts", [model.q, model.theta],
+                           [model.M, ca.vertcat(model.G, model.J, H), ca.horzcat(model.G.T, model.J.T, model.B)])
+
+    parts = cached(model, ("decoupling_parts",), build)
     K, n = Q.shape[1], model.n
-    M, C, W = buffered_map(parts, K, once=(1,))(Q, model.theta_values)
+    M, C, W = (maps or MapMemo()).buffered_map(parts, K, once=(1,))(Q, model.theta_values)
     M = M.reshape(n, K, n).transpose(1, 0, 2)
     C = C.reshape(C.shape[0], K, n).transpose(1, 0, 2)
     W = W.reshape(n, K, -1).transpose(1, 0, 2)
@@ -501,14 +518,15 @@ def _decoupling_scales(model, Q) -> np.ndarray:
     return np.linalg.norm(CMinvT, 2, axis=(1, 2)) * np.linalg.norm(W, 2, axis=(1, 2))
 
 
-def check_decoupling(model, Az, times, Q, rcond: float = 1e-10) -> None:
+def check_decoupling(model, Az, times, Q, rcond: float = 1e-10, maps: MapMemo | None = None) -> None:
     """Raise :class:`SingularDecouplingError` where the decoupling matrices ``Az`` (shape
     ``(k, k, K)`` at ``times``, configurations ``Q``) are singular (smallest over largest singular
-    value below ``rcond``): there the vector relative degree is not (2, ..., 2)."""
+    value below ``rcond``): there the vector relative degree is not (2, ..., 2).  ``maps``: where the
+    map of the check's function is memoized (the servo model's)."""
     sv = np.linalg.svd(Az.transpose(2, 0, 1), compute_uv=False)
     # A_z = (C M^-1) W: a singular value that is only rounding of that product counts as zero, so the
     # ratio is taken against ||C M^-1|| ||W|| too (a 1 x 1 A_z has sigma_min = sigma_max)
-    ratio = sv[:, -1] / np.maximum(np.maximum(sv[:, 0], _decoupling_scales(model, Q)), 1e-300)
+    ratio = sv[:, -1] / np.maximum(np.maximum(sv[:, 0], _decoupling_scales(model, Q, maps)), 1e-300)
     bad = np.flatnonzero(~(ratio >= rcond))
     if bad.size == 0:
         return

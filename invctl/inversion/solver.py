@@ -105,6 +105,10 @@ class InversionSolver:
                            horizon=replace(opts.horizon, T0=mesh[0], Tf=mesh[-1]))
         try:
             model = self.model_with(params, model)
+            if model is not self.model and self._tr is not None:
+                from .cache import share_servo
+
+                share_servo(model, self._tr.servo)  # a rebuilt model of the same structure: the held pieces
             ref = self.reference if reference is None else reference
             ws = warm_start if warm_start is not None else (self.last if warm else None)
             if opts.bounds is not None:

@@ -18,7 +18,6 @@ from .collocation import start_deferred_compiles
 from .options import Options
 from .problem import Setup, prepare
 from .result import Inverse
-from .servo import mapped
 
 
 def solve_square(model, reference, opts: Options, warm_start: Any = None, setup: Setup | None = None,
@@ -192,7 +191,7 @@ def make_inverse(model, reference, servo, sch, t_mesh, Xmesh, Xcol, theta, dX=No
     Hermite-Simpson: ``F`` of the servo model unless given, through the transcription ``tr``'s
     compiled right-hand side when given)."""
     if dX is None:
-        rhs = mapped(servo.rhs, t_mesh.size) if tr is None else tr.mapped_call("rhs", t_mesh.size)
+        rhs = servo.maps.mapped(servo.rhs, t_mesh.size) if tr is None else tr.mapped_call("rhs", t_mesh.size)
         dX = sch.mesh_slopes(Xmesh, lambda: rhs(Xmesh, servo.reference_samples(reference, t_mesh), theta)[0])
     L = servo.layout
     return Inverse(sch.name, t_mesh, Xmesh, dX, Xcol, {"n": L.n, "l": L.l, "p": L.p, "m": L.m},
@@ -208,7 +207,7 @@ def residuals(inv: Inverse, servo, reference, theta, samples_per_interval: int =
     s = np.linspace(0, 1, samples_per_interval + 1)[1:-1]
     tt = (tm[:-1, None] + np.diff(tm)[:, None] * s[None, :]).ravel()
     t = np.concatenate([tm, tt])
-    fn = mapped(servo.residuals, t.size) if tr is None else tr.mapped_call("residuals", t.size)
+    fn = servo.maps.mapped(servo.residuals, t.size) if tr is None else tr.mapped_call("residuals", t.size)
     pos, vel, acc = (np.array(r) for r in fn(inv.X(t), servo.reference_samples(reference, t), theta))
     nl, k = servo.layout.l, tm.size
     out = {}

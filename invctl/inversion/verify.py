@@ -31,15 +31,26 @@ output is constrained), so one window covers the whole check.
 from __future__ import annotations
 
 import math
-from functools import lru_cache
+from collections import OrderedDict
 
 import casadi as ca
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from ..analysis.auxiliary import cached
+from .servo import remember
 
-@lru_cache(maxsize=16)
+#: integrators kept per model (one per output grid, the most recently used ones)
+INTEGRATORS_KEPT = 32
+
+
 def _forward_functions(model, alpha: float):
+    """The forward ODE's right-hand side, Jacobian and output (kept by the model: they depend on its symbols
+    only)."""
+    return cached(model, ("forward_functions", float(alpha)), lambda: _make_forward_functions(model, alpha))
+
+
+def _make_forward_functions(model, alpha: float):
     l = model.ell  # noqa: E741
     q, v = model.q, model.v
     u = ca.SX.sym("u", model.m)
@@ -64,8 +75,14 @@ def unstable_rate(model, inverse, t: float) -> float:
     return float(max(0.0, np.max(np.linalg.eigvals(A).real)))
 
 
-@lru_cache(maxsize=32)
 def _integrator(model, alpha: float, degree: int, t0: float, grid: tuple, rtol: float, atol: float):
+    """The CVODES integrator of one window (kept by the model, the most recent :data:`INTEGRATORS_KEPT`)."""
+    memo = cached(model, ("forward_integrators",), OrderedDict)
+    return remember(memo, (alpha, degree, t0, grid, rtol, atol),
+                    lambda: _make_integrator(model, alpha, degree, t0, grid, rtol, atol), INTEGRATORS_KEPT)
+
+
+def _make_integrator(model, alpha: float, degree: int, t0: float, grid: tuple, rtol: float, atol: float):
     rhs, _jac, _out = _forward_functions(model, alpha)
     x = ca.SX.sym("x", 2 * model.n)
     t, a, h = ca.SX.sym("t"), ca.SX.sym("a"), ca.SX.sym("h")

@@ -141,6 +141,9 @@ class Model:
         self.u_names = list(u_names) if u_names else [f"u{i + 1}" for i in range(self.m)]
         self.y_names = list(y_names) if y_names else [f"y{i + 1}" for i in range(self.h.shape[0])]
         self._functions: dict[str, ca.Function] = {}
+        # objects derived from the symbols (analysis, inversion: invctl.analysis.auxiliary.cache_of), made here
+        # so that with_params copies, which share the symbols, share them
+        self._analysis_cache: dict = {}
         self._check_dimensions()
         if validate:
             self.validate()
