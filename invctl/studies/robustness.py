@@ -15,44 +15,91 @@ heat map.  Scenes are passed by name or path (workers load them themselves).
   penetration, the largest Lyapunov increase at impacts (must not be positive, 000 Prop. 2), the
   final regulation error.
 
-Workers build their scene objects once per process (module-level caches), so a point costs one
-simulation, not one build.
+What the points of a sweep share (the scene, a tracking scene's inverse and funnel design) is built once by
+each process that runs points and kept by the sweep's :class:`Study` (no module state): a process pool gets
+one chunk of points per worker, so a point costs one simulation, not one build.
 """
 from __future__ import annotations
 
-import functools
 from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ParameterError, RunInterrupted
 from ..plot import finish
 from ..scenes import load_scene, scene_reference
-from .sweep import SweepResult, grid, sweep
+from .sweep import SweepResult, _call, executor_slots, grid, sweep
 from .workflow import scene_of_kind
 
-_CACHE: dict[Any, Any] = {}
+
+class Study:
+    """One sweep's point function ``point(scene=..., study=self, **fixed, **values)`` with what its points share,
+    built on first use and kept here (:meth:`kept`).  Pickled without it: a worker builds its own, once per
+    chunk of points (:func:`_run_chunk`)."""
+
+    def __init__(self, point, scene_ref: str, fixed: dict):
+        self.point, self.scene_ref, self.fixed = point, scene_ref, dict(fixed)
+        self._made: dict[Any, Any] = {}
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_made": {}}
+
+    def kept(self, key, build):
+        """``build()``, once per key."""
+        if key not in self._made:
+            self._made[key] = build()
+        return self._made[key]
+
+    def scene(self):
+        return self.kept(("scene",), lambda: load_scene(self.scene_ref))
+
+    def __call__(self, **values) -> dict:
+        return self.point(scene=self.scene_ref, study=self, **self.fixed, **values)
 
 
-def _cached(key, build):
-    if key not in _CACHE:
-        _CACHE[key] = build()
-    return _CACHE[key]
+def _study(study: Study | None, scene: str) -> Study:
+    """``study``, or one for a point called on its own."""
+    return Study(None, scene, {}) if study is None else study
 
 
-def _scene(ref):
-    return _cached(("scene", ref), lambda: load_scene(ref))
+def _run_chunk(*, study: Study, points: list) -> dict:
+    """The points of one chunk (in a worker), each failed point with its error."""
+    out = [_call(study, p) for p in points]
+    return {"values": [v for v, _ in out], "errors": [e for _, e in out]}
 
 
 def _run_sweep(point, sc, grids: dict, run: tuple, label: str, meta: dict, **fixed) -> SweepResult:
     """``point(scene=..., **fixed, **values)`` over the grid of ``grids`` (``run``: executor, max_workers,
-    progress), workers loading scene ``sc`` by its reference."""
-    fn = functools.partial(point, scene=scene_reference(sc), **fixed)
+    progress), workers loading scene ``sc`` by its reference.  In this process all points run on one
+    :class:`Study`; on an executor each worker gets one chunk of points (interleaved) and one study."""
+    study = Study(point, scene_reference(sc), fixed)
     executor, max_workers, progress = run
-    res = sweep(fn, grid(**{k: list(v) for k, v in grids.items()}), executor=executor, max_workers=max_workers,
-                progress=progress, label=f"{sc.name} {label}")
+    pts, shape = grid(**{k: list(v) for k, v in grids.items()})
+    slots = executor_slots(executor, max_workers)
+    label = f"{sc.name} {label}"
+    if executor == "serial" or (executor is None and slots <= 1) or len(pts) <= 1:
+        res = sweep(study, (pts, shape), executor="serial", progress=progress, label=label)
+    else:
+        k = min(len(pts), slots)
+        chunks = [list(range(i, len(pts), k)) for i in range(k)]
+        jobs = [{"study": study, "points": [pts[i] for i in c]} for c in chunks]
+        try:
+            res = _points_of(sweep(_run_chunk, jobs, executor=executor, max_workers=max_workers, progress=progress,
+                                   label=f"{label} ({k} chunks of points)"), chunks, pts, shape)
+        except RunInterrupted as exc:
+            raise RunInterrupted(str(exc), partial=_points_of(exc.partial, chunks, pts, shape)) from None
     res.meta.update({"scene": sc.name, **meta})
     return res
+
+
+def _points_of(res: SweepResult, chunks: list, pts: list, shape: tuple) -> SweepResult:
+    """The sweep of chunks ``res`` as the sweep of the points (a chunk that did not run: its error for each point)."""
+    values: list = [None] * len(pts)
+    errors: list = [None] * len(pts)
+    for c, v, e in zip(chunks, res.values, res.errors):
+        for j, i in enumerate(c):
+            values[i], errors[i] = (v["values"][j], v["errors"][j]) if v is not None else (None, e)
+    return SweepResult(pts, values, errors, shape, res.wall_s, dict(res.meta))
 
 
 def _known(names, known, what: str) -> None:
@@ -68,17 +115,20 @@ def _two(grids: dict, what: str):
 
 
 # ------------------------------------------------------------------- funnel
-def _tracking_setup(scene_ref: str, controller: str, t_end, params: tuple):
+def _tracking_setup(study: Study, controller: str, t_end, params: tuple):
     from .tracking import NEEDS_INVERSE, setup_tracking
 
-    return setup_tracking(_scene(scene_ref), dict(params), invert=controller in NEEDS_INVERSE, t_end=t_end,
+    return setup_tracking(study.scene(), dict(params), invert=controller in NEEDS_INVERSE, t_end=t_end,
                           plant_factors={})
 
 
-def mismatch_point(*, scene: str, controller: str = "C1", t_end=None, params=(), **factors) -> dict:
-    """One closed-loop run of ``scene`` with the plant's parameters scaled by ``factors``."""
-    setup = _cached(("tracking", scene, controller, t_end, tuple(params)),
-                    lambda: _tracking_setup(scene, controller, t_end, tuple(params)))
+def mismatch_point(*, scene: str, controller: str = "C1", t_end=None, params=(), study: Study | None = None,
+                   **factors) -> dict:
+    """One closed-loop run of ``scene`` with the plant's parameters scaled by ``factors`` (``study``: where the
+    inverse and funnel design the points share are kept)."""
+    study = _study(study, scene)
+    setup = study.kept(("tracking", controller, t_end, tuple(params)),
+                       lambda: _tracking_setup(study, controller, t_end, tuple(params)))
     plant = setup.model.scaled(**factors)
     from .tracking import equilibrium_configuration
 
@@ -111,11 +161,12 @@ def plant_mismatch(scene: str, *, controller: str = "C1", t_end=None, params=Non
 
 
 # ------------------------------------------------------------ switched (002)
-def lambda_map_point(*, scene: str, params=(), **values) -> dict:
+def lambda_map_point(*, scene: str, params=(), study: Study | None = None, **values) -> dict:
     """Lambda of a switched scene at parameter ``values`` by the closed form and the numerical return map."""
     from .switched import lambda_point
 
-    p = _cached(("switched", scene, tuple(params)), lambda: dict(_scene(scene).model(dict(params)).params))
+    study = _study(study, scene)
+    p = study.kept(("switched", tuple(params)), lambda: dict(study.scene().model(dict(params)).params))
     p = {**p, **{k: float(v) for k, v in values.items()}}
     closed = lambda_point(p, method="closed")
     out = {"visible": float(closed.visible), "guas": float(closed.guas)}
@@ -142,11 +193,11 @@ def switched_lambda_map(scene: str, *, params=None, executor=None, max_workers: 
 
 
 # ----------------------------------------------------------------- contact
-def contact_point(*, scene: str, controller=None, t_end=None, base=(), **values) -> dict:
+def contact_point(*, scene: str, controller=None, t_end=None, base=(), study: Study | None = None, **values) -> dict:
     """One run of a contact scene with parameters/settings ``values`` (on top of ``base``)."""
     from .contact import contact_setup, law_report, run_contact
 
-    sc = _scene(scene)
+    sc = _study(study, scene).scene()
     params, settings = sc.split({**dict(base), **values})
     run = run_contact(contact_setup(sc, params, settings, controller=controller), t_end=t_end, progress=False)
     from ..stability.lyapunov import lyapunov_report
