@@ -38,16 +38,17 @@ def manipulator():
     return scene.build()
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def model():
     """The manipulator on its ``guess`` parameter set (the held-solver tests' model; m3 = 0.5, c = 5), one per test
-    module (a module's own ``model`` fixture takes precedence)."""
+    process, so the modules share what the inversion builds and keeps on it (a module's own ``model`` fixture takes
+    precedence)."""
     import invctl_scenes.manipulator as scene
 
     return scene.build(**scene.PRESETS["guess"])
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def ref(model):
     """The manipulator scene's reference for ``model``."""
     import invctl_scenes.manipulator as scene

@@ -13,11 +13,14 @@ from invctl.model import Model, ParamSet
 from invctl.reference import Reference, poly9_timing_law
 from invctl.studies.tracking import invert_tracking
 
+#: the scene's model at its defaults: one object, so the plan below and the fixtures share what the inversion keeps on it
+MODEL = scene.build()
+
+
 def _plan():
     from invctl.inversion import plan_inversion
 
-    m = scene.build()
-    return plan_inversion(m, scene.reference(m), q_guess=scene.initial_configuration(m))
+    return plan_inversion(MODEL, scene.reference(MODEL), q_guess=scene.initial_configuration(MODEL))
 
 
 #: the automatic setup of the scene's default transition: the selection every point of a library shares
@@ -26,7 +29,7 @@ PLAN = _plan()
 
 @pytest.fixture(scope="module")
 def model():
-    return scene.build()
+    return MODEL
 
 
 @pytest.fixture(scope="module")
