@@ -97,8 +97,11 @@ def test_library_over_parameters_and_durations_on_a_process_pool():
 
 def test_failed_points_are_reported_and_the_others_kept():
     # rf[1] = -1.05 lies outside the workspace |r_y| < L2/2 + L3 = 1: the scene's reference refuses it
+    from invctl.studies import library
+
     lib = generate("manipulator", {"rf[1]": [-0.9, -1.05, -0.85]}, executor="serial", N=60, verify="none",
                    progress=False)
+    assert library._STATE == {}  # the run's held solvers (and model) are not kept by the module after it
     assert lib.status == ["solved", "failed", "solved"]
     f = lib.failures
     assert len(f) == 1 and f[0]["index"] == 1 and "outside the reachable workspace" in f[0]["message"]

@@ -61,6 +61,9 @@ class _Context:
     compiled: bool | str = "auto"
 
 
+#: per process, the library being generated: a pool's workers are separate processes that receive each point as
+#: a pickled task, so the held solvers of a worker cannot travel with the tasks; the calling process drops its
+#: entry when the library is done (nothing outlives the run there), a worker keeps one library at a time
 _STATE: dict = {}
 
 
@@ -479,6 +482,8 @@ def _generate(scene, params, axes, shape, points, ref_kwargs, key, store, done, 
         if not is_interrupt(_exc):
             raise
         raise _interrupted(store, axes, points, done) from None
+    finally:
+        _STATE.pop(ctx.key, None)  # the held solvers of this library: not kept after it in this process
     solve_wall = time.perf_counter() - t_solve
     for i, rec in done.items():
         records.setdefault(i, rec)
