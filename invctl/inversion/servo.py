@@ -80,8 +80,8 @@ def remember(memo: OrderedDict, key, make, limit: int):
 class MapMemo:
     """``fn.map(k)`` and maps called through buffers, memoized per function object while it is alive (an
     entry holds it), the least recently used ones evicted past :data:`MAPS_KEPT` / :data:`BUFFERED_KEPT`
-    entries (building a map costs ~0.4 ms, more than evaluating it on a mesh of a few hundred nodes).  Kept by
-    the object whose functions it maps (a :class:`ServoModel`, a transcription)."""
+    entries (building a map costs ~0.4 ms, more than evaluating it on a mesh of a few hundred nodes).  A
+    :class:`ServoModel` keeps one for its functions, its transcriptions' and the references it samples."""
 
     def __init__(self, maps_kept: int = MAPS_KEPT, buffered_kept: int = BUFFERED_KEPT):
         self.maps_kept, self.buffered_kept = maps_kept, buffered_kept
