@@ -6,7 +6,8 @@ A run streams its steps chunk by chunk out of the compiled loop; the
 steps (impacts and changes of the active or loaded set), never all steps.
 Statistics that need every step (smallest gap, largest increase of the
 energy and of ``V``, impacts, rest time) are accumulated inside the compiled
-loop and are exact whatever is recorded (see ``ContactTrajectory.stats``).
+loop and are exact whatever is recorded (see ``ContactTrajectory.stats``; those the
+run monitors, ``stats["monitor"]``).
 """
 from __future__ import annotations
 

@@ -26,7 +26,7 @@ Bilateral constraints ``g(q) = 0`` are enforced at velocity level
 The time loop is compiled: the step is a CasADi Function of the loop state
 (q, v, t, the values at the state and the exact running statistics: smallest
 gaps, largest energy/V increase, rest time, impact and active-set change
-counts) and of the run's numbers (model parameters, gains, h, theta,
+counts; those not in ``monitor`` carried unchanged) and of the run's numbers (model parameters, gains, h, theta,
 tolerances), an input held constant over the loop.  With a C compiler
 (``backend="auto"``) a small C driver loop runs the steps: the purely
 parametric part of the step is computed once per call, each step runs the
