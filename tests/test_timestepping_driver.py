@@ -219,6 +219,7 @@ def test_reduced_monitor_equals_the_vm_and_the_full_run(prism_pair, monitor):
     full_vm, full_c = prism_pair
     vm, c = (MoreauJean(full_c.model, full_c.law, backend=k, chunk=512, monitor=monitor) for k in ("vm", "c"))
     assert all(f.n_instructions() < g.n_instructions() for f, g in zip(c._variants, full_c._variants))
+    assert "#define MJ_LOCAL_LOOPS 1" in _driver_code(c)  # the unrecorded steps still run in the local loops
     unmonitored = {"dE_max", "dV_max", "dV_max_impact", "dV_max_smooth", "rest_last_bad", "n_changes",
                    "lcp_res_max", "P_sum"} - ({"dE_max", "dV_max", "dV_max_impact", "dV_max_smooth", "n_changes"}
                                               if "energy" in monitor else set())
