@@ -425,7 +425,10 @@ def test_unmonitored_statistics_are_absent_and_asked_for_clearly(ball):
     assert dec.stats["monitor"] == ("gaps",) and full.stats["n_impacts"] >= 5
     assert not {"dE_max", "dV_max", "rest_last_bad", "n_impacts"} & set(dec.stats)
     np.testing.assert_array_equal(dec.stats["gap_min"], full.stats["gap_min"])
-    for ask in (lambda t: t.max_energy_increase, lambda t: t.max_V_increase, lambda t: t.rest_time(0)):
+    from invctl.stability.lyapunov import lyapunov_report
+
+    for ask in (lambda t: t.max_energy_increase, lambda t: t.max_V_increase, lambda t: t.rest_time(0),
+                lyapunov_report):
         with pytest.raises(RecordingError, match=r"did not monitor .*monitor=\(\.\.\., '(energy|lyapunov|rest)'\)"):
             ask(dec)
     every = mj.run([1.0], [0.0], 5.0, 1e-3)

@@ -46,6 +46,7 @@ def lyapunov_report(tr) -> LyapunovReport:
     """Jumps of ``tr.V`` at the impact steps of a :class:`ContactTrajectory` (for decimated or event
     records from the run's exact accumulators, which see every step)."""
     if not getattr(tr, "complete", True):
+        tr.max_V_increase  # a run that did not monitor V: RecordingError naming the option (not a KeyError)
         st = tr.stats
         jumps = np.asarray(st.get("impact_dV", np.zeros(0)), float)
         return LyapunovReport(max(0.0, float(st["dV_max"])), max(0.0, float(st["dV_max_impact"])),
