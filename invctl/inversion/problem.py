@@ -81,7 +81,8 @@ def use_cached_pieces(model, discretization) -> None:
             discretization.compiled == "auto" and servo.layout.nx > NUMERIC_SOLVES_NX):
         return
     key = compiled_key(servo, get_scheme(discretization.scheme))
-    servo.use_compiled(servo.disk_piece("servo_rhs_jac", key), servo.disk_piece("servo_residuals", key))
+    servo.use_compiled(*(servo.disk_piece(name, key) for name in ("servo_rhs_jac", "servo_residuals", "servo_Az",
+                                                                  "servo_constraint_jac")))
 
 
 def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest_start: bool = False,
