@@ -117,10 +117,10 @@ def test_pieces_in_the_disk_cache_are_loaded_without_building_their_sx_functions
     assert np.array_equal(g, g0) and abs(J - J0).max() <= 1e-14 * abs(J0).max()
 
 
-def test_a_first_solve_with_the_pieces_on_disk_builds_no_sx_jacobian_or_residuals(monkeypatch):
-    """The plan linearizes and the quasi-static path is checked through the pieces the disk cache has (as the
-    transcription then solves with them): a first solve builds neither the SX right-hand side Jacobian nor
-    the residuals, and equals the solve in CasADi's virtual machine."""
+def test_a_first_solve_with_the_pieces_on_disk_builds_no_sx_function_of_the_model(monkeypatch):
+    """The plan linearizes and the quasi-static path is checked and solved through the pieces the disk cache has
+    (as the transcription then solves with them): with all of them there, a first solve builds no SX function of
+    the model (not even its symbolic right-hand side), and equals the solve in CasADi's virtual machine."""
     import invctl_scenes.manipulator as scene
     from invctl.inversion import cache, collocation, compiled, invert
     from invctl.inversion.boundary import resolve_selection
@@ -133,14 +133,16 @@ def test_a_first_solve_with_the_pieces_on_disk_builds_no_sx_jacobian_or_residual
     other = servo_mod.ServoModel(model, "baumgarte", 10.0)  # stand-ins for the compiled pieces
     hs = get_scheme("hermite-simpson")
     sel = resolve_selection(other, vm.diagnostics["plan"]["start"], vm.diagnostics["plan"]["end"])
-    on_disk = {"servo_rhs_jac": other.rhs_jac, "servo_residuals": other.residuals,
-               hs.block_name: collocation.Transcription(other, sel, hs, 20).block_function()}
+    on_disk = {"servo_rhs_jac": other.rhs_jac, "servo_residuals": other.residuals, "servo_rhs": other.rhs,
+               "servo_Az": other.decoupling, "servo_constraint_jac": other.constraint_jacobian,
+               hs.block_name: collocation.Transcription(other, sel, hs, 20).block_function(),
+               hs.interval_name: collocation.Transcription(other, sel, hs, 20).interval_sx}
     monkeypatch.setattr(compiled, "load_cached", lambda name, key, flags=("-O2",): on_disk.get(name))
     monkeypatch.setattr(compiled, "compile_in_background", lambda *a, **k: None)
     model = scene.build()  # a fresh model object: a fresh servo model and transcription
     inv = invert(model, ref, compiled="auto", **kw)
     fresh = cache.servo_model(model)
-    assert "rhs_jac" not in fresh.__dict__ and "residuals" not in fresh.__dict__
+    assert "_sym" not in fresh.__dict__  # no SX function of the model at all: every piece came from the disk
     assert set(inv.diagnostics["compiled_pieces"]) == set(on_disk)
     assert np.array_equal(inv.t_mesh, vm.t_mesh)
     assert np.max(np.abs(inv.X_mesh - vm.X_mesh)) <= 1e-10 * np.max(np.abs(vm.X_mesh))

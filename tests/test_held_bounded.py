@@ -205,6 +205,52 @@ def test_ocp_pieces_compile_in_the_background_after_the_solve(model, monkeypatch
     assert tr.upgradable()
 
 
+def test_exact_hessian_pieces_compile_in_the_background_once_asked_for(model, monkeypatch):
+    """hessian="exact" (minimum time's default) on compiled="auto": the structured Hessian's pieces missing from
+    the disk cache run in the virtual machine and compile in the background after that solve; once cached the
+    transcription is upgradable, and the Hessian assembled from the compiled pieces (numeric functions without
+    derivatives here) equals the virtual machine's."""
+    from invctl.inversion import collocation, compiled
+    from invctl.inversion.boundary import Selection
+    from invctl.inversion.cache import servo_model
+    from invctl.inversion.schemes import get_scheme
+
+    cached, started, keep = set(), [], []
+    monkeypatch.setattr(compiled, "is_cached", lambda f, *a, **k: f.name() in cached)
+    monkeypatch.setattr(compiled, "compile_in_background", lambda fns, *a, **k: started.append([f.name() for f in fns]))
+    monkeypatch.setattr(ocp, "_compile", lambda f: keep.append(_NoDerivatives(f)) or keep[-1])
+    sv = servo_model(model)
+    nx = sv.layout.nx
+    sel = Selection(tuple(i for i in range(nx) if i != 8), (9,), tuple(str(i) for i in range(nx)))
+
+    def build():
+        return ocp.OCPTranscription(sv, sel, get_scheme("hermite-simpson"), 4, relaxed=True, free_time=True,
+                                    bounded=(13,), compiled="auto")
+
+    build()
+    collocation.start_deferred_compiles()
+    cached.update(started.pop())  # the first solve's pieces are on disk now
+    tr = build()
+    assert tr.compiled and not tr.upgradable() and tr not in collocation.DEFERRED
+    h_vm = ocp.structured_hessian(tr)
+    assert tr in collocation.DEFERRED and started == []  # not while the solve that asked for it runs
+    collocation.start_deferred_compiles()
+    names = started.pop()
+    assert len(names) == 3 and "ocp_point_hess" in names
+    assert not tr.upgradable()
+    cached.update(names)
+    assert tr.upgradable()
+    n_numeric = len(keep)
+    h_c = ocp.structured_hessian(tr)
+    assert len(keep) == n_numeric + 3  # the three pieces loaded as compiled functions
+    rng = np.random.default_rng(2)
+    x, p, lam_g = rng.standard_normal(tr.nX), rng.random(tr.np), rng.standard_normal(tr.ng)
+    x[tr.i_tau], p[tr._p_slices["tau_ref"]] = 1.2, 1.0
+    H1, H2 = np.array(h_vm(x, p, 0.7, lam_g)), np.array(h_c(x, p, 0.7, lam_g))
+    assert np.max(np.abs(H1)) > 0
+    assert np.max(np.abs(H2 - H1)) <= 1e-13 * np.max(np.abs(H1))
+
+
 @pytest.mark.parametrize("scheme", ["hermite-simpson", "legendre3"])
 def test_extrema_of_all_intervals_at_once_equal_np_roots_per_interval(model, ref, q0, scheme):
     """:meth:`Inverse.extrema` (the bounds checks between the nodes) finds every interval's roots at once;

@@ -35,7 +35,7 @@ def test_background_compile_starts_after_the_first_solve(model, ref, tmp_path, m
     monkeypatch.setattr(compiled, "compile_in_background", lambda fns, **kw: events.append(("compile", len(fns))))
     solver = InversionSolver(model, ref, N=20, backend="newton", compiled="auto")
     solver.solve()
-    assert events == ["solve", "solved", ("compile", 5)]  # all five pieces missing, compiled once solved
+    assert events == ["solve", "solved", ("compile", 7)]  # all seven pieces missing, compiled once solved
     solver.solve(m3=0.55)
     assert events[3:] == ["solve", "solved"]  # started once
 

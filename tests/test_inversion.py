@@ -306,6 +306,33 @@ def test_paper_selection_is_rank_deficient_in_the_stabilized_formulation(model, 
         invert_tracking(scene.SCENE, model, ref, N=40, backend="newton", **scene.BOUNDARY_PAPER)
 
 
+def test_dichotomy_eigenvalues_from_its_schur_forms_equal_lapack_eigvals(model, ref):
+    # the check reads the spectra off the ordered real Schur forms it needs anyway; against an
+    # independent general eigensolver (LAPACK dgeev) on the manipulator's ends and on random
+    # matrices with complex pairs
+    import scipy.linalg as sla
+
+    from invctl.inversion import dichotomy
+    from invctl.inversion.boundary import _schur_eigenvalues, tangent_dynamics
+
+    def same(a, b):
+        return np.allclose(np.sort_complex(np.round(a, 9)), np.sort_complex(np.round(b, 9)), atol=1e-9)
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 5, 14):
+        A = rng.standard_normal((n, n))
+        assert same(_schur_eigenvalues(sla.schur(A, output="real")[0]), np.linalg.eigvals(A))
+    sv = servo_model(model)
+    inv = invert_tracking(scene.SCENE, model, ref, N=40, backend="newton")
+    Y = sv.reference_samples(ref, np.array([inv.T0, inv.Tf]))
+    E0, Ef = inv.X(inv.T0)[:, 0], inv.X(inv.Tf)[:, 0]
+    d = dichotomy(sv, resolve_selection(sv, scene.BOUNDARY["start"], scene.BOUNDARY["end"]), E0, Y[:, :1], Ef,
+                  Y[:, 1:], model.theta_values)
+    for ev, X, Yk in ((d["eigenvalues_start"], E0, Y[:, :1]), (d["eigenvalues_end"], Ef, Y[:, 1:])):
+        assert same(ev, np.linalg.eigvals(tangent_dynamics(sv, X, Yk, model.theta_values)[0]))
+    assert d["decaying"] == int(np.sum(d["eigenvalues_start"].real < -1e-3))
+
+
 @pytest.mark.parametrize("scheme,N", [("hermite-simpson", 40), ("legendre3", 12), ("radau2", 16)])
 def test_compiled_evaluators_match_numpy_assembly(model, ref, inv160, scheme, N):
     # the Newton backend's buffered CasADi residual/Jacobian against the independent numpy assembly

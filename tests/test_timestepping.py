@@ -12,9 +12,10 @@ from hypothesis import given, settings, strategies as st
 import invctl_scenes.bouncing_ball as bb
 import invctl_scenes.prismatic_clearance as prism
 from invctl.control.pdplus import pd_gravity
+from invctl.errors import ParameterError, RecordingError
 from invctl.model import Gap, Model, ParamSet
 from invctl.simulate.event_driven import simulate_event_driven
-from invctl.simulate.timestepping import MoreauJean, c_compiler
+from invctl.simulate.timestepping import MONITORS, MoreauJean, c_compiler
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -411,3 +412,33 @@ def test_active_set_changes_counted_in_the_loop_equal_the_record(ball):
     act, load = np.hstack([zero, tr.active]), np.hstack([zero, tr.P > 0])
     changed = np.any(act[:, 1:] != act[:, :-1], axis=0) | np.any(load[:, 1:] != load[:, :-1], axis=0)
     assert tr.stats["n_changes"] == int(changed.sum()) > tr.stats["n_impacts"] > 10
+
+
+def test_unmonitored_statistics_are_absent_and_asked_for_clearly(ball):
+    """A run monitoring only the smallest gaps: its decimated record refuses the energy and V increases and
+    the rest time with a RecordingError naming the option (no stale value), its complete record gives them
+    from the rows, equal to the accumulators of the run monitoring everything; the gap statistic equals it."""
+    m = ball.model
+    mj = MoreauJean(m, potential=bb.potential(m), backend="vm", monitor=("gaps",))
+    full = ball.run([1.0], [0.0], 5.0, 1e-3, record_every=100)
+    dec = mj.run([1.0], [0.0], 5.0, 1e-3, record_every=100)
+    assert dec.stats["monitor"] == ("gaps",) and full.stats["n_impacts"] >= 5
+    assert not {"dE_max", "dV_max", "rest_last_bad", "n_impacts"} & set(dec.stats)
+    np.testing.assert_array_equal(dec.stats["gap_min"], full.stats["gap_min"])
+    from invctl.stability.lyapunov import lyapunov_report
+
+    for ask in (lambda t: t.max_energy_increase, lambda t: t.max_V_increase, lambda t: t.rest_time(0),
+                lyapunov_report):
+        with pytest.raises(RecordingError, match=r"did not monitor .*monitor=\(\.\.\., '(energy|lyapunov|rest)'\)"):
+            ask(dec)
+    every = mj.run([1.0], [0.0], 5.0, 1e-3)
+    assert every.max_energy_increase == full.max_energy_increase and every.max_V_increase == full.max_V_increase
+    assert every.rest_time(0) == full.rest_time(0) < 5.0
+    np.testing.assert_array_equal(every.impacts()[0], full.impacts()[0])
+
+
+@pytest.mark.parametrize("bad", [("gaps", "energie"), "Energy", 3, ("gaps", None)])
+def test_bad_monitor_names_are_refused_with_the_valid_ones(ball, bad):
+    with pytest.raises(ParameterError, match="monitor: unknown") as ei:
+        MoreauJean(ball.model, monitor=bad)
+    assert all(repr(k) in str(ei.value) for k in MONITORS)

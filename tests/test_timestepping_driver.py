@@ -204,3 +204,31 @@ def test_unconverged_lcp_steps_in_the_driver():
     part, k = ei.value.partial, ei.value.diagnostics["step"]
     assert part.stats["steps"] == k and part.q.shape[1] == k + 1
     np.testing.assert_allclose(part.q, Q[:, :k + 1], atol=1e-12)
+
+
+#: the running statistics the benchmark's numba kernel keeps, and a smaller choice
+_MONITORS = [("gaps", "impacts", "energy", "lyapunov", "active_set"), ("gaps", "impacts")]
+
+
+@pytest.mark.parametrize("monitor", _MONITORS)
+def test_reduced_monitor_equals_the_vm_and_the_full_run(prism_pair, monitor):
+    """A run monitoring fewer statistics: its compiled step variants are shorter, its C run equals its
+    VM run to the last bit, and its records (E and V included: computed at the recorded state instead
+    of carried), impact table and monitored statistics equal those of the run monitoring everything to
+    the last bit; the unmonitored statistics are absent."""
+    full_vm, full_c = prism_pair
+    vm, c = (MoreauJean(full_c.model, full_c.law, backend=k, chunk=512, monitor=monitor) for k in ("vm", "c"))
+    assert all(f.n_instructions() < g.n_instructions() for f, g in zip(c._variants, full_c._variants))
+    assert "#define MJ_LOCAL_LOOPS 1" in _driver_code(c)  # the unrecorded steps still run in the local loops
+    unmonitored = {"dE_max", "dV_max", "dV_max_impact", "dV_max_smooth", "rest_last_bad", "n_changes",
+                   "lcp_res_max", "P_sum"} - ({"dE_max", "dV_max", "dV_max_impact", "dV_max_smooth", "n_changes"}
+                                              if "energy" in monitor else set())
+    for record, every in (("events", 50), ("steps", 1000)):
+        a = vm.run(Q0, V0, 0.3, 1e-4, record=record, record_every=every)
+        b = c.run(Q0, V0, 0.3, 1e-4, record=record, record_every=every)
+        _same_run(a, b)
+        assert b.stats["monitor"] == monitor and b.stats["n_impacts"] >= 3
+        f = full_c.run(Q0, V0, 0.3, 1e-4, record=record, record_every=every)
+        assert set(f.stats) - set(b.stats) == unmonitored
+        b.stats["monitor"] = f.stats["monitor"]
+        _same_run(b, f)

@@ -195,13 +195,15 @@ def dichotomy(servo, selection: Selection, X0, Y0, Xf, Yf, theta, *, neutral: fl
     Sf = np.eye(nx)[list(selection.end)]
     A0, _T0, AT0 = tangent_dynamics(servo, X0, Y0, theta)
     Af, T, ATf = tangent_dynamics(servo, Xf, Yf, theta)
-    (ev0, it0), (evf, itf) = tangent_spectra(servo, X0, Y0, theta), tangent_spectra(servo, Xf, Yf, theta)
-    dec, grow = int(np.sum(ev0.real < -neutral)), int(np.sum(evf.real > neutral))
+    # one ordered real Schur form per end: its invariant subspace and the eigenvalues of its blocks
+    S0_, Zs, dec = sla.schur(A0, output="real", sort=lambda re, im: re < -neutral)
+    Sf_, Zu, grow = sla.schur(Af, output="real", sort=lambda re, im: re > neutral)
+    Zs, Zu = Zs[:, :dec], Zu[:, :grow]
+    ev0, evf = _schur_eigenvalues(S0_), _schur_eigenvalues(Sf_)
+    it0, itf = np.linalg.eigvals(AT0), np.linalg.eigvals(ATf)
     neut = int(max(np.sum(np.abs(ev0.real) <= neutral), np.sum(np.abs(evf.real) <= neutral)))
     neut_int = int(max(np.sum(np.abs(it0.real) <= neutral_tolerance(it0)),
                        np.sum(np.abs(itf.real) <= neutral_tolerance(itf))))
-    Zs = sla.schur(A0, output="real", sort=lambda re, im: re < -neutral)[1][:, :dec]
-    Zu = sla.schur(Af, output="real", sort=lambda re, im: re > neutral)[1][:, :grow]
 
     def rank(M):
         if M.size == 0:
@@ -216,6 +218,23 @@ def dichotomy(servo, selection: Selection, X0, Y0, Xf, Yf, theta, *, neutral: fl
     out["well_posed"] = None if neut else bool(
         out["n_start"] == dec and out["n_end"] == grow and out["rank_start"] == dec and out["rank_end"] == grow)
     return out
+
+
+def _schur_eigenvalues(S) -> np.ndarray:
+    """The eigenvalues of a real quasi-triangular Schur form (its 1x1 and 2x2 diagonal blocks)."""
+    n = S.shape[0]
+    ev = S.diagonal().astype(complex)
+    i = 0
+    while i < n - 1:
+        if S[i + 1, i] != 0.0:  # a 2x2 block of a complex pair
+            a, b, c, d = S[i, i], S[i, i + 1], S[i + 1, i], S[i + 1, i + 1]
+            m, det = 0.5 * (a + d), a * d - b * c
+            w = np.sqrt(complex(m * m - det))
+            ev[i], ev[i + 1] = m + w, m - w
+            i += 2
+        else:
+            i += 1
+    return ev
 
 
 def explain_no_dichotomy(eig_start, eig_end, where: str = "") -> str:

@@ -13,6 +13,7 @@ so its size does not grow with N.
 from __future__ import annotations
 
 import time
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
@@ -55,8 +56,6 @@ class Transcription:
         ntheta = servo.model.theta.shape[0]
         self.nx, self.m4, self.ntheta = nx, m4, ntheta
         N = self.N
-        rhs = servo.rhs
-        interval = scheme.bvp_interval(self, rhs, L.blocks["u"])
         self.n_col, self.nY = scheme.n_col(N), scheme.n_samples(N)
         if self._compile_request == "auto" and nx > NUMERIC_SOLVES_NX:
             self._compile_request = False  # large models: numeric solves, nothing to look up in the cache
@@ -68,9 +67,10 @@ class Transcription:
         self._key = cache_key
         if self._compile_request:
             # the pieces by name: one found in the disk cache is loaded without building its SX function
-            makers = {"servo_rhs": lambda: servo.rhs, interval.name(): lambda: interval,
+            makers = {"servo_rhs": lambda: servo.rhs, scheme.interval_name: lambda: self.interval_sx,
                       "servo_rhs_jac": lambda: servo.rhs_jac, scheme.block_name: self.block_function,
-                      "servo_residuals": lambda: servo.residuals}
+                      "servo_residuals": lambda: servo.residuals, "servo_Az": lambda: servo.decoupling,
+                      "servo_constraint_jac": lambda: servo.constraint_jacobian}
             for name in makers:
                 found = servo.disk_piece(name, cache_key) if cache_key is not None else None
                 if found is not None:
@@ -87,11 +87,12 @@ class Transcription:
             self._makers = makers
             self.compiled = len(have) == len(makers)
             # the plan's and the dichotomy check's linearizations, the quasi-static path's checks too
-            servo.use_compiled(*(self.piece(nm) if nm in have else None for nm in ("servo_rhs_jac", "servo_residuals")))
+            servo.use_compiled(*(self.piece(nm) if nm in have else None
+                                 for nm in ("servo_rhs_jac", "servo_residuals", "servo_Az", "servo_constraint_jac")))
             self.compiled_pieces = tuple(name for name in makers if name in have)
-        self.interval_sx = interval  # the SX form (parameter derivatives, sensitivity.py)
-        self.interval = interval = self._c(interval)
-        rhs = self._c(rhs)
+        # compiled pieces found on disk are loaded by name: no SX function of the model is built for them
+        self.interval = interval = self.piece(scheme.interval_name, lambda: self.interval_sx)
+        rhs = self.piece("servo_rhs", lambda: servo.rhs)
         self.nX = nx * (N + 1) + nx * self.n_col
         self.np = N + m4 * self.nY + ntheta + 2 * nx
         x = ca.MX.sym("x", self.nX)
@@ -110,9 +111,10 @@ class Transcription:
         self._solvers: dict = {}
         self.build_s = time.perf_counter() - t_build
 
-    def _c(self, f: ca.Function) -> ca.Function:
-        """The compiled equivalent of the piece ``f`` when this transcription evaluates it in C, else ``f``."""
-        return self.piece(f.name(), lambda: f)
+    @cached_property
+    def interval_sx(self) -> ca.Function:
+        """One interval's defect and energy, the SX form (the parameter derivatives of sensitivity.py)."""
+        return self.scheme.bvp_interval(self, self.servo.rhs, self.servo.layout.blocks["u"])
 
     def piece(self, name: str, make=None) -> ca.Function:
         """The piece called ``name`` (``servo_rhs``, ``servo_rhs_jac``, ``servo_residuals``, the interval or the

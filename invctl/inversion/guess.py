@@ -67,7 +67,7 @@ def quasi_static_guess(model, reference, times, q0=None, *, servo=None, where: s
     Y = servo.reference_samples(reference, times)
     th = model.theta_values
     _pos, _vel, acc = servo.maps.buffered_map(servo.evaluator("residuals"), times.size, once=(2,))(X, Y, th)
-    Az = servo.maps.buffered_map(servo.decoupling, times.size, once=(2,))(X, Y, th)[0].reshape(
+    Az = servo.maps.buffered_map(servo.evaluator("decoupling"), times.size, once=(2,))(X, Y, th)[0].reshape(
         l + p + m, l + p + m, times.size, order="F")
     check_decoupling(model, Az, times, Q, maps=servo.maps)
     Z = np.linalg.solve(Az.transpose(2, 0, 1), -acc.T[:, :, None])[:, :, 0].T

@@ -295,6 +295,8 @@ class OCPTranscription:
         self.compiled = self._compile_request is True or (self._compile_request == "auto" and _all_cached(pieces))
         self._pending: tuple = ()
         self._compile_started = False
+        self._pending_hessian: tuple = ()
+        self._hessian_compile_started = False
         if self.compiled:
             pt_val, iv_val, pt_jac, iv_jac, gn_blk = (_compile(f) for f in pieces)
         elif self._compile_request == "auto":  # compiled in the background once the first solve has returned
@@ -445,21 +447,34 @@ class OCPTranscription:
         return self._plain_fg
 
     def start_background_compile(self) -> None:
-        """Start compiling the derivative pieces missing from the disk cache in the background (once)."""
-        if self._pending and not self._compile_started:
-            from .compiled import compile_in_background
+        """Start compiling the derivative pieces missing from the disk cache in the background (once per
+        group: the first solve's pieces, then the exact Hessian's once it is asked for)."""
+        from .compiled import compile_in_background
 
+        if self._pending and not self._compile_started:
             self._compile_started = True
             compile_in_background(list(self._pending))
+        if self._pending_hessian and not self._hessian_compile_started:
+            self._hessian_compile_started = True
+            compile_in_background(list(self._pending_hessian))
 
-    def upgradable(self) -> bool:
-        """Whether derivative pieces compiled in the background since this transcription was built are
-        now in the disk cache (a new transcription of the same structure would evaluate them in C)."""
-        if not self._pending:
-            return False
+    def defer_hessian(self, fns) -> None:
+        """Compile the exact Hessian's pieces ``fns`` missing from the disk cache in the background once the
+        solve that asked for them has returned (a later transcription of this structure evaluates them in C)."""
+        from .collocation import DEFERRED
         from .compiled import is_cached
 
-        return all(is_cached(f) for f in self._pending)
+        self._pending_hessian = tuple(f for f in fns if not is_cached(f))
+        if self._pending_hessian:
+            DEFERRED.append(self)
+
+    def upgradable(self) -> bool:
+        """Whether a group of pieces compiled in the background since this transcription was built (the first
+        solve's, or the exact Hessian's) is now in the disk cache: a new transcription of the same structure
+        would evaluate it in C."""
+        from .compiled import is_cached
+
+        return any(group and all(is_cached(f) for f in group) for group in (self._pending, self._pending_hessian))
 
     def residual(self, x, p) -> np.ndarray:
         """The objective residual ``R`` (``f = scale |R|^2 + ...``)."""
@@ -638,6 +653,8 @@ def structured_hessian(tr) -> ca.Function:
     hfuns = [pt_hess, iv_w, iv_h]
     if tr._compile_request is True or (tr._compile_request == "auto" and _all_cached(hfuns)):
         pt_hess, iv_w, iv_h = (_compile(fn) for fn in hfuns)
+    elif tr._compile_request == "auto":  # in the virtual machine now, compiled in the background after the solve
+        tr.defer_hessian(hfuns)
     # ---- MX assembly
     xs2, ps2 = ca.MX.sym("x", tr.nX), ca.MX.sym("p", tr.np)
     lf, lg = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", tr.ng)

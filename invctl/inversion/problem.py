@@ -53,10 +53,10 @@ def resolve_plan(model, reference, discretization, horizon):
     (computed here, or ``horizon.plan``)."""
     plan = horizon.plan
     T0, Tf, start, end = horizon.T0, horizon.Tf, horizon.start, horizon.end
+    use_cached_pieces(model, discretization)  # the plan's and the dichotomy check's linearizations
     if plan is None and (horizon.plan_options is not None or not horizon.complete):
         from .plan import plan_inversion
 
-        use_cached_pieces(model, discretization)
 
         plan = plan_inversion(model, reference, start=start, end=end, T0=T0, Tf=Tf,
                               formulation=discretization.formulation, omega=discretization.omega,
@@ -81,7 +81,8 @@ def use_cached_pieces(model, discretization) -> None:
             discretization.compiled == "auto" and servo.layout.nx > NUMERIC_SOLVES_NX):
         return
     key = compiled_key(servo, get_scheme(discretization.scheme))
-    servo.use_compiled(servo.disk_piece("servo_rhs_jac", key), servo.disk_piece("servo_residuals", key))
+    servo.use_compiled(*(servo.disk_piece(name, key) for name in ("servo_rhs_jac", "servo_residuals", "servo_Az",
+                                                                  "servo_constraint_jac")))
 
 
 def prepare(model, reference, discretization, horizon, *, T0=None, Tf=None, rest_start: bool = False,

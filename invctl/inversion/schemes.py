@@ -40,6 +40,7 @@ class Scheme:
 
     name: str
     block_name: str
+    interval_name: str  # the name of :meth:`bvp_interval`'s function (its compiled form is looked up by it)
     degree: int
     order: int
     tau: np.ndarray
@@ -99,6 +100,7 @@ class HermiteSimpson(Scheme):
 
     name, degree, order, stages, poly_degree = "hermite-simpson", 3, 4, 2, 3
     block_name = "hs_blocks"  # the block function's name (its compiled form is looked up by it)
+    interval_name = "hs_interval"
     tau = np.array([0.5, 1.0])
     interiors, tracking_interior, rates_between_nodes, buffered = ("hull", "points"), "points", True, True
 
@@ -159,7 +161,7 @@ class HermiteSimpson(Scheme):
         Fm = rhs(Xm, Ym, th)
         defect = Xb - Xa - hs / 6 * (Fa + 4 * Fm + Fb)
         energy = hs / 6 * (ca.sumsqr(Xa[ub]) + 4 * ca.sumsqr(Xm[ub]) + ca.sumsqr(Xb[ub]))
-        return ca.Function("hs_interval", [Xa, Xb, Fa, Fb, hs, Ym, th], [defect, energy],
+        return ca.Function(self.interval_name, [Xa, Xb, Fa, Fb, hs, Ym, th], [defect, energy],
                            ["Xa", "Xb", "Fa", "Fb", "h", "Ym", "theta"], ["defect", "energy"])
 
     def bvp_defects(self, tr, interval, rhs, x, Xmesh, h, Y, theta):
@@ -470,6 +472,7 @@ class Collocation(Scheme):
 
     kind = ""
     block_name = "coll_block"
+    interval_name = "coll_interval"
     interiors, tracking_interior, rates_between_nodes, buffered = (None, "hull", "points"), None, False, False
 
     def __init__(self, d: int):
@@ -529,7 +532,7 @@ class Collocation(Scheme):
         res = ca.mtimes(Xall, ca.DM(self.C)) - hs * Fc
         cont = Xk1 - ca.mtimes(Xall, ca.DM(self.D))
         energy = hs * sum(self.B[r + 1] * ca.sumsqr(Xc[ub, r]) for r in range(d))
-        return ca.Function("coll_interval", [Xk, Xc, Xk1, hs, Yc, th], [ca.vertcat(ca.vec(res), cont), energy],
+        return ca.Function(self.interval_name, [Xk, Xc, Xk1, hs, Yc, th], [ca.vertcat(ca.vec(res), cont), energy],
                            ["Xk", "Xc", "Xk1", "h", "Yc", "theta"], ["defect", "energy"])
 
     def bvp_defects(self, tr, interval, rhs, x, Xmesh, h, Y, theta):

@@ -369,26 +369,30 @@ class ServoModel:
         the plan and the dichotomy check at the equilibria); ``dF/dX`` by the compiled ``rhs_jac`` once a
         transcription has it (:meth:`use_compiled`)."""
         rj = self.__dict__.get("_compiled_rhs_jac")
+        cj = self.__dict__.get("_compiled_constraint_jacobian")
         made = self.__dict__.setdefault("_linearizations", {})
         if rj is not None:
             hit = made.get("compiled")
-            if hit is None or hit[0] is not rj:
-                made["compiled"] = hit = (rj, self._linearization(rj))
-            return hit[1]
+            if hit is None or hit[0] is not rj or hit[1] is not cj:
+                made["compiled"] = hit = (rj, cj, self._linearization(rj))
+            return hit[2]
         if "vm" not in made:
-            made["vm"] = (None, self._linearization(self.jacobian_evaluator))
-        return made["vm"][1]
+            made["vm"] = (None, None, self._linearization(self.jacobian_evaluator))
+        return made["vm"][2]
 
-    def use_compiled(self, rhs_jac: ca.Function | None = None, residuals: ca.Function | None = None) -> None:
-        """Evaluate :attr:`linearization` with ``rhs_jac``, the compiled equivalent of :attr:`rhs_jac`, and
-        :meth:`evaluator` ``("residuals")`` with ``residuals``, that of :attr:`residuals`."""
-        if rhs_jac is not None:
-            self.__dict__["_compiled_rhs_jac"] = rhs_jac
-        if residuals is not None:
-            self.__dict__["_compiled_residuals"] = residuals
+    def use_compiled(self, rhs_jac: ca.Function | None = None, residuals: ca.Function | None = None,
+                     decoupling: ca.Function | None = None, constraint_jacobian: ca.Function | None = None) -> None:
+        """Evaluate numerically with the compiled equivalents given (``None``: keep what is set): ``rhs_jac`` in
+        :attr:`linearization` with ``constraint_jacobian``, the others through :meth:`evaluator`.  With all of
+        them from the disk cache a first solve builds no SX function of the model."""
+        for name, fn in (("rhs_jac", rhs_jac), ("residuals", residuals), ("decoupling", decoupling),
+                         ("constraint_jacobian", constraint_jacobian)):
+            if fn is not None:
+                self.__dict__[f"_compiled_{name}"] = fn
 
     def evaluator(self, name: str) -> ca.Function:
-        """``residuals`` for numeric evaluation: its compiled equivalent once set (:meth:`use_compiled`)."""
+        """``residuals``, ``decoupling``, ``constraint_jacobian`` for numeric evaluation: the compiled equivalent
+        once set (:meth:`use_compiled`), else the SX function."""
         return self.__dict__.get(f"_compiled_{name}") or getattr(self, name)
 
     def disk_piece(self, name: str, key: str) -> ca.Function | None:
@@ -409,7 +413,8 @@ class ServoModel:
         X, Y, th = (ca.MX.sym(k, *s) for k, s in (("X", (self.layout.nx, 1)), ("Y", (4 * self.layout.m, 1)),
                                                    ("theta", self.model.theta.shape)))
         return Buffered(ca.Function("servo_linearization", [X, Y, th],
-                                    [ca.densify(jac(X, Y, th)[1]), ca.densify(self.constraint_jacobian(X, Y, th))]))
+                                    [ca.densify(jac(X, Y, th)[1]),
+                                     ca.densify(self.evaluator("constraint_jacobian")(X, Y, th))]))
 
     @cached_property
     def constraint_jacobian(self) -> ca.Function:
@@ -442,8 +447,19 @@ class ServoModel:
         rest at one and two transition lengths outside (different values, or a derivative not zero: a
         periodic signal has equal values there) is evaluated at every time."""
         t = np.atleast_1d(np.asarray(t, float))
-        t0, tf = reference.t0, reference.tf
         memo = self.__dict__.setdefault("_samples", {})
+        whole = ("times", id(reference), t.tobytes())
+        hit = memo.get(whole)
+        if hit is not None and hit[0] is reference:  # the same times again (a held re-solve): no probes
+            return hit[1].copy()
+        Y = self._reference_samples(reference, t, memo)
+        if len(memo) >= 16:
+            memo.pop(next(iter(memo)))
+        memo[whole] = (reference, Y)
+        return Y.copy()
+
+    def _reference_samples(self, reference, t, memo) -> np.ndarray:
+        t0, tf = reference.t0, reference.tf
 
         def sample(ts):
             key = (id(reference), ts.tobytes())

@@ -6,7 +6,8 @@ A run streams its steps chunk by chunk out of the compiled loop; the
 steps (impacts and changes of the active or loaded set), never all steps.
 Statistics that need every step (smallest gap, largest increase of the
 energy and of ``V``, impacts, rest time) are accumulated inside the compiled
-loop and are exact whatever is recorded (see ``ContactTrajectory.stats``).
+loop and are exact whatever is recorded (see ``ContactTrajectory.stats``; those the
+run monitors, ``stats["monitor"]``).
 """
 from __future__ import annotations
 
@@ -143,6 +144,20 @@ class ContactTrajectory(Animated):
                 "run statistics (impacts(), max_gap_violation, max_V_increase, stats['dV_max_impact'], ...) "
                 "or re-run with record_every=1")
 
+    def _monitored(self, key: str, name: str, what: str) -> bool:
+        """Whether ``stats[key]`` holds the run's accumulator; False when every step is recorded (the
+        records give it); raises :class:`RecordingError` for a reduced record of a run that did not
+        monitor ``name``."""
+        if key in self.stats:
+            return True
+        mon = self.stats.get("monitor")
+        if mon is None or name in list(mon) or self.complete:
+            return False
+        raise RecordingError(
+            f"{what} needs the running statistic {name!r}, which this run did not monitor (monitor="
+            f"{tuple(str(k) for k in mon)}) and its reduced record cannot give; re-run with "
+            f"MoreauJean(..., monitor=(..., {name!r})) (or monitor='all') or record_every=1")
+
     def impacts(self, contact: int | None = None):
         """Impact steps (see :meth:`impact_mask`); returns arrays
         ``(times, contact index, pre-impact normal velocity, post-impact
@@ -188,7 +203,7 @@ class ContactTrajectory(Animated):
     @property
     def max_gap_violation(self) -> float:
         """``max(0, -min gap)`` over every step of the run."""
-        if "gap_min" in self.stats:
+        if self._monitored("gap_min", "gaps", "max_gap_violation"):
             g = np.asarray(self.stats["gap_min"], float)
             return float(max(0.0, -g.min())) if g.size else 0.0
         return float(max(0.0, -self.gaps.min())) if self.gaps.size else 0.0
@@ -197,14 +212,14 @@ class ContactTrajectory(Animated):
     def max_V_increase(self) -> float:
         """Largest one-step increase of ``V`` over every step (should be <=
         round-off for dissipative laws, 000 (39)/(55))."""
-        if "dV_max" in self.stats:
+        if self._monitored("dV_max", "lyapunov", "max_V_increase"):
             return float(self.stats["dV_max"])
         return float(np.max(np.diff(self.V), initial=0.0))
 
     @property
     def max_energy_increase(self) -> float:
         """Largest one-step increase of the mechanical energy over every step."""
-        if "dE_max" in self.stats:
+        if self._monitored("dE_max", "energy", "max_energy_increase"):
             return float(self.stats["dE_max"])
         return float(np.max(np.diff(self.energy), initial=0.0))
 
@@ -216,6 +231,7 @@ class ContactTrajectory(Animated):
         knows the value its run accumulated with (``rest_vel_tol`` of ``run``).
         """
         if not self.complete:
+            self._monitored("rest_last_bad", "rest", "rest_time()")
             rtol = float(self.stats["rest_vel_tol"])
             if vel_tol is not None and float(vel_tol) != rtol:
                 raise RecordingError(f"rest_time(vel_tol={vel_tol}): this record accumulated the rest time with "

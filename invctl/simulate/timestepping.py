@@ -26,7 +26,7 @@ Bilateral constraints ``g(q) = 0`` are enforced at velocity level
 The time loop is compiled: the step is a CasADi Function of the loop state
 (q, v, t, the values at the state and the exact running statistics: smallest
 gaps, largest energy/V increase, rest time, impact and active-set change
-counts) and of the run's numbers (model parameters, gains, h, theta,
+counts; those not in ``monitor`` carried unchanged) and of the run's numbers (model parameters, gains, h, theta,
 tolerances), an input held constant over the loop.  With a C compiler
 (``backend="auto"``) a small C driver loop runs the steps: the purely
 parametric part of the step is computed once per call, each step runs the
@@ -65,6 +65,11 @@ DEFAULT_ACTIVATION_TOL = 1e-12
 #: instruction count of one fused loop iteration (VM) above which fewer steps are fused; of the C driver's step
 #: variants together above which C is built at -O1
 _LARGE_STEP = 20000
+#: the running statistics a run may monitor (``MoreauJean(..., monitor=...)``) and the loop-state entries each
+#: updates on every step (``E``, ``V``: the values carried for the increases; the records get theirs regardless)
+MONITORS = {"gaps": ("gap_min",), "impacts": ("n_impacts",), "energy": ("E", "dE_max"),
+            "lyapunov": ("V", "dV_max", "dV_max_impact", "dV_max_smooth"), "rest": ("rest_last_bad",),
+            "active_set": ("n_changes",), "lcp_residual": ("lcp_res_max",), "impulses": ("P_sum",)}
 #: contacts up to which the C driver has one compiled step per active set
 _MAX_SPECIALIZED = 3
 #: instruction count of the C driver's step variants together up to which the unrecorded steps run in loops
@@ -106,16 +111,23 @@ class MoreauJean:
         all but ``pgs`` are exact and every step carries a convergence flag.
     lcp_iters : int, optional
         Iteration (pivoting) or pivot (Lemke) budget per LCP.
+    monitor : "all" or sequence of str
+        Running statistics updated on every step (names of :data:`MONITORS`: ``gaps`` smallest gaps,
+        ``impacts`` impact count, ``energy`` and ``lyapunov`` largest one-step increase of E and of V
+        (``lyapunov`` also split into impact and other steps), ``rest`` rest times, ``active_set``
+        active-set changes, ``lcp_residual`` largest LCP residual, ``impulses`` total impulse per contact).
+        The others cost nothing per step and are absent from ``stats``; the records are the same.
     """
 
     def __init__(self, model, law: FeedbackLaw | None = None, *, potential=None, projection: bool = False,
                  projection_iters: int = 8, backend: str = "auto", chunk: int | None = None, substeps: int = 4,
                  max_enum: int = 4, lcp: str = "auto", lcp_iters: int | None = None, pgs_sweeps: int = 50,
-                 verbose: bool = False):
+                 monitor="all", verbose: bool = False):
         if backend not in ("auto", "vm", "c"):
             raise ParameterError(f"backend must be 'auto', 'vm' or 'c', got {backend!r}")
         if lcp not in ("auto", "enumeration", "pivoting", "lemke", "pgs"):
             raise ParameterError(f"lcp must be 'auto', 'enumeration', 'pivoting', 'lemke' or 'pgs', got {lcp!r}")
+        self.monitor = _monitor_names(monitor)
         self.model = model
         self.cs = ContactSystem(model)
         self.law = law or zero_input(potential)
@@ -242,8 +254,15 @@ class MoreauJean:
                "n_impacts": s["n_impacts"] + ca.sum1(imp), "n_changes": s["n_changes"] + chg,
                "lcp_res_max": ca.fmax(s["lcp_res_max"], res_s),
                "P_sum": s["P_sum"] + Ps}
+        # an unmonitored statistic (and E or V when no statistic needs it) is carried unchanged: no work per step
+        for name in set().union(*(MONITORS[k] for k in MONITORS if k not in self.monitor)):
+            new[name] = s[name]
         Xn = ca.vertcat(core_n, *[new[name] for name, _ in lay.parts[lay.parts.index(("k", 1)):]])
-        Yrow = ca.vertcat(q, v, t, gap_c, U_c, s["E"], s["V"], u, Ps, act_s, U_n, imp, ca.fmax(any_imp, chg), ok_s)
+        # the row's E and V: the carried values, or those of the state (the same expression: the same numbers)
+        _, _, E_c, V_c, _ = self._post(X, Pr)
+        E_r = s["E"] if "energy" in self.monitor else E_c
+        V_r = s["V"] if "lyapunov" in self.monitor else V_c
+        Yrow = ca.vertcat(q, v, t, gap_c, U_c, E_r, V_r, u, Ps, act_s, U_n, imp, ca.fmax(any_imp, chg), ok_s)
         self._f_finish = ca.Function("mj_finish", [X, Pr, Ps, act_s, qn_s, vn_s, ok_s, res_s], [Xn, Yrow],
                                      ["x", "p", "P", "active", "q_next", "v_next", "ok", "res"], ["x_next", "y"])
         self.rows = RowLayout(n, mu, mdl.m)
@@ -254,7 +273,8 @@ class MoreauJean:
             """The step's new state and row for the active set ``a`` (symbolic, or constant 0/1)."""
             Dm_x, bm_x = f_lcp_a(X, Pr, a)
             P, ok = self._solve_lcp(Dm_x, bm_x)
-            res = ca.mmax(ca.fabs(ca.fmin(P, ca.mtimes(Dm_x, P) + bm_x))) if mu else ca.SX(0)
+            res = (ca.mmax(ca.fabs(ca.fmin(P, ca.mtimes(Dm_x, P) + bm_x))) if mu and "lcp_residual" in self.monitor
+                   else ca.SX(0))
             qn, vn = self._f_after(X, Pr, P)
             if self.projection:
                 for _ in range(self.projection_iters):
@@ -471,9 +491,10 @@ class MoreauJean:
     def _final_row(self, x, p) -> np.ndarray:
         lay, L = self._lay, self.rows
         row = np.zeros(L.ncols)
-        gap, U, E, V, u = self._post_values(x, p)
+        u = self._post_values(x, p)[4]
+        E, V = self._values_EV(x, p)
         for name, val in (("q", x[lay["q"]]), ("v", x[lay["v"]]), ("t", x[lay["t"]]), ("gap", x[lay["gap"]]),
-                          ("U", x[lay["U"]]), ("E", x[lay["E"]]), ("V", x[lay["V"]]), ("u", u)):
+                          ("U", x[lay["U"]]), ("E", E), ("V", V), ("u", u)):
             row[L.sl(name)] = val
         return row
 
@@ -576,12 +597,12 @@ class MoreauJean:
                 check_interrupt()
                 Ych, cols, use, status, x_after = loop(xin, p, done, min(N - done, loop.span), every, keep_events)
                 if status == _NONFINITE:
-                    rec.consume(Ych, use, done, self._after_values(x_after), cols)
+                    rec.consume(Ych, use, done, self._after_values(x_after, p), cols)
                     raise SimulationFailed(
                         f"Moreau-Jean: non-finite state at step {done + use} (t = {t0 + (done + use) * h:.6g}); "
                         "reduce h or check the model/gains", partial=self._package(rec, None, done + use, 0.0, meta),
                         diagnostics={"step": done + use})
-                rec.consume(Ych, use, done, self._after_values(x_after), cols)
+                rec.consume(Ych, use, done, self._after_values(x_after, p), cols)
                 done += use
                 if status == _LCP_FAILED:
                     if on_lcp_failure == "raise":
@@ -598,7 +619,7 @@ class MoreauJean:
                         raise ContactError(f"Moreau-Jean step {done} (t = {t0 + done * h:.6g}): {exc}",
                                            partial=self._package(rec, None, done, time.perf_counter() - tic, meta),
                                            diagnostics={"step": done, **exc.diagnostics}) from exc
-                    rec.consume(yrow.reshape(-1, 1), 1, done, self._after_values(x_after))
+                    rec.consume(yrow.reshape(-1, 1), 1, done, self._after_values(x_after, p))
                     done += 1
                     recomputed += 1
                 xin[:] = x_after
@@ -630,10 +651,20 @@ class MoreauJean:
         meta["recomputed"] = recomputed
         return self._package(rec, xin, N, wall, meta)
 
-    def _after_values(self, x):
-        """``v``, ``V``, ``E`` of a loop state (the post-impact values of the last step of a chunk)."""
+    def _values_EV(self, x, p) -> tuple[float, float]:
+        """``E``, ``V`` at a loop state: the carried values, or computed when not carried (not monitored)."""
         lay = self._lay
-        return {"v": x[lay["v"]], "V": x[lay["V"]][0], "E": x[lay["E"]][0]}
+        E, V = x[lay["E"]][0], x[lay["V"]][0]
+        if not {"energy", "lyapunov"} <= self.monitor:
+            _, _, Ec, Vc, _ = self._post_values(x, p)
+            E = E if "energy" in self.monitor else Ec[0]
+            V = V if "lyapunov" in self.monitor else Vc[0]
+        return E, V
+
+    def _after_values(self, x, p):
+        """``v``, ``V``, ``E`` of a loop state (the post-impact values of the last step of a chunk)."""
+        E, V = self._values_EV(x, p)
+        return {"v": x[self._lay["v"]], "V": V, "E": E}
 
     def _package(self, rec: ChunkRecorder, x_final, N: int, wall: float, meta: dict) -> ContactTrajectory:
         """The trajectory of the recorded rows (and ``x_final``, the state after
@@ -652,14 +683,20 @@ class MoreauJean:
                  "lcp_method": self.lcp, "lcp_recomputed": int(meta.get("recomputed", 0)),
                  "memory_estimate_bytes": meta["est"]["estimate_bytes"],
                  "memory_budget_bytes": meta["est"]["budget_bytes"], "rest_vel_tol": float(x0[play["rtol"]][0])}
+        stats["monitor"] = tuple(k for k in MONITORS if k in self.monitor)
         if x_final is not None:
+            kept = {name for k in stats["monitor"] for name in MONITORS[k]}
             for name in ("gap_min", "P_sum", "rest_last_bad"):
-                stats[name] = np.array(x_final[lay[name]])
+                if name in kept:
+                    stats[name] = np.array(x_final[lay[name]])
             for name in ("dE_max", "dV_max", "dV_max_impact", "dV_max_smooth", "lcp_res_max"):
-                stats[name] = float(x_final[lay[name]][0])
+                if name in kept:
+                    stats[name] = float(x_final[lay[name]][0])
             for name in ("n_impacts", "n_changes"):
-                stats[name] = int(round(x_final[lay[name]][0]))
-            stats["rest_last_bad"] = stats["rest_last_bad"].astype(np.int64)
+                if name in kept:
+                    stats[name] = int(round(x_final[lay[name]][0]))
+            if "rest_last_bad" in kept:
+                stats["rest_last_bad"] = stats["rest_last_bad"].astype(np.int64)
         else:
             stats["partial"] = True
         if not rec.complete:
@@ -667,6 +704,21 @@ class MoreauJean:
         names = {"q": list(self.model.q_names), "gaps": list(self.cs.names), "u": list(self.model.u_names)}
         return ContactTrajectory(col("t")[0], col("q"), col("v"), col("P")[:, :nP], rec.active()[:nP].T,
                                  col("gap"), col("E")[0], col("V")[0], meta["h"], names, stats, meta["vtol"])
+
+
+def _monitor_names(monitor) -> frozenset:
+    """The names of ``monitor`` ("all", one name or a sequence of names of :data:`MONITORS`)."""
+    if isinstance(monitor, str):
+        monitor = tuple(MONITORS) if monitor == "all" else (monitor,)
+    try:
+        names = tuple(monitor)
+    except TypeError:
+        names = (monitor,)
+    bad = [k for k in names if not isinstance(k, str) or k not in MONITORS]
+    if bad:
+        raise ParameterError(f"monitor: unknown running statistic(s) {bad}; choose among {list(MONITORS)} "
+                             "(or monitor='all')")
+    return frozenset(names)
 
 
 # ---------------------------------------------------------------- chunk runners

@@ -46,9 +46,10 @@ def lyapunov_report(tr) -> LyapunovReport:
     """Jumps of ``tr.V`` at the impact steps of a :class:`ContactTrajectory` (for decimated or event
     records from the run's exact accumulators, which see every step)."""
     if not getattr(tr, "complete", True):
+        dV_max = tr.max_V_increase  # a run that did not monitor V: RecordingError naming the option
         st = tr.stats
         jumps = np.asarray(st.get("impact_dV", np.zeros(0)), float)
-        return LyapunovReport(max(0.0, float(st["dV_max"])), max(0.0, float(st["dV_max_impact"])),
+        return LyapunovReport(max(0.0, dV_max), max(0.0, float(st["dV_max_impact"])),
                               max(0.0, float(st["dV_max_smooth"])), jumps, int(st.get("n_impacts", jumps.size)),
                               float(tr.V[0]), float(tr.V[-1]))
     dV = np.diff(tr.V)
