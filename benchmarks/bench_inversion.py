@@ -434,7 +434,7 @@ def main():
               f"Newton {rr['time_s'] / nh:.0f}x, IPOPT {rr['time_s'] / ih:.0f}x (horizon given: Newton "
               f"{rr['time_s'] / nf:.0f}x, IPOPT {rr['time_s'] / ipf:.0f}x)")
         print(f"  first solve in-process vs scipy solve_bvp (goal: >= 5x faster at equal accuracy): at the scene default "
-              f"(N = 200, error {first_err:.1e}, more accurate than scipy's {best['error']:.1e}) IPOPT "
+              f"(N = 200, error {first_err:.1e}, more accurate than scipy's {best['error']:.1e}): IPOPT "
               f"{best['time_s'] / first_wall:.1f}x, Newton {best['time_s'] / first_n_wall:.1f}x (horizon and "
               f"selection given, as scipy's user gives them: Newton {best['time_s'] / first_g_wall:.1f}x)")
         if eq is not None:

@@ -31,6 +31,8 @@ EXPECTED = {
                         rf"^  newton automatic horizon \(re-planned\) *: +{NUM} ms whole call",
                         rf"re-solve after a parameter change vs scipy repeated solve_bvp .*: Newton {NUM}x, IPOPT {NUM}x",
                         rf"first solve in-process vs scipy solve_bvp .*: IPOPT {NUM}x, Newton {NUM}x",
+                        rf"at equal accuracy \(the smallest N .*: N = \d+, error {NUM}\): Newton {NUM}x",
+                        r"what limits the re-solve: the solve alone. Newton: \d+ simplified iterations",
                         rf"first run on a new machine vs the virtual-machine path \(goal: <= 1\): {NUM}"],
     "bench_ocp": [r"formulation +first_s +re-solve min_s +median_s",
                   rf"^   Opti expand=True +{NUM} +{NUM} +{NUM} +\d+ +{NUM}x +{NUM}x",
