@@ -261,6 +261,8 @@ class ContactTrajectory(Animated):
                 for k in keys:
                     if k in d and np.ndim(d[k]) == 2:
                         d[k] = np.ascontiguousarray(d[k].T)
+        if isinstance(kw["stats"].get("monitor"), list):  # a tuple written as a JSON list
+            kw["stats"]["monitor"] = tuple(kw["stats"]["monitor"])
         cls._check_shapes(path, kw)
         return kw
 
