@@ -193,14 +193,20 @@ def dichotomy(servo, selection: Selection, X0, Y0, Xf, Yf, theta, *, neutral: fl
     nx = servo.layout.nx
     S0 = np.eye(nx)[list(selection.start)]
     Sf = np.eye(nx)[list(selection.end)]
-    A0, _T0, AT0 = tangent_dynamics(servo, X0, Y0, theta)
-    Af, T, ATf = tangent_dynamics(servo, Xf, Yf, theta)
-    # one ordered real Schur form per end: its invariant subspace and the eigenvalues of its blocks
+    e0, ef = _tangent(servo, X0, Y0, theta), _tangent(servo, Xf, Yf, theta)
+    (A0, _T0, AT0), (Af, T, ATf) = e0[0], ef[0]
+    # one ordered real Schur form per end: its invariant subspace and, unless the plan has them already, the
+    # eigenvalues of its blocks (remembered with the linearization, as tangent_spectra does)
     S0_, Zs, dec = sla.schur(A0, output="real", sort=lambda re, im: re < -neutral)
     Sf_, Zu, grow = sla.schur(Af, output="real", sort=lambda re, im: re > neutral)
     Zs, Zu = Zs[:, :dec], Zu[:, :grow]
-    ev0, evf = _schur_eigenvalues(S0_), _schur_eigenvalues(Sf_)
-    it0, itf = np.linalg.eigvals(AT0), np.linalg.eigvals(ATf)
+    for entry, S_, AT in ((e0, S0_, AT0), (ef, Sf_, ATf)):
+        if entry[1] is None:
+            spectra = (_schur_eigenvalues(S_), np.linalg.eigvals(AT))
+            for a in spectra:
+                a.flags.writeable = False
+            entry[1] = spectra
+    (ev0, it0), (evf, itf) = e0[1], ef[1]
     neut = int(max(np.sum(np.abs(ev0.real) <= neutral), np.sum(np.abs(evf.real) <= neutral)))
     neut_int = int(max(np.sum(np.abs(it0.real) <= neutral_tolerance(it0)),
                        np.sum(np.abs(itf.real) <= neutral_tolerance(itf))))

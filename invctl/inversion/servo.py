@@ -447,15 +447,17 @@ class ServoModel:
         rest at one and two transition lengths outside (different values, or a derivative not zero: a
         periodic signal has equal values there) is evaluated at every time."""
         t = np.atleast_1d(np.asarray(t, float))
-        memo = self.__dict__.setdefault("_samples", {})
-        whole = ("times", id(reference), t.tobytes())
-        hit = memo.get(whole)
-        if hit is not None and hit[0] is reference:  # the same times again (a held re-solve): no probes
+        # two memos: the evaluated sample sets, and whole answers per time set (a held re-solve asks for the
+        # same times again: no probes); a re-planned solve asks for about ten sets, so each keeps 16
+        done = self.__dict__.setdefault("_samples_of_times", {})
+        key = (id(reference), t.tobytes())
+        hit = done.get(key)
+        if hit is not None and hit[0] is reference:
             return hit[1].copy()
-        Y = self._reference_samples(reference, t, memo)
-        if len(memo) >= 16:
-            memo.pop(next(iter(memo)))
-        memo[whole] = (reference, Y)
+        Y = self._reference_samples(reference, t, self.__dict__.setdefault("_samples", {}))
+        if len(done) >= 16:
+            done.pop(next(iter(done)))
+        done[key] = (reference, Y)
         return Y.copy()
 
     def _reference_samples(self, reference, t, memo) -> np.ndarray:
