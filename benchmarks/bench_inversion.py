@@ -455,8 +455,9 @@ def main():
         rest = first_n_wall - dn["build_s"] - dn["solve_s"]
         print(f"  what limits the first solve: of the Newton call's {first_n_wall * 1e3:.0f} ms, build "
               f"{dn['build_s'] * 1e3:.0f} ms and solve {dn['solve_s'] * 1e3:.0f} ms; the other {rest * 1e3:.0f} ms are "
-              "the plan (quasi-static path, horizon, boundary selection), the guess and the residual checks; IPOPT adds "
-              "its instance and its own iterations")
+              "the scene's choice of the route (the vector relative degree of the new model object, symbolic), the plan "
+              "(quasi-static path, horizon, boundary selection), the guess and the residual checks; IPOPT adds "
+              "its instance and its own iterations. A new model object builds everything but the compiled pieces")
         print("  what limits the first run: beside the virtual-machine path it forks the background compile worker "
               "after the first solve; fresh processes differ by about as much from run to run")
 
