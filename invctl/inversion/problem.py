@@ -57,7 +57,6 @@ def resolve_plan(model, reference, discretization, horizon):
     if plan is None and (horizon.plan_options is not None or not horizon.complete):
         from .plan import plan_inversion
 
-
         plan = plan_inversion(model, reference, start=start, end=end, T0=T0, Tf=Tf,
                               formulation=discretization.formulation, omega=discretization.omega,
                               q_guess=horizon.q_guess, **dict(horizon.plan_options or {}))
