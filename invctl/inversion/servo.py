@@ -449,31 +449,18 @@ class ServoModel:
         t = np.atleast_1d(np.asarray(t, float))
         # two memos: the evaluated sample sets, and whole answers per time set (a held re-solve asks for the
         # same times again: no probes); a re-planned solve asks for about ten sets, so each keeps 16
-        done = self.__dict__.setdefault("_samples_of_times", {})
-        key = (id(reference), t.tobytes())
-        hit = done.get(key)
-        if hit is not None and hit[0] is reference:
-            return hit[1].copy()
-        Y = self._reference_samples(reference, t, self.__dict__.setdefault("_samples", {}))
-        if len(done) >= 16:
-            done.pop(next(iter(done)))
-        done[key] = (reference, Y)
-        return Y.copy()
+        done = self.__dict__.setdefault("_samples_of_times", OrderedDict())
+        memo = self.__dict__.setdefault("_samples", OrderedDict())
+        return MapMemo._get(done, (id(reference), t.tobytes()), reference,
+                            lambda: self._reference_samples(reference, t, memo), 16).copy()
 
     def _reference_samples(self, reference, t, memo) -> np.ndarray:
         t0, tf = reference.t0, reference.tf
 
         def sample(ts):
-            key = (id(reference), ts.tobytes())
-            hit = memo.get(key)
-            if hit is not None and hit[0] is reference:
-                return hit[1]
-            Ys = (np.vstack(self.maps.buffered_map(reference.function(3), ts.size)(ts)) if ts.size
-                  else np.zeros((4 * reference.m, 0)))
-            if len(memo) >= 16:
-                memo.pop(next(iter(memo)))
-            memo[key] = (reference, Ys)
-            return Ys
+            return MapMemo._get(memo, (id(reference), ts.tobytes()), reference,
+                                lambda: (np.vstack(self.maps.buffered_map(reference.function(3), ts.size)(ts))
+                                         if ts.size else np.zeros((4 * reference.m, 0))), 16)
 
         before, after = t < t0, t > tf
         if not (before.any() or after.any()):
